@@ -1,0 +1,30 @@
+//! The burn-free core of the NeRF system.
+//!
+//! Everything here is plain Rust over `f32` slices, shared by the burn trainer, the ONNX
+//! export checks and the onnxruntime renderer, so that rays, samples and compositing are
+//! written once:
+//!
+//! - [`camera`]: intrinsics, camera-to-world poses, pixel → ray (OpenGL convention).
+//! - [`sampling`]: stratified samples along rays and inverse-CDF (`sample_pdf`) resampling.
+//! - [`compositing`]: α from density, transmittance, weights, rgb/depth/acc, white background.
+//! - [`dataset`]: the Blender (`transforms_*.json`) parser, downscaling, a generated scene.
+//! - [`network`]: the NeRF MLP described as plain data (sizes, skips, encodings, weights).
+//! - [`metrics`], [`imageio`]: PSNR/SSIM, PNG/GIF output and depth colouring.
+#![warn(missing_docs)]
+
+pub mod camera;
+pub mod compositing;
+pub mod dataset;
+pub mod error;
+pub mod imageio;
+pub mod metrics;
+pub mod network;
+pub mod rng;
+pub mod render;
+pub mod sampling;
+
+pub use camera::{Intrinsics, Pose, Rays};
+pub use compositing::{Composited, composite};
+pub use error::{Error, Result};
+pub use rng::Rng;
+pub use sampling::{DenseSamples, SamplingConfig};

@@ -1,0 +1,43 @@
+//! Evaluating a trained burn model through the shared renderer ([`nerf_core::render`]).
+
+use crate::field::{NerfMlp, NerfModel};
+use burn::tensor::{Device, Tensor, TensorData};
+use nerf_core::render::{Field, FieldOutput, Stage};
+
+/// `[n]` 3-vectors as an `[n, 3]` tensor.
+pub fn vec3_tensor(v: &[[f32; 3]], device: &Device) -> Tensor<2> {
+    Tensor::from_data(TensorData::new(v.as_flattened().to_vec(), [v.len(), 3]), device)
+}
+
+/// An `[n, 3]` tensor as `[n]` 3-vectors.
+pub fn tensor_vec3(t: Tensor<2>) -> Vec<[f32; 3]> {
+    let flat = t.into_data().try_to_vec::<f32>().expect("f32 tensor");
+    flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
+}
+
+/// A burn model as a [`Field`] (no autodiff).
+pub struct BurnField<'a> {
+    /// The networks.
+    pub model: &'a NerfModel,
+    /// Where to run them.
+    pub device: Device,
+}
+
+impl BurnField<'_> {
+    fn network(&self, stage: Stage) -> &NerfMlp {
+        match stage {
+            Stage::Coarse => &self.model.coarse,
+            Stage::Fine => self.model.fine.as_ref().unwrap_or(&self.model.coarse),
+        }
+    }
+}
+
+impl Field for BurnField<'_> {
+    type Error = std::convert::Infallible;
+
+    fn evaluate(&mut self, stage: Stage, points: &[[f32; 3]], viewdirs: &[[f32; 3]]) -> Result<FieldOutput, Self::Error> {
+        let (rgb, sigma) =
+            self.network(stage).forward(vec3_tensor(points, &self.device), vec3_tensor(viewdirs, &self.device));
+        Ok(FieldOutput { rgb: tensor_vec3(rgb), raw_sigma: sigma.into_data().try_to_vec::<f32>().expect("f32 tensor") })
+    }
+}

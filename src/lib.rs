@@ -1,0 +1,13 @@
+//! Neural radiance fields on burn: the trainable field, differentiable volume rendering,
+//! training with checkpoints, and evaluation/rendering through the shared burn-free core
+//! ([`nerf_core`], re-exported as [`core`]).
+#![warn(missing_docs)]
+
+pub use nerf_core as core;
+
+pub mod backend;
+pub mod evaluate;
+pub mod field;
+pub mod inference;
+pub mod train;
+pub mod volume;

@@ -1,0 +1,201 @@
+//! Training configuration, presets, and TOML files that override a preset.
+
+use nerf_core::network::{EncodingSpec, NetworkSpec};
+use nerf_core::SamplingConfig;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// The named starting points for a configuration.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Preset {
+    /// The reference configuration (bmild/nerf lego): 8×256 networks, 1024 rays, 64 + 128
+    /// samples, lr 5e-4 decaying 10× per 500k steps.
+    Paper,
+    /// Sized for a 2-core CPU and a 30-minute budget at 100×100: 6×128 networks (skip after
+    /// the 4th layer), 32 + 64 samples, 1024 rays, lr 1e-3 decaying 10× per 4k steps.
+    CpuFast,
+}
+
+impl Preset {
+    /// The preset's name as written in configs.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Preset::Paper => "paper",
+            Preset::CpuFast => "cpu-fast",
+        }
+    }
+
+    /// The full configuration of this preset.
+    pub fn config(&self) -> TrainConfig {
+        match self {
+            Preset::Paper => TrainConfig {
+                preset: *self,
+                network: NetworkSpec::paper(),
+                sampling: SamplingConfig { near: 2.0, far: 6.0, n_coarse: 64, n_fine: 128, lindisp: false },
+                white_background: true,
+                batch_rays: 1024,
+                iters: 200_000,
+                lr: 5e-4,
+                lr_decay_ksteps: 500.0,
+                adam_beta1: 0.9,
+                adam_beta2: 0.999,
+                adam_epsilon: 1e-7,
+                grad_clip_norm: None,
+                precrop_iters: 500,
+                precrop_fraction: 0.5,
+                seed: 0,
+                checkpoint_every: 5_000,
+                eval_every_min: 10.0,
+                chunk: 4096,
+            },
+            Preset::CpuFast => TrainConfig {
+                preset: *self,
+                network: NetworkSpec {
+                    depth: 6,
+                    width: 128,
+                    skips: vec![3],
+                    position_encoding: EncodingSpec { n_frequencies: 10, include_input: true },
+                    direction_encoding: EncodingSpec { n_frequencies: 4, include_input: true },
+                    use_viewdirs: true,
+                },
+                sampling: SamplingConfig { near: 2.0, far: 6.0, n_coarse: 32, n_fine: 64, lindisp: false },
+                batch_rays: 1024,
+                iters: 20_000,
+                lr: 1e-3,
+                lr_decay_ksteps: 4.0,
+                checkpoint_every: 500,
+                eval_every_min: 5.0,
+                ..Preset::Paper.config()
+            },
+        }
+    }
+}
+
+/// Everything that defines a training run; written to `<run>/config.toml`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainConfig {
+    /// The preset this configuration started from.
+    pub preset: Preset,
+    /// Shape of both the coarse and the fine network.
+    pub network: NetworkSpec,
+    /// Near/far and samples per ray.
+    pub sampling: SamplingConfig,
+    /// Composite on white (Blender scenes).
+    pub white_background: bool,
+    /// Rays per step, all from one random training image.
+    pub batch_rays: usize,
+    /// Steps to train for.
+    pub iters: usize,
+    /// Initial Adam learning rate.
+    pub lr: f64,
+    /// The learning rate falls 10× every this many thousand steps.
+    pub lr_decay_ksteps: f64,
+    /// Adam β₁.
+    pub adam_beta1: f32,
+    /// Adam β₂.
+    pub adam_beta2: f32,
+    /// Adam ε.
+    pub adam_epsilon: f32,
+    /// Clip the gradient to this global L2 norm (off when absent).
+    pub grad_clip_norm: Option<f32>,
+    /// For this many first steps, rays come from the image centre only.
+    pub precrop_iters: usize,
+    /// Fraction of the image (per side) used while precropping.
+    pub precrop_fraction: f32,
+    /// Seed for initialisation, batches and sample jitter.
+    pub seed: u64,
+    /// Steps between checkpoints (one is always written at the end).
+    pub checkpoint_every: usize,
+    /// Minutes between quick validation renders (one val view) for the PSNR curve; 0 = never.
+    pub eval_every_min: f64,
+    /// Rays per network call when rendering.
+    pub chunk: usize,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        Preset::CpuFast.config()
+    }
+}
+
+impl TrainConfig {
+    /// A preset, overridden by the keys of a TOML file (which may itself name a `preset`).
+    pub fn from_toml_file(path: &Path, preset: Option<Preset>) -> Result<Self, String> {
+        let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+        Self::from_toml_str(&text, preset).map_err(|e| format!("{}: {e}", path.display()))
+    }
+
+    /// As [`from_toml_file`](Self::from_toml_file), from text.
+    pub fn from_toml_str(text: &str, preset: Option<Preset>) -> Result<Self, String> {
+        let overrides: toml::Table = toml::from_str(text).map_err(|e| e.to_string())?;
+        let preset = match overrides.get("preset") {
+            Some(v) => Preset::deserialize(v.clone()).map_err(|e| format!("preset: {e}"))?,
+            None => preset.unwrap_or(Preset::CpuFast),
+        };
+        let mut base = toml::Table::try_from(preset.config()).map_err(|e| e.to_string())?;
+        merge(&mut base, overrides);
+        let config: TrainConfig = toml::Value::Table(base).try_into().map_err(|e: toml::de::Error| e.to_string())?;
+        config.validate()?;
+        Ok(config)
+    }
+
+    /// The configuration as TOML.
+    pub fn to_toml(&self) -> String {
+        toml::to_string_pretty(self).expect("a TrainConfig always serialises")
+    }
+
+    /// Rejects values the trainer cannot run with.
+    pub fn validate(&self) -> Result<(), String> {
+        self.network.validate()?;
+        let s = &self.sampling;
+        if !(s.near > 0.0 && s.far > s.near) {
+            return Err(format!("sampling: need 0 < near < far, got near {} far {}", s.near, s.far));
+        }
+        if s.n_coarse < 3 && s.n_fine > 0 {
+            return Err("sampling: hierarchical sampling needs n_coarse ≥ 3".into());
+        }
+        if self.batch_rays == 0 || self.chunk == 0 {
+            return Err("batch_rays and chunk must be positive".into());
+        }
+        if !(self.lr > 0.0 && self.lr_decay_ksteps > 0.0) {
+            return Err("lr and lr_decay_ksteps must be positive".into());
+        }
+        if !(self.precrop_fraction > 0.0 && self.precrop_fraction <= 1.0) {
+            return Err("precrop_fraction must be in (0, 1]".into());
+        }
+        Ok(())
+    }
+}
+
+fn merge(base: &mut toml::Table, overrides: toml::Table) {
+    for (key, value) in overrides {
+        match (base.get_mut(&key), value) {
+            (Some(toml::Value::Table(b)), toml::Value::Table(o)) => merge(b, o),
+            (_, v) => {
+                base.insert(key, v);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn toml_overrides_a_preset_and_round_trips() {
+        let c = TrainConfig::from_toml_str("preset = 'paper'\nbatch_rays = 256\n[sampling]\nn_fine = 0\n", None).unwrap();
+        assert_eq!(c.network, NetworkSpec::paper());
+        assert_eq!(c.batch_rays, 256);
+        assert_eq!(c.sampling.n_fine, 0);
+        assert_eq!(c.sampling.n_coarse, 64);
+        let again = TrainConfig::from_toml_str(&c.to_toml(), None).unwrap();
+        assert_eq!(again, c);
+        let err = TrainConfig::from_toml_str("batch_rayz = 3", None).unwrap_err();
+        assert!(err.contains("batch_rayz"), "{err}");
+        let err = TrainConfig::from_toml_str("[sampling]\nnear = 7.0", None).unwrap_err();
+        assert!(err.contains("near"), "{err}");
+    }
+}

@@ -1,0 +1,277 @@
+//! The training loop: one random image per step, rays through random pixels (centre crop
+//! first), coarse + fine networks, MSE on both, Adam with exponential decay, checkpoints.
+
+use super::checkpoint::{Checkpoint, config_path, latest_checkpoint, new_state};
+use super::{TrainConfig, learning_rate};
+use crate::field::{NerfMlp, NerfModel};
+use crate::inference::{BurnField, vec3_tensor};
+use crate::volume::{VolumeOutput, composite, deltas_tensor};
+use burn::module::Module;
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::grad_clipping::GradientClippingConfig;
+use burn::tensor::{Device, Tensor};
+use indicatif::{ProgressBar, ProgressStyle};
+use nerf_core::dataset::{RayBatcher, Split, SplitData, load_split};
+use nerf_core::metrics::psnr_from_mse;
+use nerf_core::render::{RenderOptions, render_image};
+use nerf_core::sampling::{DenseSamples, importance, stratified};
+use nerf_core::{Rays, Rng};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// What `nerf train` was asked to do.
+#[derive(Debug, Clone)]
+pub struct TrainOptions {
+    /// Blender scene directory.
+    pub data: PathBuf,
+    /// Run directory (config, checkpoints, curve).
+    pub run: PathBuf,
+    /// The configuration for a new run (a resumed run keeps its saved one).
+    pub config: TrainConfig,
+    /// Image downscale factor.
+    pub downscale: u32,
+    /// Stop after this many minutes of training in total (across resumes).
+    pub time_budget_min: Option<f64>,
+    /// Override the configured number of steps.
+    pub iters: Option<usize>,
+    /// Show a progress bar.
+    pub progress: bool,
+}
+
+/// What a training run reached.
+#[derive(Debug, Clone)]
+pub struct TrainSummary {
+    /// Steps completed (including resumed ones).
+    pub steps: usize,
+    /// Mean fine PSNR over the last steps' batches.
+    pub train_psnr: f32,
+    /// Last quick validation PSNR (one val view), if one was measured.
+    pub val_psnr: Option<f32>,
+    /// Minutes spent training in total.
+    pub minutes: f64,
+}
+
+/// Loss and PSNR of one step.
+#[derive(Debug, Clone, Copy)]
+pub struct StepStats {
+    /// MSE(coarse) + MSE(fine).
+    pub loss: f32,
+    /// PSNR of the fine (or only) output on the batch.
+    pub psnr: f32,
+}
+
+/// A model, its optimizer and the data it learns from.
+pub struct Trainer {
+    /// The configuration in force.
+    pub config: TrainConfig,
+    /// The networks (on the autodiff device); only `None` inside [`Trainer::step`].
+    model: Option<NerfModel>,
+    optim: ModuleOptimizer,
+    /// Batch and jitter randomness.
+    pub rng: Rng,
+    /// Steps completed.
+    pub step: usize,
+    device: Device,
+    batcher: RayBatcher,
+}
+
+impl Trainer {
+    /// A fresh trainer on `train` data.
+    pub fn new(config: TrainConfig, train: SplitData, device: Device) -> Result<Self, String> {
+        config.validate()?;
+        device.seed(config.seed);
+        let model = NerfModel::new(&config.network, config.sampling.n_fine > 0, &device);
+        let mut adam = AdamConfig::new()
+            .with_beta_1(config.adam_beta1)
+            .with_beta_2(config.adam_beta2)
+            .with_epsilon(config.adam_epsilon);
+        if let Some(norm) = config.grad_clip_norm {
+            adam = adam.with_grad_clipping(Some(GradientClippingConfig::Norm(norm)));
+        }
+        let batcher = RayBatcher::new(train).map_err(|e| e.to_string())?;
+        Ok(Trainer { rng: Rng::new(config.seed), optim: adam.init(), model: Some(model), config, step: 0, device, batcher })
+    }
+
+    /// Restore model, optimizer, step and RNG from a checkpoint.
+    pub fn resume(&mut self, checkpoint: &Checkpoint) -> Result<f64, String> {
+        let state = checkpoint.state()?;
+        checkpoint.load_model(self.model.as_mut().expect("model present"))?;
+        self.optim = checkpoint.load_optimizer(self.optim.clone())?;
+        self.step = state.step;
+        self.rng = state.rng;
+        Ok(state.elapsed_s)
+    }
+
+    /// Save a checkpoint of the current state into `run`.
+    pub fn save(&self, run: &Path, elapsed_s: f64) -> Result<Checkpoint, String> {
+        Checkpoint::save(run, self.model(), &self.optim, &new_state(self.step, self.rng.clone(), elapsed_s))
+    }
+
+    /// The networks being trained.
+    pub fn model(&self) -> &NerfModel {
+        self.model.as_ref().expect("model present outside a step")
+    }
+
+    fn render_stage(&self, net: &NerfMlp, rays: &Rays, viewdirs: &Tensor<2>, samples: &DenseSamples) -> VolumeOutput {
+        let (n_rays, n) = (samples.n_rays, samples.n_samples);
+        let points = vec3_tensor(&samples.points(&rays.origins, &rays.directions), &self.device);
+        let dirs: Tensor<2> = viewdirs.clone().reshape([n_rays, 1, 3]).expand([n_rays, n, 3]).reshape([n_rays * n, 3]);
+        let (rgb, sigma) = net.forward(points, dirs);
+        composite(
+            sigma.reshape([n_rays, n]),
+            rgb.reshape([n_rays, n, 3]),
+            deltas_tensor(samples, &rays.directions, &self.device),
+            self.config.white_background,
+        )
+    }
+
+    /// One optimisation step on a fresh random batch.
+    pub fn step(&mut self) -> StepStats {
+        let cfg = &self.config;
+        let precrop = (self.step < cfg.precrop_iters).then_some(cfg.precrop_fraction);
+        let batch = self.batcher.next_batch(&mut self.rng, cfg.batch_rays, precrop);
+        let data = self.batcher.data();
+        let rays = Rays::for_pixels(&data.intrinsics, &data.views[batch.0].pose, &batch.1);
+        let target = vec3_tensor(&batch.2, &self.device);
+        let viewdirs = vec3_tensor(&rays.view_directions(), &self.device);
+
+        let coarse = stratified(&cfg.sampling, rays.len(), Some(&mut self.rng));
+        let model = self.model.take().expect("model present");
+        let coarse_out = self.render_stage(&model.coarse, &rays, &viewdirs, &coarse);
+        let mse_coarse = (coarse_out.rgb.clone() - target.clone()).square().mean();
+        let (loss, mse_last) = match &model.fine {
+            Some(fine_net) => {
+                // The new samples come from detached weights: no gradient flows through them.
+                let w = coarse_out.weights.clone().detach().into_data().try_to_vec::<f32>().expect("f32 weights");
+                let extra = importance(&coarse, &w, self.config.sampling.n_fine, Some(&mut self.rng));
+                let all = coarse.merge_sorted(&extra);
+                let fine_out = self.render_stage(fine_net, &rays, &viewdirs, &all);
+                let mse_fine = (fine_out.rgb - target).square().mean();
+                (mse_coarse + mse_fine.clone(), mse_fine)
+            }
+            None => (mse_coarse.clone(), mse_coarse),
+        };
+        let loss_value = loss.clone().into_scalar::<f32>();
+        let mse_value = mse_last.into_scalar::<f32>();
+        let grads = GradientsParams::from_grads(loss.backward(), &model);
+        let lr = learning_rate(self.config.lr, self.config.lr_decay_ksteps, self.step);
+        self.model = Some(self.optim.step(lr, model, grads));
+        self.step += 1;
+        StepStats { loss: loss_value, psnr: psnr_from_mse(mse_value) }
+    }
+
+    /// PSNR of the current model on one view, rendered deterministically.
+    pub fn view_psnr(&self, data: &SplitData, index: usize) -> f32 {
+        let view = &data.views[index];
+        let Some(target) = &view.image else { return f32::NAN };
+        let snapshot = self.model().valid();
+        let mut field = BurnField { model: &snapshot, device: snapshot.coarse_device() };
+        let options = render_options(&self.config);
+        let Ok(image) = render_image(&mut field, &data.intrinsics, &view.pose, &options, &mut |_, _| {});
+        nerf_core::metrics::psnr(&image.rays.rgb, target)
+    }
+}
+
+/// How a run's networks are rendered at test time.
+pub fn render_options(config: &TrainConfig) -> RenderOptions {
+    RenderOptions { sampling: config.sampling.clone(), white_background: config.white_background, chunk: config.chunk }
+}
+
+impl NerfModel {
+    /// The device the coarse network's weights live on.
+    pub fn coarse_device(&self) -> Device {
+        self.coarse.devices().into_iter().next().unwrap_or_else(crate::backend::cpu)
+    }
+}
+
+/// Train (or resume) a run as `options` say.
+pub fn train(options: &TrainOptions) -> Result<TrainSummary, String> {
+    std::fs::create_dir_all(&options.run).map_err(|e| format!("{}: {e}", options.run.display()))?;
+    let checkpoint = latest_checkpoint(&options.run)?;
+    let mut config = match &checkpoint {
+        // A resumed run keeps the configuration it started with.
+        Some(_) => TrainConfig::from_toml_file(&config_path(&options.run), None)?,
+        None => options.config.clone(),
+    };
+    if let Some(iters) = options.iters {
+        config.iters = iters;
+    }
+    nerf_core::error::write_atomic(&config_path(&options.run), config.to_toml().as_bytes()).map_err(|e| e.to_string())?;
+
+    let train_data = load_split(&options.data, Split::Train, options.downscale, true).map_err(|e| e.to_string())?;
+    let camera = serde_json::to_string_pretty(&train_data.intrinsics).expect("intrinsics serialise");
+    let camera_file = crate::evaluate::camera_path(&options.run);
+    nerf_core::error::write_atomic(&camera_file, camera.as_bytes()).map_err(|e| e.to_string())?;
+    let val_data = load_split(&options.data, Split::Val, options.downscale, true).ok();
+    let mut trainer = Trainer::new(config.clone(), train_data, crate::backend::cpu_autodiff())?;
+    let mut elapsed_before = 0.0;
+    if let Some(c) = &checkpoint {
+        elapsed_before = trainer.resume(c)?;
+        eprintln!("resuming {} at step {}", options.run.display(), trainer.step);
+    }
+
+    let budget_s = options.time_budget_min.map(|m| m * 60.0);
+    let bar = if options.progress { ProgressBar::new(config.iters as u64) } else { ProgressBar::hidden() };
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} [{elapsed_precise}<{eta_precise}] {wide_bar} {pos}/{len} {per_sec} {msg}")
+            .expect("valid template"),
+    );
+    bar.set_position(trainer.step as u64);
+    bar.reset_eta();
+
+    let curve_path = options.run.join("curve.csv");
+    let mut curve = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&curve_path)
+        .map_err(|e| format!("{}: {e}", curve_path.display()))?;
+    if curve.metadata().map(|m| m.len() == 0).unwrap_or(false) {
+        let _ = writeln!(curve, "step,minutes,train_psnr,val_psnr");
+    }
+
+    let start = Instant::now();
+    let elapsed = || elapsed_before + start.elapsed().as_secs_f64();
+    let mut recent: Vec<f32> = Vec::new();
+    let mut next_eval_s = if config.eval_every_min > 0.0 { elapsed() + config.eval_every_min * 60.0 } else { f64::INFINITY };
+    let mut val_psnr = None;
+    while trainer.step < config.iters {
+        if budget_s.is_some_and(|b| elapsed() >= b) {
+            break;
+        }
+        let stats = trainer.step();
+        if !stats.loss.is_finite() {
+            trainer.save(&options.run, elapsed())?;
+            return Err(format!("the loss became {} at step {}: lower lr or enable grad_clip_norm", stats.loss, trainer.step));
+        }
+        recent.push(stats.psnr);
+        if recent.len() > 50 {
+            recent.remove(0);
+        }
+        let mean_psnr = recent.iter().sum::<f32>() / recent.len() as f32;
+        bar.set_position(trainer.step as u64);
+        let budget = budget_s.map(|b| format!(" | {:.1}/{:.0} min", elapsed() / 60.0, b / 60.0)).unwrap_or_default();
+        bar.set_message(format!("loss {:.4} psnr {:.2}{budget}", stats.loss, mean_psnr));
+        if trainer.step % config.checkpoint_every == 0 {
+            trainer.save(&options.run, elapsed())?;
+        }
+        if elapsed() >= next_eval_s {
+            if let Some(val) = &val_data {
+                let p = trainer.view_psnr(val, 0);
+                val_psnr = Some(p);
+                bar.println(format!("step {}: val {} PSNR {p:.2} dB", trainer.step, val.views[0].name));
+            }
+            let _ = writeln!(curve, "{},{:.2},{:.3},{}", trainer.step, elapsed() / 60.0, mean_psnr, val_psnr.map(|p| format!("{p:.3}")).unwrap_or_default());
+            next_eval_s += config.eval_every_min * 60.0;
+        }
+    }
+    trainer.save(&options.run, elapsed())?;
+    bar.finish();
+    let train_psnr = recent.iter().sum::<f32>() / recent.len().max(1) as f32;
+    if let Some(val) = &val_data {
+        let p = trainer.view_psnr(val, 0);
+        val_psnr = Some(p);
+    }
+    let _ = writeln!(curve, "{},{:.2},{:.3},{}", trainer.step, elapsed() / 60.0, train_psnr, val_psnr.map(|p| format!("{p:.3}")).unwrap_or_default());
+    Ok(TrainSummary { steps: trainer.step, train_psnr, val_psnr, minutes: elapsed() / 60.0 })
+}
