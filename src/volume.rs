@@ -43,7 +43,8 @@ pub fn composite(raw_sigma: Tensor<2>, rgb: Tensor<3>, deltas: Tensor<2>, white_
     let [n_rays, n_samples] = raw_sigma.dims();
     let optical_depth = relu(raw_sigma) * deltas;
     let alpha = optical_depth.clone().neg().exp().neg().add_scalar(1.0);
-    let log_step = alpha.clone().neg().add_scalar(1.0 + TRANSMITTANCE_EPS).log();
+    // (1 − α) first, then + 1e-10: in f32, 1 + 1e-10 == 1, so the order matters when α = 1.
+    let log_step = alpha.clone().neg().add_scalar(1.0).add_scalar(TRANSMITTANCE_EPS).log();
     let transmittance = (log_step.clone().cumsum(1) - log_step).exp();
     let weights = alpha * transmittance;
     let rgb_map = (weights.clone().reshape([n_rays, n_samples, 1]) * rgb).sum_dim(1).reshape([n_rays, 3]);
