@@ -123,6 +123,7 @@ fn err(s: String) -> anyhow::Error {
 }
 
 fn main() -> Result<()> {
+    nerf::backend::tune_allocator();
     let cli = Cli::parse();
     let progress = std::io::stderr().is_terminal();
     match cli.command {

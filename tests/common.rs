@@ -1,0 +1,35 @@
+//! Shared fixtures for the integration tests.
+#![allow(dead_code)]
+
+use nerf::train::{Preset, TrainConfig};
+use nerf_core::dataset::{SyntheticSceneConfig, generate_scene};
+use std::path::{Path, PathBuf};
+
+/// The lego scene shipped beside the project (CI has it too).
+pub fn lego_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/nerf_synthetic/lego")
+}
+
+/// A small network and batch so a test trains in seconds.
+pub fn tiny_config() -> TrainConfig {
+    let mut c = Preset::CpuFast.config();
+    c.network.depth = 4;
+    c.network.width = 64;
+    c.network.skips = vec![2];
+    c.batch_rays = 256;
+    c.sampling.n_coarse = 16;
+    c.sampling.n_fine = 32;
+    c.checkpoint_every = 10_000;
+    c.eval_every_min = 0.0;
+    c.chunk = 4096;
+    c.precrop_iters = 50;
+    c
+}
+
+/// A generated 32×32 scene in `dir`.
+pub fn small_scene(dir: &Path) -> PathBuf {
+    let scene = dir.join("scene");
+    let cfg = SyntheticSceneConfig { width: 32, height: 32, n_train: 20, n_val: 3, n_test: 2, seed: 1 };
+    generate_scene(&scene, &cfg).expect("scene generation");
+    scene
+}
