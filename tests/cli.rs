@@ -84,10 +84,12 @@ fn bad_inputs_give_clear_errors() {
     // A non-finite pose.
     let text_json = std::fs::read_to_string(scene.join("transforms_train.json")).unwrap();
     let mut json: serde_json::Value = serde_json::from_str(&text_json).unwrap();
-    json["frames"][2]["transform_matrix"][0][3] = serde_json::Value::String("nan".into());
-    std::fs::write(broken.join("transforms_train.json"), json.to_string()).unwrap();
+    json["frames"][2]["transform_matrix"][0][3] = serde_json::json!(12345.5);
+    // 1e39 parses as f64 and overflows to +inf as f32.
+    let text_json = json.to_string().replace("12345.5", "1e39");
+    std::fs::write(broken.join("transforms_train.json"), text_json).unwrap();
     let (ok, text) = nerf(&["train", "--data", s(&broken), "--iters", "1", "--out", s(&dir.path().join("r3"))]);
-    assert!(!ok && text.contains("transforms_train.json"), "{text}");
+    assert!(!ok && text.contains("transforms_train.json") && text.contains("non-finite"), "{text}");
 
     // A truncated checkpoint: eval and resume both refuse it, naming the file.
     let latest = std::fs::read_to_string(run.join("checkpoints/latest")).unwrap();

@@ -203,7 +203,15 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary, String> {
     let camera = serde_json::to_string_pretty(&train_data.intrinsics).expect("intrinsics serialise");
     let camera_file = crate::evaluate::camera_path(&options.run);
     nerf_core::error::write_atomic(&camera_file, camera.as_bytes()).map_err(|e| e.to_string())?;
-    let val_data = load_split(&options.data, Split::Val, options.downscale, true).ok();
+    // The validation curve is optional: a scene without val views still trains.
+    let val_data = match load_split(&options.data, Split::Val, options.downscale, true) {
+        Ok(v) if !v.views.is_empty() => Some(v),
+        Ok(_) => None,
+        Err(e) => {
+            eprintln!("note: no validation curve ({e})");
+            None
+        }
+    };
     let mut trainer = Trainer::new(config.clone(), train_data, crate::backend::cpu_autodiff())?;
     let mut elapsed_before = 0.0;
     if let Some(c) = &checkpoint {
