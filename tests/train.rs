@@ -19,6 +19,14 @@ fn weights(trainer: &Trainer) -> Vec<f32> {
     all
 }
 
+/// Train `steps` steps; the mean loss of the first and of the last 20.
+fn train_steps(t: &mut Trainer, steps: usize) -> (f32, f32) {
+    let losses: Vec<f32> = (0..steps).map(|_| t.step().loss).collect();
+    assert!(losses.iter().all(|l| l.is_finite()), "non-finite loss: {losses:?}");
+    let mean = |v: &[f32]| v.iter().sum::<f32>() / v.len() as f32;
+    (mean(&losses[..20]), mean(&losses[steps - 20..]))
+}
+
 fn new_trainer(data: &Path, config: nerf::train::TrainConfig, downscale: u32) -> Trainer {
     let train = load_split(data, Split::Train, downscale, true).unwrap();
     Trainer::new(config, train, nerf::backend::cpu_autodiff()).unwrap()
@@ -31,21 +39,9 @@ fn generated_scene_loss_falls_and_val_psnr_rises() {
     let val = load_split(&scene, Split::Val, 1, true).unwrap();
     let mut t = new_trainer(&scene, tiny_config(), 1);
     let before = t.view_psnr(&val, 0);
-    let mut first = Vec::new();
-    let mut last = Vec::new();
-    for step in 0..300 {
-        let s = t.step();
-        assert!(s.loss.is_finite(), "loss {} at step {step}", s.loss);
-        if step < 20 {
-            first.push(s.loss);
-        }
-        if step >= 280 {
-            last.push(s.loss);
-        }
-    }
-    let mean = |v: &[f32]| v.iter().sum::<f32>() / v.len() as f32;
+    let (first, last) = train_steps(&mut t, 300);
     let after = t.view_psnr(&val, 0);
-    assert!(mean(&last) < 0.3 * mean(&first), "loss {} → {}", mean(&first), mean(&last));
+    assert!(last < 0.3 * first, "loss {first} → {last}");
     // 300 steps of a 4×64 network on 32×32 views reach ≈ 19.5 dB (measured); blank ≈ 7.4 dB.
     assert!(after > 17.0 && after > before + 5.0, "val PSNR {before} → {after}");
 }
@@ -61,20 +57,9 @@ fn lego_brief_training_beats_a_blank_image() {
     let mut config = tiny_config();
     config.precrop_iters = 100;
     let mut t = new_trainer(&data, config, 8);
-    let mut first = Vec::new();
-    let mut last = Vec::new();
-    for step in 0..250 {
-        let s = t.step();
-        if step < 20 {
-            first.push(s.loss);
-        }
-        if step >= 230 {
-            last.push(s.loss);
-        }
-    }
-    let mean = |v: &[f32]| v.iter().sum::<f32>() / v.len() as f32;
+    let (first, last) = train_steps(&mut t, 250);
     let after = t.view_psnr(&val, 0);
-    assert!(mean(&last) < 0.7 * mean(&first), "loss {} → {}", mean(&first), mean(&last));
+    assert!(last < 0.7 * first, "loss {first} → {last}");
     // 50×50 lego: a blank white image scores ≈ `blank`; the model must be clearly better.
     assert!(after > 15.0 && after > blank + 3.0, "val PSNR {after} (blank white {blank})");
 }
