@@ -7,8 +7,8 @@ use nerf::train::{TrainOptions, Trainer, train};
 use nerf_core::dataset::{Split, load_split};
 use std::path::Path;
 
-fn weights(trainer: &Trainer) -> Vec<f32> {
-    let m = trainer.model();
+/// Every weight and bias of both networks, in layer order.
+fn model_weights(m: &nerf::field::NerfModel) -> Vec<f32> {
     let mut all = Vec::new();
     for net in std::iter::once(&m.coarse).chain(m.fine.as_ref()) {
         for l in net.to_plain().layers {
@@ -90,13 +90,7 @@ fn resume_continues_exactly_and_runs_are_deterministic() {
 
     let load = |run: &str| {
         let (_, model, state) = nerf::train::load_model(&dir.path().join(run), &nerf::backend::cpu()).unwrap();
-        let mut w = Vec::new();
-        for net in std::iter::once(&model.coarse).chain(model.fine.as_ref()) {
-            for l in net.to_plain().layers {
-                w.extend(l.weight);
-            }
-        }
-        (w, state)
+        (model_weights(&model), state)
     };
     let (a, sa) = load("a");
     let (b, _) = load("b");
@@ -112,5 +106,5 @@ fn resume_continues_exactly_and_runs_are_deterministic() {
     other.step();
     let mut same = new_trainer(&scene, config, 1);
     same.step();
-    assert_ne!(weights(&other), weights(&same));
+    assert_ne!(model_weights(other.model()), model_weights(same.model()));
 }
