@@ -2,14 +2,15 @@
 //! renderer, writing PNGs, depth maps, GIFs and metrics.
 
 use crate::inference::BurnField;
-use crate::train::{TrainConfig, load_model};
+use crate::train::{TrainConfig, load_model, render_image_with};
+use nerf_core::occupancy::OccupancyGrid;
 use crate::field::NerfModel;
 use indicatif::{ProgressBar, ProgressStyle};
 use nerf_core::camera::{Intrinsics, Pose};
 use nerf_core::dataset::{Split, load_split};
 use nerf_core::imageio::{depth_to_rgb, save_gif, save_png};
 use nerf_core::metrics::{EvalReport, ImageMetrics, psnr, ssim};
-use nerf_core::render::{RenderedImage, render_image};
+use nerf_core::render::RenderedImage;
 use std::path::{Path, PathBuf};
 
 /// `<run>/camera.json`: the training camera, so orbits render at the training resolution.
@@ -27,26 +28,30 @@ pub struct LoadedRun {
     pub camera: Intrinsics,
     /// Steps it was trained for.
     pub step: usize,
+    /// Where the scene is, for runs trained with empty-space skipping.
+    pub occupancy: Option<OccupancyGrid>,
 }
 
 impl LoadedRun {
     /// Load the latest checkpoint of `run`.
     pub fn open(run: &Path) -> Result<Self, String> {
         let device = crate::backend::cpu();
-        let (config, model, state) = load_model(run, &device)?;
+        let (config, model, state, occupancy) = load_model(run, &device)?;
         let path = camera_path(run);
         let text = std::fs::read_to_string(&path).map_err(|e| format!("{}: {e}", path.display()))?;
         let camera = serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
-        Ok(LoadedRun { config, model, camera, step: state.step })
+        Ok(LoadedRun { config, model, camera, step: state.step, occupancy })
     }
 
     /// Render one view deterministically, with a progress bar when `bar` is given.
     pub fn render(&self, intrinsics: &Intrinsics, pose: &Pose, bar: &ProgressBar) -> RenderedImage {
-        let mut field = BurnField { model: &self.model, device: crate::backend::cpu() };
+        let field = BurnField { model: &self.model, device: crate::backend::cpu() };
         let options = crate::train::render_options(&self.config);
         bar.set_length(intrinsics.num_pixels() as u64);
         bar.set_position(0);
-        let Ok(image) = render_image(&mut field, intrinsics, pose, &options, &mut |done, _| bar.set_position(done as u64));
+        let Ok(image) = render_image_with(field, self.occupancy.as_ref(), intrinsics, pose, &options, &mut |done, _| {
+            bar.set_position(done as u64)
+        });
         image
     }
 

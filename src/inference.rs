@@ -2,11 +2,17 @@
 
 use crate::field::{NerfMlp, NerfModel};
 use burn::tensor::{Device, Tensor, TensorData};
+use nerf_core::network::EncodingSpec;
 use nerf_core::render::{Field, FieldOutput, Stage};
 
 /// `[n]` 3-vectors as an `[n, 3]` tensor.
 pub fn vec3_tensor(v: &[[f32; 3]], device: &Device) -> Tensor<2> {
     Tensor::from_data(TensorData::new(v.as_flattened().to_vec(), [v.len(), 3]), device)
+}
+
+/// `[n]` 3-vectors, encoded as `spec` says, as an `[n, spec.output_dim()]` tensor.
+pub fn encoded_tensor(spec: &EncodingSpec, v: &[[f32; 3]], device: &Device) -> Tensor<2> {
+    Tensor::from_data(TensorData::new(spec.encode_all(v), [v.len(), spec.output_dim()]), device)
 }
 
 /// An `[n, 3]` tensor as `[n]` 3-vectors.
@@ -36,8 +42,13 @@ impl Field for BurnField<'_> {
     type Error = std::convert::Infallible;
 
     fn evaluate(&mut self, stage: Stage, points: &[[f32; 3]], viewdirs: &[[f32; 3]]) -> Result<FieldOutput, Self::Error> {
-        let (rgb, sigma) =
-            self.network(stage).forward(vec3_tensor(points, &self.device), vec3_tensor(viewdirs, &self.device));
+        let net = self.network(stage);
+        let spec = net.spec();
+        let (rgb, sigma) = net.forward_encoded(
+            encoded_tensor(&spec.position_encoding, points, &self.device),
+            encoded_tensor(&spec.direction_encoding, viewdirs, &self.device),
+            1,
+        );
         Ok(FieldOutput { rgb: tensor_vec3(rgb), raw_sigma: sigma.into_data().try_to_vec::<f32>().expect("f32 tensor") })
     }
 }

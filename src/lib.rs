@@ -6,6 +6,7 @@
 pub use nerf_core as core;
 
 pub mod backend;
+pub mod bench;
 pub mod evaluate;
 pub mod field;
 pub mod inference;

@@ -71,6 +71,10 @@ fn resume_continues_exactly_and_runs_are_deterministic() {
     let mut config = tiny_config();
     config.iters = 6;
     config.checkpoint_every = 3;
+    // The occupancy grid updates on both sides of the resume point, so it must be restored too.
+    config.skip_empty_space = true;
+    config.occupancy.warmup_steps = 2;
+    config.occupancy.update_every = 2;
     let options = |run: &str, iters: usize| TrainOptions {
         data: scene.clone(),
         run: dir.path().join(run),
@@ -89,12 +93,14 @@ fn resume_continues_exactly_and_runs_are_deterministic() {
     assert_eq!(resumed.steps, 6);
 
     let load = |run: &str| {
-        let (_, model, state) = nerf::train::load_model(&dir.path().join(run), &nerf::backend::cpu()).unwrap();
-        (model_weights(&model), state)
+        let (_, model, state, grid) = nerf::train::load_model(&dir.path().join(run), &nerf::backend::cpu()).unwrap();
+        (model_weights(&model), state, grid.expect("the run skips empty space"))
     };
-    let (a, sa) = load("a");
-    let (b, _) = load("b");
-    let (c, sc) = load("c");
+    let (a, sa, grid_a) = load("a");
+    let (b, _, _) = load("b");
+    let (c, sc, grid_c) = load("c");
+    assert_eq!(grid_a, grid_c, "resumed occupancy grid");
+    assert!(grid_a.occupied_fraction() < 1.0, "the grid was updated");
     assert_eq!(sa.step, 6);
     assert_eq!(a, b, "same seed, same weights");
     assert_eq!(sa.rng, sc.rng, "resumed RNG state");

@@ -9,6 +9,7 @@
 //! - [`compositing`]: α from density, transmittance, weights, rgb/depth/acc, white background.
 //! - [`dataset`]: the Blender (`transforms_*.json`) parser, downscaling, a generated scene.
 //! - [`network`]: the NeRF MLP described as plain data (sizes, skips, encodings, weights).
+//! - [`occupancy`]: the occupancy grid for empty-space skipping.
 //! - [`metrics`], [`imageio`]: PSNR/SSIM, PNG/GIF output and depth colouring.
 #![warn(missing_docs)]
 
@@ -19,6 +20,7 @@ pub mod error;
 pub mod imageio;
 pub mod metrics;
 pub mod network;
+pub mod occupancy;
 pub mod rng;
 pub mod render;
 pub mod sampling;

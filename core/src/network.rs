@@ -32,10 +32,27 @@ impl EncodingSpec {
         if self.include_input {
             out.extend_from_slice(&x);
         }
-        for f in self.frequencies() {
+        for k in 0..self.n_frequencies {
+            let f = (1u64 << k) as f32;
             out.extend(x.iter().map(|v| (v * f).sin()));
             out.extend(x.iter().map(|v| (v * f).cos()));
         }
+    }
+
+    /// Encode many 3-vectors (in parallel) into one row-major `[xs.len(), output_dim]` buffer.
+    pub fn encode_all(&self, xs: &[[f32; 3]]) -> Vec<f32> {
+        use rayon::prelude::*;
+        let dim = self.output_dim();
+        let mut out = vec![0.0; xs.len() * dim];
+        out.par_chunks_mut(dim * 1024).zip(xs.par_chunks(1024)).for_each(|(rows, points)| {
+            let mut row = Vec::with_capacity(dim);
+            for (dst, &x) in rows.chunks_exact_mut(dim).zip(points) {
+                row.clear();
+                self.encode(x, &mut row);
+                dst.copy_from_slice(&row);
+            }
+        });
+        out
     }
 }
 
@@ -240,6 +257,18 @@ mod tests {
         for (a, b) in out[3..].iter().zip(expect) {
             assert!((a - b).abs() < 1e-6, "{out:?}");
         }
+    }
+
+    #[test]
+    fn batch_encoding_equals_one_at_a_time() {
+        let spec = EncodingSpec { n_frequencies: 3, include_input: false };
+        // More than one parallel chunk, and a ragged last one.
+        let xs: Vec<[f32; 3]> = (0..2500).map(|i| [i as f32 * 0.01, -(i as f32) * 0.002, 1.5]).collect();
+        let all = spec.encode_all(&xs);
+        assert_eq!(all.len(), xs.len() * 18);
+        let mut one = Vec::new();
+        spec.encode(xs[2047], &mut one);
+        assert_eq!(&all[2047 * 18..2048 * 18], &one[..]);
     }
 
     #[test]

@@ -90,6 +90,24 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Measure training-step speed (all figures from one run).
+    Bench {
+        /// Presets to time (default: cpu-fast and paper).
+        #[arg(long, value_enum)]
+        preset: Vec<Preset>,
+        /// Scene to draw training rays from (default: a generated scene).
+        #[arg(long)]
+        data: Option<PathBuf>,
+        /// Image downscale factor for --data.
+        #[arg(long, default_value_t = 4)]
+        downscale: u32,
+        /// Timed steps per preset (after 2 warm-up steps).
+        #[arg(long, default_value_t = 5)]
+        steps: usize,
+        /// Also write the results as JSON here.
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
     /// Generate a small scene, train on it, evaluate and render an orbit (no data needed).
     Demo {
         /// Output directory.
@@ -162,6 +180,20 @@ fn main() -> Result<()> {
             (false, Some(_), None) => bail!("--split needs --data <scene dir>"),
             _ => bail!("say what to render: --orbit, or --split <val|test> --data <scene dir>"),
         },
+        Command::Bench { preset, data, downscale, steps, json } => {
+            let presets = if preset.is_empty() { vec![Preset::CpuFast, Preset::Paper] } else { preset };
+            let mut results = Vec::new();
+            println!("{:<10} {:>6} {:>9} {:>9} {:>9} {:>9}", "preset", "rays", "step s", "forward", "backward", "update");
+            for p in presets {
+                let b = nerf::bench::bench_train_step(p, data.as_deref(), downscale, 2, steps).map_err(err)?;
+                println!("{:<10} {:>6} {:>9.3} {:>9.3} {:>9.3} {:>9.3}", b.preset, b.batch_rays, b.step_s, b.forward_s, b.backward_s, b.update_s);
+                results.push(b);
+            }
+            if let Some(path) = json {
+                let text = serde_json::to_string_pretty(&serde_json::json!({ "train_steps": results }))?;
+                nerf_core::error::write_atomic(&path, text.as_bytes()).map_err(|e| err(e.to_string()))?;
+            }
+        }
         Command::Demo { out, minutes } => demo(out, minutes, progress)?,
     }
     Ok(())

@@ -53,27 +53,60 @@ impl NerfMlp {
     /// # Shapes
     /// `points`, `viewdirs`: `[n, 3]` → (`rgb` `[n, 3]` in [0, 1], raw σ `[n]` before ReLU).
     pub fn forward(&self, points: Tensor<2>, viewdirs: Tensor<2>) -> (Tensor<2>, Tensor<1>) {
-        let spec = &self.spec;
-        let x = encode(&spec.position_encoding, points);
-        let mut h = x.clone();
-        for (i, layer) in self.trunk.iter().enumerate() {
-            h = relu(layer.forward(h));
-            if spec.skips.contains(&i) {
-                h = Tensor::cat(vec![x.clone(), h], 1);
-            }
-        }
+        let x = encode(&self.spec.position_encoding, points);
+        let d = encode(&self.spec.direction_encoding, viewdirs);
+        self.forward_encoded(x, d, 1)
+    }
+
+    /// Evaluate on already-encoded inputs, with one view direction shared by each run of
+    /// `samples_per_direction` consecutive points (the samples of one ray).
+    ///
+    /// Concatenations (the skip input, the view direction) are written as split matrix products
+    /// `[a, b]·W = a·W_a + b·W_b`, so no concatenated copy is made, and the direction's product is
+    /// computed once per ray rather than once per sample.
+    ///
+    /// # Shapes
+    /// `encoded_points`: `[n, position_dim]`; `encoded_dirs`: `[n / samples_per_direction, direction_dim]`
+    /// (ignored without view directions) → (`rgb` `[n, 3]`, raw σ `[n]`).
+    pub fn forward_encoded(
+        &self,
+        encoded_points: Tensor<2>,
+        encoded_dirs: Tensor<2>,
+        samples_per_direction: usize,
+    ) -> (Tensor<2>, Tensor<1>) {
+        let h = self.trunk_forward(encoded_points);
         let n = h.dims()[0];
-        if spec.use_viewdirs {
+        if self.spec.use_viewdirs {
             let sigma = self.heads[0].forward(h.clone()).reshape([n]);
             let feature = self.heads[1].forward(h);
-            let d = encode(&spec.direction_encoding, viewdirs);
-            let v = relu(self.heads[2].forward(Tensor::cat(vec![feature, d], 1)));
+            let v = relu(dense_with_shared_rows(&self.heads[2], feature, encoded_dirs, samples_per_direction));
             (sigmoid(self.heads[3].forward(v)), sigma)
         } else {
             let out = self.heads[0].forward(h);
             let rgb = sigmoid(out.clone().narrow(1, 0, 3));
             (rgb, out.narrow(1, 3, 1).reshape([n]))
         }
+    }
+
+    /// Raw σ (before ReLU) only, skipping the colour layers (for occupancy updates).
+    ///
+    /// # Shapes
+    /// `encoded_points`: `[n, position_dim]` → `[n]`.
+    pub fn density(&self, encoded_points: Tensor<2>) -> Tensor<1> {
+        let h = self.trunk_forward(encoded_points);
+        let n = h.dims()[0];
+        let out = self.heads[0].forward(h);
+        if self.spec.use_viewdirs { out.reshape([n]) } else { out.narrow(1, 3, 1).reshape([n]) }
+    }
+
+    /// The ReLU layers on the encoded position (skip inputs as split products).
+    fn trunk_forward(&self, x: Tensor<2>) -> Tensor<2> {
+        let mut inputs = vec![x.clone()];
+        for (i, layer) in self.trunk.iter().enumerate() {
+            let h = relu(dense(layer, &inputs));
+            inputs = if self.spec.skips.contains(&i) { vec![x.clone(), h] } else { vec![h] };
+        }
+        inputs.pop().expect("one trunk output")
     }
 
     /// The weights as plain data (for the ONNX compiler and checks).
@@ -108,6 +141,47 @@ impl NerfMlp {
             .collect();
         let heads = layers.split_off(plain.spec.depth);
         Ok(NerfMlp { trunk: layers, heads, spec: plain.spec.clone() })
+    }
+}
+
+/// `layer` applied to the concatenation of `inputs` along the feature axis, without building it.
+fn dense(layer: &Linear, inputs: &[Tensor<2>]) -> Tensor<2> {
+    let weight = layer.weight.val();
+    let mut row = 0;
+    let mut out: Option<Tensor<2>> = None;
+    for input in inputs {
+        let width = input.dims()[1];
+        let part = input.clone().matmul(weight.clone().narrow(0, row, width));
+        row += width;
+        out = Some(match out {
+            Some(sum) => sum + part,
+            None => part,
+        });
+    }
+    add_bias(layer, out.expect("at least one input"))
+}
+
+/// `layer` applied to `[per_row, shared]`, where each row of `shared` belongs to `group`
+/// consecutive rows of `per_row`: the shared part's product is broadcast, not repeated.
+fn dense_with_shared_rows(layer: &Linear, per_row: Tensor<2>, shared: Tensor<2>, group: usize) -> Tensor<2> {
+    let weight = layer.weight.val();
+    let [n, width] = per_row.dims();
+    let [groups, shared_width] = shared.dims();
+    let out_dim = weight.dims()[1];
+    let own = per_row.matmul(weight.clone().narrow(0, 0, width));
+    let common = shared.matmul(weight.narrow(0, width, shared_width));
+    let sum = if group == 1 {
+        own + common
+    } else {
+        (own.reshape([groups, group, out_dim]) + common.reshape([groups, 1, out_dim])).reshape([n, out_dim])
+    };
+    add_bias(layer, sum)
+}
+
+fn add_bias(layer: &Linear, x: Tensor<2>) -> Tensor<2> {
+    match &layer.bias {
+        Some(bias) => x + bias.val().unsqueeze::<2>(),
+        None => x,
     }
 }
 
@@ -156,5 +230,40 @@ mod tests {
             let again = NerfMlp::from_plain(&plain, &device).unwrap();
             assert_eq!(again.to_plain(), plain);
         }
+    }
+
+    #[test]
+    fn shared_direction_rows_give_the_same_outputs_and_gradients() {
+        let device = crate::backend::cpu_autodiff();
+        device.seed(11);
+        let spec = small_spec(true);
+        let net = NerfMlp::new(&spec, &device);
+        let (rays, per_ray) = (5, 4);
+        let mut rng = nerf_core::Rng::new(2);
+        let points: Vec<[f32; 3]> = (0..rays * per_ray).map(|_| [0; 3].map(|_: i32| rng.uniform() * 2.0 - 1.0)).collect();
+        let dirs: Vec<[f32; 3]> = (0..rays).map(|r| [0.6, 0.0, 0.8].map(|v| v * if r % 2 == 0 { 1.0 } else { -1.0 })).collect();
+        let repeated: Vec<[f32; 3]> = dirs.iter().flat_map(|d| std::iter::repeat_n(*d, per_ray)).collect();
+        let tensor = |values: Vec<f32>, rows: usize, cols: usize| Tensor::<2>::from_data(TensorData::new(values, [rows, cols]), &device);
+        let x = tensor(spec.position_encoding.encode_all(&points), points.len(), spec.position_encoding.output_dim());
+        let d_dim = spec.direction_encoding.output_dim();
+        let run = |d: Tensor<2>, group: usize| {
+            let (rgb, sigma) = net.forward_encoded(x.clone(), d, group);
+            // A loss that depends on every output, differently per row.
+            let loss = (rgb.clone() * rgb.clone()).sum() + sigma.clone().sin().sum();
+            let grads = loss.backward();
+            let view_grad = net.heads[2].weight.grad(&grads).unwrap().into_data().try_to_vec::<f32>().unwrap();
+            let first_grad = net.trunk[0].weight.grad(&grads).unwrap().into_data().try_to_vec::<f32>().unwrap();
+            (rgb.into_data().try_to_vec::<f32>().unwrap(), view_grad, first_grad)
+        };
+        let shared = run(tensor(spec.direction_encoding.encode_all(&dirs), rays, d_dim), per_ray);
+        let full = run(tensor(spec.direction_encoding.encode_all(&repeated), rays * per_ray, d_dim), 1);
+        for (a, b) in [(&shared.0, &full.0), (&shared.1, &full.1), (&shared.2, &full.2)] {
+            assert_eq!(a.len(), b.len());
+            for (p, q) in a.iter().zip(b.iter()) {
+                assert!((p - q).abs() < 1e-5, "{p} vs {q}");
+            }
+        }
+        // The view layer's gradient really depends on the direction part.
+        assert!(shared.1.iter().any(|g| g.abs() > 1e-6));
     }
 }

@@ -1,4 +1,4 @@
-//! Checkpoints: `<run>/checkpoints/step-NNNNNNN/{model.bpk, optim.bpk, state.json}` plus a
+//! Checkpoints: `<run>/checkpoints/step-NNNNNNN/{model.bpk, optim.bpk, state.json[, occupancy.bin]}` plus a
 //! `latest` file naming the newest. Each checkpoint is written into a temporary directory and
 //! renamed into place, then `latest` is replaced atomically, so a crash never leaves a
 //! checkpoint that `latest` points to half-written.
@@ -10,10 +10,13 @@ use burn::store::{BurnpackStore, ModuleSnapshot};
 use burn::tensor::{Bytes, Device};
 use nerf_core::Rng;
 use nerf_core::error::write_atomic;
+use nerf_core::occupancy::OccupancyGrid;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
 const FORMAT: &str = "nerf-rs-checkpoint-1";
+/// The occupancy grid's file in a checkpoint (format in [`nerf_core::occupancy`]).
+pub const OCCUPANCY_FILE: &str = "occupancy.bin";
 
 /// Training progress saved with the weights.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -62,7 +65,13 @@ fn read(path: &Path) -> Result<Vec<u8>, String> {
 
 impl Checkpoint {
     /// Write model, optimizer and state for `state.step`, then point `latest` at it.
-    pub fn save(run: &Path, model: &NerfModel, optim: &ModuleOptimizer, state: &CheckpointState) -> Result<Checkpoint, String> {
+    pub fn save(
+        run: &Path,
+        model: &NerfModel,
+        optim: &ModuleOptimizer,
+        occupancy: Option<&OccupancyGrid>,
+        state: &CheckpointState,
+    ) -> Result<Checkpoint, String> {
         let root = run.join("checkpoints");
         std::fs::create_dir_all(&root).map_err(|e| format!("{}: {e}", root.display()))?;
         let name = format!("step-{:07}", state.step);
@@ -80,6 +89,9 @@ impl Checkpoint {
         };
         write("model.bpk", &model_bytes)?;
         write("optim.bpk", &optim_bytes)?;
+        if let Some(grid) = occupancy {
+            write(OCCUPANCY_FILE, &grid.to_bytes())?;
+        }
         write("state.json", serde_json::to_string_pretty(state).expect("state serialises").as_bytes())?;
         if dir.exists() {
             std::fs::remove_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
@@ -131,6 +143,15 @@ impl Checkpoint {
         Ok(())
     }
 
+    /// The occupancy grid saved with the weights, if the run skips empty space.
+    pub fn load_occupancy(&self) -> Result<Option<OccupancyGrid>, String> {
+        let path = self.dir.join(OCCUPANCY_FILE);
+        if !path.exists() {
+            return Ok(None);
+        }
+        OccupancyGrid::load(&path).map(Some).map_err(|e| e.to_string())
+    }
+
     /// Load the optimizer state into `optim`.
     pub fn load_optimizer(&self, optim: ModuleOptimizer) -> Result<ModuleOptimizer, String> {
         let path = self.dir.join("optim.bpk");
@@ -148,7 +169,7 @@ pub fn new_state(step: usize, rng: Rng, elapsed_s: f64) -> CheckpointState {
 }
 
 /// Load a run's configuration and latest model onto `device` (for eval, render, export).
-pub fn load_model(run: &Path, device: &Device) -> Result<(TrainConfig, NerfModel, CheckpointState), String> {
+pub fn load_model(run: &Path, device: &Device) -> Result<(TrainConfig, NerfModel, CheckpointState, Option<OccupancyGrid>), String> {
     let config_file = config_path(run);
     if !config_file.exists() {
         return Err(format!("{}: no such file: is {} a training run directory?", config_file.display(), run.display()));
@@ -159,7 +180,8 @@ pub fn load_model(run: &Path, device: &Device) -> Result<(TrainConfig, NerfModel
     let state = checkpoint.state()?;
     let mut model = NerfModel::new(&config.network, config.sampling.n_fine > 0, device);
     checkpoint.load_model(&mut model)?;
-    Ok((config, model, state))
+    let occupancy = if config.skip_empty_space { checkpoint.load_occupancy()? } else { None };
+    Ok((config, model, state, occupancy))
 }
 
 impl NerfModel {

@@ -1,6 +1,7 @@
 //! Training configuration, presets, and TOML files that override a preset.
 
 use nerf_core::network::{EncodingSpec, NetworkSpec};
+use nerf_core::occupancy::OccupancyConfig;
 use nerf_core::SamplingConfig;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -49,6 +50,8 @@ impl Preset {
                 checkpoint_every: 5_000,
                 eval_every_min: 10.0,
                 chunk: 4096,
+                skip_empty_space: false,
+                occupancy: OccupancyConfig::default(),
             },
             Preset::CpuFast => TrainConfig {
                 preset: *self,
@@ -64,9 +67,10 @@ impl Preset {
                 batch_rays: 256,
                 iters: 20_000,
                 lr: 1e-3,
-                lr_decay_ksteps: 5.0,
+                lr_decay_ksteps: 10.0,
                 checkpoint_every: 500,
                 eval_every_min: 5.0,
+                skip_empty_space: true,
                 ..Preset::Paper.config()
             },
         }
@@ -113,6 +117,11 @@ pub struct TrainConfig {
     pub eval_every_min: f64,
     /// Rays per network call when rendering.
     pub chunk: usize,
+    /// Keep an occupancy grid and send only samples in occupied cells to the networks (in
+    /// training and rendering).
+    pub skip_empty_space: bool,
+    /// The occupancy grid's size and update schedule (used with `skip_empty_space`).
+    pub occupancy: OccupancyConfig,
 }
 
 impl Default for TrainConfig {
@@ -162,6 +171,10 @@ impl TrainConfig {
         }
         if !(self.lr > 0.0 && self.lr_decay_ksteps > 0.0) {
             return Err("lr and lr_decay_ksteps must be positive".into());
+        }
+        let o = &self.occupancy;
+        if o.resolution == 0 || o.resolution > 1024 || !(o.bound > 0.0) || !(o.threshold >= 0.0) || !(o.decay > 0.0 && o.decay <= 1.0) || o.update_every == 0 {
+            return Err("occupancy: need 1 ≤ resolution ≤ 1024, bound > 0, threshold ≥ 0, 0 < decay ≤ 1, update_every ≥ 1".into());
         }
         if !(self.precrop_fraction > 0.0 && self.precrop_fraction <= 1.0) {
             return Err("precrop_fraction must be in (0, 1]".into());

@@ -4,12 +4,15 @@
 use super::checkpoint::{Checkpoint, config_path, latest_checkpoint, new_state};
 use super::{TrainConfig, learning_rate};
 use crate::field::{NerfMlp, NerfModel};
-use crate::inference::{BurnField, vec3_tensor};
+use crate::inference::{BurnField, encoded_tensor, vec3_tensor};
 use crate::volume::{VolumeOutput, composite, deltas_tensor};
 use burn::module::Module;
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::grad_clipping::GradientClippingConfig;
-use burn::tensor::{Device, Tensor};
+use burn::tensor::{Device, IndexingUpdateOp, Int, Tensor, TensorData};
+use nerf_core::camera::{Intrinsics, Pose};
+use nerf_core::occupancy::{OccupancyGrid, SkippingField};
+use nerf_core::render::{Field, RenderedImage};
 use indicatif::{ProgressBar, ProgressStyle};
 use nerf_core::dataset::{RayBatcher, Split, SplitData, load_split};
 use nerf_core::metrics::psnr_from_mse;
@@ -59,6 +62,19 @@ pub struct StepStats {
     pub loss: f32,
     /// PSNR of the fine (or only) output on the batch.
     pub psnr: f32,
+    /// Where the step's time went.
+    pub timing: StepTiming,
+}
+
+/// Seconds spent in each phase of a step.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct StepTiming {
+    /// Batch, rays, sampling and both forward passes (with the loss read back).
+    pub forward_s: f64,
+    /// Backpropagation.
+    pub backward_s: f64,
+    /// The Adam update.
+    pub update_s: f64,
 }
 
 /// A model, its optimizer and the data it learns from.
@@ -74,6 +90,8 @@ pub struct Trainer {
     pub step: usize,
     device: Device,
     batcher: RayBatcher,
+    /// Where the scene is, when empty-space skipping is on.
+    occupancy: Option<OccupancyGrid>,
 }
 
 impl Trainer {
@@ -90,7 +108,8 @@ impl Trainer {
             adam = adam.with_grad_clipping(Some(GradientClippingConfig::Norm(norm)));
         }
         let batcher = RayBatcher::new(train).map_err(|e| e.to_string())?;
-        Ok(Trainer { rng: Rng::new(config.seed), optim: adam.init(), model: Some(model), config, step: 0, device, batcher })
+        let occupancy = config.skip_empty_space.then(|| OccupancyGrid::from_config(&config.occupancy));
+        Ok(Trainer { rng: Rng::new(config.seed), optim: adam.init(), model: Some(model), config, step: 0, device, batcher, occupancy })
     }
 
     /// Restore model, optimizer, step and RNG from a checkpoint.
@@ -100,12 +119,37 @@ impl Trainer {
         self.optim = checkpoint.load_optimizer(self.optim.clone())?;
         self.step = state.step;
         self.rng = state.rng;
+        if self.occupancy.is_some() {
+            self.occupancy = checkpoint.load_occupancy()?.or(self.occupancy.take());
+        }
         Ok(state.elapsed_s)
     }
 
     /// Save a checkpoint of the current state into `run`.
     pub fn save(&self, run: &Path, elapsed_s: f64) -> Result<Checkpoint, String> {
-        Checkpoint::save(run, self.model(), &self.optim, &new_state(self.step, self.rng.clone(), elapsed_s))
+        let state = new_state(self.step, self.rng.clone(), elapsed_s);
+        Checkpoint::save(run, self.model(), &self.optim, self.occupancy.as_ref(), &state)
+    }
+
+    /// The occupancy grid, when empty-space skipping is on.
+    pub fn occupancy(&self) -> Option<&OccupancyGrid> {
+        self.occupancy.as_ref()
+    }
+
+    /// Re-measure the density at one random point per grid cell with the fine (or only) network.
+    fn update_occupancy(&mut self) {
+        let Some(mut grid) = self.occupancy.take() else { return };
+        let points = grid.random_cell_points(&mut self.rng);
+        let snapshot = self.model().valid();
+        let net = snapshot.fine.as_ref().unwrap_or(&snapshot.coarse);
+        let device = snapshot.coarse_device();
+        let mut sigma = Vec::with_capacity(points.len());
+        for chunk in points.chunks(1 << 16) {
+            let x = encoded_tensor(&net.spec().position_encoding, chunk, &device);
+            sigma.extend(net.density(x).into_data().try_to_vec::<f32>().expect("f32 densities"));
+        }
+        grid.update(&sigma, self.config.occupancy.decay);
+        self.occupancy = Some(grid);
     }
 
     /// The networks being trained.
@@ -113,11 +157,39 @@ impl Trainer {
         self.model.as_ref().expect("model present outside a step")
     }
 
-    fn render_stage(&self, net: &NerfMlp, rays: &Rays, viewdirs: &Tensor<2>, samples: &DenseSamples) -> VolumeOutput {
+    fn render_stage(&self, net: &NerfMlp, rays: &Rays, viewdirs: &[[f32; 3]], samples: &DenseSamples) -> VolumeOutput {
         let (n_rays, n) = (samples.n_rays, samples.n_samples);
-        let points = vec3_tensor(&samples.points(&rays.origins, &rays.directions), &self.device);
-        let dirs: Tensor<2> = viewdirs.clone().reshape([n_rays, 1, 3]).expand([n_rays, n, 3]).reshape([n_rays * n, 3]);
-        let (rgb, sigma) = net.forward(points, dirs);
+        let spec = net.spec();
+        let points = samples.points(&rays.origins, &rays.directions);
+        let occupied: Option<Vec<usize>> = self.occupancy.as_ref().map(|grid| (0..points.len()).filter(|&i| grid.is_occupied(points[i])).collect());
+        // The inputs need no gradient, so they are encoded here rather than as graph ops.
+        let (rgb, sigma) = match occupied {
+            Some(mut keep) if keep.len() < points.len() => {
+                // Only occupied samples reach the network; the rest keep σ = 0 (and colour 0).
+                if keep.is_empty() {
+                    keep.push(0);
+                }
+                let packed: Vec<[f32; 3]> = keep.iter().map(|&i| points[i]).collect();
+                let dirs: Vec<[f32; 3]> = keep.iter().map(|&i| viewdirs[i / n]).collect();
+                let (rgb, sigma) = net.forward_encoded(
+                    encoded_tensor(&spec.position_encoding, &packed, &self.device),
+                    encoded_tensor(&spec.direction_encoding, &dirs, &self.device),
+                    1,
+                );
+                let index: Vec<i64> = keep.iter().map(|&i| i as i64).collect();
+                let index = Tensor::<1, Int>::from_data(TensorData::new(index, [keep.len()]), &self.device);
+                let total = points.len();
+                (
+                    Tensor::<2>::zeros([total, 3], &self.device).select_assign(0, index.clone(), rgb, IndexingUpdateOp::Add),
+                    Tensor::<1>::zeros([total], &self.device).select_assign(0, index, sigma, IndexingUpdateOp::Add),
+                )
+            }
+            _ => net.forward_encoded(
+                encoded_tensor(&spec.position_encoding, &points, &self.device),
+                encoded_tensor(&spec.direction_encoding, viewdirs, &self.device),
+                n,
+            ),
+        };
         composite(
             sigma.reshape([n_rays, n]),
             rgb.reshape([n_rays, n, 3]),
@@ -128,13 +200,18 @@ impl Trainer {
 
     /// One optimisation step on a fresh random batch.
     pub fn step(&mut self) -> StepStats {
+        let start = Instant::now();
+        let o = &self.config.occupancy;
+        if self.occupancy.is_some() && self.step >= o.warmup_steps && (self.step - o.warmup_steps) % o.update_every == 0 {
+            self.update_occupancy();
+        }
         let cfg = &self.config;
         let precrop = (self.step < cfg.precrop_iters).then_some(cfg.precrop_fraction);
         let batch = self.batcher.next_batch(&mut self.rng, cfg.batch_rays, precrop);
         let data = self.batcher.data();
         let rays = Rays::for_pixels(&data.intrinsics, &data.views[batch.0].pose, &batch.1);
         let target = vec3_tensor(&batch.2, &self.device);
-        let viewdirs = vec3_tensor(&rays.view_directions(), &self.device);
+        let viewdirs = rays.view_directions();
 
         let coarse = stratified(&cfg.sampling, rays.len(), Some(&mut self.rng));
         let model = self.model.take().expect("model present");
@@ -154,11 +231,18 @@ impl Trainer {
         };
         let loss_value = loss.clone().into_scalar::<f32>();
         let mse_value = mse_last.into_scalar::<f32>();
+        let forward_done = Instant::now();
         let grads = GradientsParams::from_grads(loss.backward(), &model);
+        let backward_done = Instant::now();
         let lr = learning_rate(self.config.lr, self.config.lr_decay_ksteps, self.step);
         self.model = Some(self.optim.step(lr, model, grads));
         self.step += 1;
-        StepStats { loss: loss_value, psnr: psnr_from_mse(mse_value) }
+        let timing = StepTiming {
+            forward_s: (forward_done - start).as_secs_f64(),
+            backward_s: (backward_done - forward_done).as_secs_f64(),
+            update_s: backward_done.elapsed().as_secs_f64(),
+        };
+        StepStats { loss: loss_value, psnr: psnr_from_mse(mse_value), timing }
     }
 
     /// PSNR of the current model on one view, rendered deterministically.
@@ -166,10 +250,25 @@ impl Trainer {
         let view = &data.views[index];
         let Some(target) = &view.image else { return f32::NAN };
         let snapshot = self.model().valid();
-        let mut field = BurnField { model: &snapshot, device: snapshot.coarse_device() };
+        let field = BurnField { model: &snapshot, device: snapshot.coarse_device() };
         let options = render_options(&self.config);
-        let Ok(image) = render_image(&mut field, &data.intrinsics, &view.pose, &options, &mut |_, _| {});
+        let Ok(image) = render_image_with(field, self.occupancy.as_ref(), &data.intrinsics, &view.pose, &options, &mut |_, _| {});
         nerf_core::metrics::psnr(&image.rays.rgb, target)
+    }
+}
+
+/// Render through `field`, skipping empty space when a grid is given.
+pub fn render_image_with<F: Field>(
+    field: F,
+    occupancy: Option<&OccupancyGrid>,
+    intrinsics: &Intrinsics,
+    pose: &Pose,
+    options: &RenderOptions,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<RenderedImage, F::Error> {
+    match occupancy {
+        Some(grid) => render_image(&mut SkippingField { inner: field, grid }, intrinsics, pose, options, progress),
+        None => render_image(&mut { field }, intrinsics, pose, options, progress),
     }
 }
 
@@ -267,7 +366,8 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary, String> {
             if let Some(val) = &val_data {
                 let p = trainer.view_psnr(val, 0);
                 val_psnr = Some(p);
-                bar.println(format!("step {}: val {} PSNR {p:.2} dB", trainer.step, val.views[0].name));
+                let occupied = trainer.occupancy().map(|g| format!(", {:.1}% of the grid occupied", 100.0 * g.occupied_fraction())).unwrap_or_default();
+                bar.println(format!("step {}: val {} PSNR {p:.2} dB{occupied}", trainer.step, val.views[0].name));
             }
             let _ = writeln!(curve, "{},{:.2},{:.3},{}", trainer.step, elapsed() / 60.0, mean_psnr, val_psnr.map(|p| format!("{p:.3}")).unwrap_or_default());
             next_eval_s += config.eval_every_min * 60.0;
