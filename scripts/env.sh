@@ -6,3 +6,11 @@ if ! command -v cargo >/dev/null 2>&1; then
   if [ -f "$HOME/.cargo/env" ]; then . "$HOME/.cargo/env"; fi
 fi
 command -v cargo >/dev/null 2>&1 || { echo "cargo not found: install Rust (https://rustup.rs) first" >&2; exit 1; }
+# The Python environment from scripts/setup.sh, and onnxruntime's library from its wheel.
+export NERF_HOME="${NERF_HOME:-$HOME/.cache/nerf-rs}"
+export NERF_PYTHON="${NERF_PYTHON:-$NERF_HOME/venv/bin/python}"
+if [ -z "${ORT_DYLIB_PATH:-}" ]; then
+  for lib in "$NERF_HOME"/venv/lib/python3*/site-packages/onnxruntime/capi/libonnxruntime.so*; do
+    [ -e "$lib" ] && export ORT_DYLIB_PATH="$lib"
+  done
+fi

@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Build and run the whole test suite (release mode: NeRF training is too slow unoptimised).
-# The lego tests read ../shared/data/nerf_synthetic/lego.
+# The lego tests read ../shared/data/nerf_synthetic/lego; the export tests run
+# tests/python/check_graphs.py with the Python environment from scripts/setup.sh.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+bash scripts/setup.sh   # numpy, onnx, onnxruntime for the graph checks (idempotent)
 . scripts/env.sh
 cargo test --release --workspace "$@"

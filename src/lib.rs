@@ -8,6 +8,7 @@ pub use nerf_core as core;
 pub mod backend;
 pub mod bench;
 pub mod evaluate;
+pub mod export;
 pub mod field;
 pub mod inference;
 pub mod train;

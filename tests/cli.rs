@@ -2,31 +2,8 @@
 
 mod common;
 
-use common::{small_scene, tiny_config};
-use nerf::train::{TrainOptions, train};
-use std::path::{Path, PathBuf};
-use std::process::Command;
-
-fn nerf(args: &[&str]) -> (bool, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_nerf")).args(args).output().expect("run nerf");
-    let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
-    assert!(!text.contains("panicked"), "nerf {args:?} panicked:\n{text}");
-    (out.status.success(), text)
-}
-
-fn trained_run(dir: &Path) -> (PathBuf, PathBuf) {
-    let scene = small_scene(dir);
-    let run = dir.join("run");
-    let mut config = tiny_config();
-    config.iters = 20;
-    train(&TrainOptions { data: scene.clone(), run: run.clone(), config, downscale: 1, time_budget_min: None, iters: None, progress: false })
-        .unwrap();
-    (scene, run)
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
+use common::{nerf, s, trained_run};
+use std::path::Path;
 
 #[test]
 fn eval_and_render_write_named_outputs() {

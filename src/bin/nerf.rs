@@ -90,6 +90,18 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Compile a trained run into an ONNX scene bundle: coarse.onnx, fine.onnx, scene.json.
+    Export {
+        /// Run directory written by `nerf train`.
+        #[arg(long)]
+        run: PathBuf,
+        /// Bundle directory to write (replaced only once the new bundle is complete).
+        #[arg(long)]
+        out: PathBuf,
+        /// ONNX opset (17–23).
+        #[arg(long, default_value_t = nerf_export::DEFAULT_OPSET)]
+        opset: i64,
+    },
     /// Measure training-step speed (all figures from one run).
     Bench {
         /// Presets to time (default: cpu-fast and paper).
@@ -180,6 +192,12 @@ fn main() -> Result<()> {
             (false, Some(_), None) => bail!("--split needs --data <scene dir>"),
             _ => bail!("say what to render: --orbit, or --split <val|test> --data <scene dir>"),
         },
+        Command::Export { run, out, opset } => {
+            let files = nerf::export::export_run(&run, &out, opset).map_err(err)?;
+            for f in &files {
+                println!("{:>10} bytes  {}", f.bytes, f.path.display());
+            }
+        }
         Command::Bench { preset, data, downscale, steps, json } => {
             let presets = if preset.is_empty() { vec![Preset::CpuFast, Preset::Paper] } else { preset };
             let mut results = Vec::new();

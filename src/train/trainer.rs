@@ -302,6 +302,10 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary, String> {
     let camera = serde_json::to_string_pretty(&train_data.intrinsics).expect("intrinsics serialise");
     let camera_file = crate::evaluate::camera_path(&options.run);
     nerf_core::error::write_atomic(&camera_file, camera.as_bytes()).map_err(|e| e.to_string())?;
+    // Where the data came from, so `nerf export` can include the test poses.
+    let source = crate::export::RunSource { data: std::path::absolute(&options.data).unwrap_or(options.data.clone()), downscale: options.downscale };
+    nerf_core::error::write_atomic(&crate::export::source_path(&options.run), serde_json::to_string_pretty(&source).expect("serialises").as_bytes())
+        .map_err(|e| e.to_string())?;
     // The validation curve is optional: a scene without val views still trains.
     let val_data = match load_split(&options.data, Split::Val, options.downscale, true) {
         Ok(v) if !v.views.is_empty() => Some(v),

@@ -3,7 +3,9 @@
 
 use nerf::train::{Preset, TrainConfig};
 use nerf_core::dataset::{SyntheticSceneConfig, generate_scene};
+use nerf::train::{TrainOptions, train};
 use std::path::{Path, PathBuf};
+use std::process::Command;
 
 /// The lego scene shipped beside the project (CI has it too).
 pub fn lego_dir() -> PathBuf {
@@ -33,3 +35,28 @@ pub fn small_scene(dir: &Path) -> PathBuf {
     generate_scene(&scene, &cfg).expect("scene generation");
     scene
 }
+
+/// Run the `nerf` binary: (success, stdout + stderr); a panic fails the test.
+pub fn nerf(args: &[&str]) -> (bool, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_nerf")).args(args).output().expect("run nerf");
+    let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    assert!(!text.contains("panicked"), "nerf {args:?} panicked:\n{text}");
+    (out.status.success(), text)
+}
+
+/// A generated scene and a run trained on it for 20 steps: (scene, run).
+pub fn trained_run(dir: &Path) -> (PathBuf, PathBuf) {
+    let scene = small_scene(dir);
+    let run = dir.join("run");
+    let mut config = tiny_config();
+    config.iters = 20;
+    train(&TrainOptions { data: scene.clone(), run: run.clone(), config, downscale: 1, time_budget_min: None, iters: None, progress: false })
+        .unwrap();
+    (scene, run)
+}
+
+/// A path as `&str`.
+pub fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+

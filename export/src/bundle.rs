@@ -1,0 +1,294 @@
+//! Scene bundles: `coarse.onnx`, `fine.onnx` and `scene.json` in one directory, written into a
+//! temporary directory and renamed into place, so a failed export leaves no partial bundle.
+
+use crate::ExportError;
+use crate::graph::{compile, read_network};
+use crate::proto::ModelProto;
+use nerf_core::camera::{Intrinsics, Pose};
+use nerf_core::network::{EncodingSpec, PlainNetwork};
+use nerf_core::occupancy::OccupancyGrid;
+use nerf_core::sampling::SamplingConfig;
+use prost::Message;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// The `format` of the `scene.json` this version writes.
+pub const SCENE_FORMAT: &str = "nerf-rs-scene-1";
+/// The scene description's file name.
+pub const SCENE_FILE: &str = "scene.json";
+/// The camera convention, spelled out for readers of `scene.json`.
+pub const CAMERA_CONVENTION: &str = "OpenGL camera-to-world (Blender/NeRF): +x right, +y up, the camera looks along -z; \
+     ray through pixel (i, j): d = c2w[:3,:3] @ ((i - W/2)/focal, -(j - H/2)/focal, -1), not normalised, no half-pixel offset; \
+     origin c2w[:3,3]; samples at t in [near, far] along d; viewdirs = d/|d|";
+
+/// Everything a renderer needs besides the networks (`scene.json`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SceneDescription {
+    /// [`SCENE_FORMAT`].
+    pub format: String,
+    /// The training camera.
+    pub camera: CameraDescription,
+    /// Near/far, samples per ray, lindisp.
+    pub sampling: SamplingConfig,
+    /// Composite over white: `rgb + (1 − acc)`.
+    pub white_background: bool,
+    /// Positional encoding of points (inside the graphs; stated for other implementations).
+    pub position_encoding: EncodingDescription,
+    /// Positional encoding of view directions.
+    pub direction_encoding: EncodingDescription,
+    /// Graph files, relative to the bundle.
+    pub networks: NetworkFiles,
+    /// Camera-to-world poses to render.
+    pub poses: ScenePoses,
+    /// The occupancy grid for empty-space skipping (format in [`nerf_core::occupancy`]);
+    /// renderers without it sample densely.
+    #[serde(default)]
+    pub occupancy: Option<OccupancyDescription>,
+}
+
+/// Where the occupancy grid is and what it covers (also in the file's header).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct OccupancyDescription {
+    /// The grid file, relative to the bundle (`occupancy.bin`).
+    pub file: String,
+    /// Cells per axis.
+    pub resolution: usize,
+    /// The grid covers [−bound, bound]³.
+    pub bound: f32,
+}
+
+/// Image size, focal and the convention rays follow.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CameraDescription {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Focal length in pixels.
+    pub focal: f32,
+    /// [`CAMERA_CONVENTION`].
+    pub convention: String,
+}
+
+/// An encoding `[x, sin(f x), cos(f x) for f in frequencies]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EncodingDescription {
+    /// Number of frequencies L.
+    pub n_frequencies: usize,
+    /// Whether x itself comes first.
+    pub include_input: bool,
+    /// The frequencies 2ᵏ, k < L.
+    pub frequencies: Vec<f32>,
+    /// Values per 3-vector.
+    pub output_dim: usize,
+}
+
+impl From<&EncodingSpec> for EncodingDescription {
+    fn from(e: &EncodingSpec) -> Self {
+        EncodingDescription {
+            n_frequencies: e.n_frequencies,
+            include_input: e.include_input,
+            frequencies: e.frequencies(),
+            output_dim: e.output_dim(),
+        }
+    }
+}
+
+/// Which files hold the networks.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NetworkFiles {
+    /// The coarse network (stratified samples).
+    pub coarse: String,
+    /// The fine network (all samples); absent when the scene has none.
+    pub fine: Option<String>,
+}
+
+/// Poses as row-major 4×4 camera-to-world matrices (the Blender `transform_matrix`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct ScenePoses {
+    /// The dataset's test views, when the export knew the dataset.
+    pub test: Vec<NamedPose>,
+    /// The reference 360° orbit (radius 4, elevation −30°).
+    pub orbit: Vec<[[f32; 4]; 4]>,
+}
+
+/// A dataset view's pose.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NamedPose {
+    /// Image name (`r_0`).
+    pub name: String,
+    /// Camera-to-world, row-major 4×4.
+    pub transform_matrix: [[f32; 4]; 4],
+}
+
+/// A pose as a 4×4 row-major matrix.
+pub fn pose_matrix(p: &Pose) -> [[f32; 4]; 4] {
+    [p.0[0], p.0[1], p.0[2], [0.0, 0.0, 0.0, 1.0]]
+}
+
+impl SceneDescription {
+    /// A description for networks trained with `sampling` on images from `camera`.
+    pub fn new(camera: &Intrinsics, sampling: &SamplingConfig, white_background: bool, coarse: &PlainNetwork, has_fine: bool) -> Self {
+        SceneDescription {
+            format: SCENE_FORMAT.into(),
+            camera: CameraDescription { width: camera.width, height: camera.height, focal: camera.focal, convention: CAMERA_CONVENTION.into() },
+            sampling: sampling.clone(),
+            white_background,
+            position_encoding: (&coarse.spec.position_encoding).into(),
+            direction_encoding: (&coarse.spec.direction_encoding).into(),
+            networks: NetworkFiles { coarse: "coarse.onnx".into(), fine: has_fine.then(|| "fine.onnx".into()) },
+            poses: ScenePoses::default(),
+            occupancy: None,
+        }
+    }
+
+    /// The training camera as intrinsics.
+    pub fn intrinsics(&self) -> Intrinsics {
+        Intrinsics { width: self.camera.width, height: self.camera.height, focal: self.camera.focal }
+    }
+}
+
+/// The networks and description of one scene.
+#[derive(Debug, Clone)]
+pub struct Bundle {
+    /// The coarse network.
+    pub coarse: PlainNetwork,
+    /// The fine network, if any (must be present exactly when `scene.networks.fine` is).
+    pub fine: Option<PlainNetwork>,
+    /// `scene.json` (its `occupancy` field is filled in from `occupancy` when writing).
+    pub scene: SceneDescription,
+    /// The occupancy grid, if the scene was trained with one.
+    pub occupancy: Option<OccupancyGrid>,
+}
+
+/// The grid's file name in a bundle.
+pub const OCCUPANCY_FILE: &str = "occupancy.bin";
+
+/// A file written into a bundle and its size.
+#[derive(Debug, Clone, PartialEq)]
+pub struct WrittenFile {
+    /// Path of the file in its final place.
+    pub path: PathBuf,
+    /// Size in bytes.
+    pub bytes: usize,
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> ExportError + '_ {
+    move |source| ExportError::Io { path: path.to_path_buf(), source }
+}
+
+/// The contract metadata every graph of a scene carries.
+fn scene_metadata(scene: &SceneDescription, stage: &str) -> Vec<(String, String)> {
+    let s = &scene.sampling;
+    vec![
+        ("nerf.stage".into(), stage.into()),
+        ("nerf.near".into(), s.near.to_string()),
+        ("nerf.far".into(), s.far.to_string()),
+        ("nerf.n_coarse".into(), s.n_coarse.to_string()),
+        ("nerf.n_fine".into(), s.n_fine.to_string()),
+        ("nerf.lindisp".into(), s.lindisp.to_string()),
+        ("nerf.white_background".into(), scene.white_background.to_string()),
+        ("nerf.camera".into(), CAMERA_CONVENTION.into()),
+    ]
+}
+
+/// Compile both networks and write the bundle to `dir` (replacing an existing bundle only once
+/// the new one is complete).
+pub fn write_bundle(dir: &Path, bundle: &Bundle, opset: i64) -> Result<Vec<WrittenFile>, ExportError> {
+    let mut scene = bundle.scene.clone();
+    scene.occupancy = bundle.occupancy.as_ref().map(|g| OccupancyDescription {
+        file: OCCUPANCY_FILE.into(),
+        resolution: g.resolution(),
+        bound: g.bound(),
+    });
+    let scene = &scene;
+    if scene.networks.fine.is_some() != bundle.fine.is_some() {
+        return Err(ExportError::Network("scene.json and the networks disagree about a fine network".into()));
+    }
+    let mut files: Vec<(String, Vec<u8>)> = vec![(
+        scene.networks.coarse.clone(),
+        compile(&bundle.coarse, "coarse", opset, &scene_metadata(scene, "coarse"))?.encode_to_vec(),
+    )];
+    if let (Some(net), Some(name)) = (&bundle.fine, &scene.networks.fine) {
+        files.push((name.clone(), compile(net, "fine", opset, &scene_metadata(scene, "fine"))?.encode_to_vec()));
+    }
+    if let Some(grid) = &bundle.occupancy {
+        files.push((OCCUPANCY_FILE.into(), grid.to_bytes()));
+    }
+    files.push((SCENE_FILE.into(), serde_json::to_vec_pretty(scene).expect("a scene serialises")));
+
+    let parent = match dir.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    std::fs::create_dir_all(&parent).map_err(io(&parent))?;
+    let name = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "bundle".into());
+    let tmp = parent.join(format!(".{name}.tmp-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&tmp);
+    std::fs::create_dir_all(&tmp).map_err(io(&tmp))?;
+    let result = (|| {
+        for (file, bytes) in &files {
+            let p = tmp.join(file);
+            std::fs::write(&p, bytes).map_err(io(&p))?;
+        }
+        // Swap in the new bundle; the old one is removed only after the rename succeeded.
+        let old = parent.join(format!(".{name}.old-{}", std::process::id()));
+        let had_old = dir.exists();
+        if had_old {
+            std::fs::rename(dir, &old).map_err(io(dir))?;
+        }
+        std::fs::rename(&tmp, dir).map_err(io(dir))?;
+        if had_old {
+            let _ = std::fs::remove_dir_all(&old);
+        }
+        Ok(())
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_dir_all(&tmp);
+    }
+    result?;
+    Ok(files.into_iter().map(|(file, bytes)| WrittenFile { path: dir.join(file), bytes: bytes.len() }).collect())
+}
+
+/// Decode an ONNX file.
+pub fn read_model(path: &Path) -> Result<ModelProto, String> {
+    let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    ModelProto::decode(bytes.as_slice()).map_err(|e| format!("{}: not a valid ONNX file (truncated?): {e}", path.display()))
+}
+
+/// The plain network stored in a bundle's graph file `file` (`coarse.onnx`, `fine.onnx`).
+pub fn read_bundle_network(dir: &Path, file: &str) -> Result<PlainNetwork, String> {
+    let path = dir.join(file);
+    read_network(&read_model(&path)?).map_err(|e| format!("{}: {e}", path.display()))
+}
+
+/// Read and check a bundle's `scene.json`.
+pub fn read_scene(dir: &Path) -> Result<SceneDescription, String> {
+    let path = dir.join(SCENE_FILE);
+    let text = std::fs::read_to_string(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let scene: SceneDescription = serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
+    if scene.format != SCENE_FORMAT {
+        return Err(format!("{}: format {:?}, expected {SCENE_FORMAT:?}", path.display(), scene.format));
+    }
+    let s = &scene.sampling;
+    if !(s.near > 0.0 && s.far > s.near) || s.n_coarse == 0 {
+        return Err(format!("{}: sampling: need 0 < near < far and n_coarse > 0", path.display()));
+    }
+    if scene.camera.width == 0 || scene.camera.height == 0 || !(scene.camera.focal > 0.0) {
+        return Err(format!("{}: camera: width, height and focal must be positive", path.display()));
+    }
+    if (s.n_fine > 0) != scene.networks.fine.is_some() {
+        return Err(format!("{}: networks.fine must be given exactly when sampling.n_fine > 0", path.display()));
+    }
+    Ok(scene)
+}
+
+/// The bundle's occupancy grid, if `scene.json` names one.
+pub fn read_occupancy(dir: &Path, scene: &SceneDescription) -> Result<Option<OccupancyGrid>, String> {
+    let Some(o) = &scene.occupancy else { return Ok(None) };
+    let grid = OccupancyGrid::load(&dir.join(&o.file)).map_err(|e| e.to_string())?;
+    if grid.resolution() != o.resolution || grid.bound() != o.bound {
+        return Err(format!("{}: occupancy: the grid file is {}³ over ±{}, scene.json says {}³ over ±{}", dir.join(SCENE_FILE).display(), grid.resolution(), grid.bound(), o.resolution, o.bound));
+    }
+    Ok(Some(grid))
+}

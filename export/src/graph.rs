@@ -1,0 +1,343 @@
+//! Compiling one plain NeRF network ([`PlainNetwork`]) into an ONNX model, and reading its
+//! description and weights back.
+//!
+//! # The graph contract
+//! - Inputs: `points` float32 `[N, 3]` (world positions) and `viewdirs` float32 `[N, 3]` (unit
+//!   view directions, one per point); `N` is dynamic (`dim_param` "N"). Networks without view
+//!   dependence still take `viewdirs` and ignore it.
+//! - Outputs: `rgb` float32 `[N, 3]` in [0, 1] (sigmoid applied) and `sigma` float32 `[N, 1]`
+//!   (ReLU applied).
+//! - The positional encodings run inside the graph, as in training: for each input,
+//!   `[x, sin(2⁰x), cos(2⁰x), …, sin(2^(L−1)x), cos(2^(L−1)x)]` (Unsqueeze → Mul by the
+//!   frequencies → Sin, Cos → Concat → Reshape → Concat with x). Dense layers are `Gemm` with
+//!   weights `[in, out]`; skip inputs and the view input are `Concat`s, as in the trainer.
+//! - Initializers are named `<layer>.weight` / `<layer>.bias` (layer names from
+//!   [`NetworkSpec::layer_shapes`]) plus a few encoding constants, each stored once.
+//! - `metadata_props` carry the contract; `nerf.network` holds the [`NetworkSpec`] as JSON.
+
+use crate::proto::*;
+use crate::ExportError;
+use nerf_core::network::{DenseLayer, EncodingSpec, NetworkSpec, PlainNetwork};
+
+/// Opsets this compiler writes (`Gemm`, `Unsqueeze`-with-axes-input, `Slice`, `Reshape` are
+/// stable across them).
+pub const OPSETS: std::ops::RangeInclusive<i64> = 17..=23;
+/// The default opset.
+pub const DEFAULT_OPSET: i64 = 17;
+/// Metadata key holding the network description as JSON.
+pub const NETWORK_KEY: &str = "nerf.network";
+
+/// The IR version that goes with an opset of the default domain (onnx's VERSION_TABLE).
+pub fn ir_version_for(opset: i64) -> i64 {
+    match opset {
+        ..=18 => 8,
+        19..=20 => 9,
+        21..=22 => 10,
+        _ => 11,
+    }
+}
+
+/// Compile `net` into a model named `name`; `metadata` is added to the contract entries.
+pub fn compile(net: &PlainNetwork, name: &str, opset: i64, metadata: &[(String, String)]) -> Result<ModelProto, ExportError> {
+    if !OPSETS.contains(&opset) {
+        return Err(ExportError::Unsupported(format!("opset {opset}: this compiler writes opsets {}–{}", OPSETS.start(), OPSETS.end())));
+    }
+    net.validate().map_err(ExportError::Network)?;
+    let spec = &net.spec;
+    for (what, e) in [("position", &spec.position_encoding), ("direction", &spec.direction_encoding)] {
+        if e.output_dim() == 0 {
+            return Err(ExportError::Network(format!("the {what} encoding has no outputs")));
+        }
+    }
+    let mut g = Builder::default();
+    let x = g.encoding("points", "position_encoding", &spec.position_encoding);
+    let mut h = x.clone();
+    let layers: Vec<&DenseLayer> = net.layers.iter().collect();
+    for i in 0..spec.depth {
+        h = g.dense(layers[i], &h, Some("Relu"));
+        if spec.skips.contains(&i) {
+            h = g.concat(&[&x, &h], &format!("trunk.{i}.skip"));
+        }
+    }
+    let heads = &layers[spec.depth..];
+    if spec.use_viewdirs {
+        let sigma_raw = g.dense(heads[0], &h, None);
+        g.unary("Relu", &sigma_raw, "sigma");
+        let feature = g.dense(heads[1], &h, None);
+        let d = g.encoding("viewdirs", "direction_encoding", &spec.direction_encoding);
+        let view_in = g.concat(&[&feature, &d], "view.input");
+        let v = g.dense(heads[2], &view_in, Some("Relu"));
+        let rgb_raw = g.dense(heads[3], &v, None);
+        g.unary("Sigmoid", &rgb_raw, "rgb");
+    } else {
+        let out = g.dense(heads[0], &h, None);
+        let axes = g.i64_constant("slice.axes", &[1]);
+        let (s0, s3, s4) = (g.i64_constant("slice.0", &[0]), g.i64_constant("slice.3", &[3]), g.i64_constant("slice.4", &[4]));
+        let rgb_raw = g.node("Slice", &[&out, &s0, &s3, &axes], "output.rgb", vec![]);
+        let sigma_raw = g.node("Slice", &[&out, &s3, &s4, &axes], "output.sigma", vec![]);
+        g.unary("Sigmoid", &rgb_raw, "rgb");
+        g.unary("Relu", &sigma_raw, "sigma");
+    }
+
+    let mut props = vec![
+        ("nerf.contract".to_string(), "inputs points [N,3] float32 world positions, viewdirs [N,3] float32 unit view directions; outputs rgb [N,3] float32 in [0,1] (sigmoid applied), sigma [N,1] float32 (ReLU applied); N is dynamic".to_string()),
+        ("nerf.position_encoding".to_string(), encoding_text(&spec.position_encoding)),
+        ("nerf.direction_encoding".to_string(), encoding_text(&spec.direction_encoding)),
+        (NETWORK_KEY.to_string(), serde_json::to_string(spec).expect("a NetworkSpec serialises")),
+    ];
+    props.extend(metadata.iter().cloned());
+    let graph = GraphProto {
+        node: g.nodes,
+        name: name.to_string(),
+        initializer: g.initializers,
+        doc_string: format!(
+            "NeRF {name} network: {}×{} MLP (skips after {:?}), positional encodings inside the graph, view-dependent colour: {}.",
+            spec.depth, spec.width, spec.skips, spec.use_viewdirs
+        ),
+        input: vec![
+            value_info("points", &[None, Some(3)], "World-space sample positions, float32 [N, 3]."),
+            value_info("viewdirs", &[None, Some(3)], "Unit view directions (the ray direction normalised), float32 [N, 3], one per point."),
+        ],
+        output: vec![
+            value_info("rgb", &[None, Some(3)], "Colour in [0, 1] (sigmoid applied), float32 [N, 3]."),
+            value_info("sigma", &[None, Some(1)], "Volume density (ReLU applied), float32 [N, 1]."),
+        ],
+        value_info: vec![],
+    };
+    Ok(ModelProto {
+        ir_version: ir_version_for(opset),
+        opset_import: vec![OperatorSetIdProto { domain: String::new(), version: opset }],
+        producer_name: "nerf-rs".into(),
+        producer_version: env!("CARGO_PKG_VERSION").into(),
+        domain: "rs.nerf".into(),
+        model_version: 1,
+        doc_string: "A neural radiance field network compiled by nerf-rs (nerf export).".into(),
+        graph: Some(graph),
+        metadata_props: props.into_iter().map(|(key, value)| StringStringEntryProto { key, value }).collect(),
+    })
+}
+
+fn encoding_text(e: &EncodingSpec) -> String {
+    format!(
+        "[x, sin(2^k x), cos(2^k x) for k < {}] with include_input={}: {} values per 3-vector",
+        e.n_frequencies,
+        e.include_input,
+        e.output_dim()
+    )
+}
+
+fn value_info(name: &str, dims: &[Option<i64>], doc: &str) -> ValueInfoProto {
+    use tensor_shape_proto::{Dimension, dimension::Value};
+    let dim = dims
+        .iter()
+        .map(|d| Dimension { value: Some(d.map_or_else(|| Value::DimParam("N".into()), Value::DimValue)) })
+        .collect();
+    ValueInfoProto {
+        name: name.into(),
+        r#type: Some(TypeProto {
+            value: Some(type_proto::Value::TensorType(type_proto::Tensor {
+                elem_type: data_type::FLOAT,
+                shape: Some(TensorShapeProto { dim }),
+            })),
+        }),
+        doc_string: doc.into(),
+    }
+}
+
+/// Accumulates nodes and initializers with unique names.
+#[derive(Default)]
+struct Builder {
+    nodes: Vec<NodeProto>,
+    initializers: Vec<TensorProto>,
+}
+
+impl Builder {
+    fn node(&mut self, op: &str, inputs: &[&str], output: &str, attribute: Vec<AttributeProto>) -> String {
+        self.nodes.push(NodeProto {
+            input: inputs.iter().map(|s| s.to_string()).collect(),
+            output: vec![output.to_string()],
+            name: output.to_string(),
+            op_type: op.to_string(),
+            domain: String::new(),
+            attribute,
+            doc_string: String::new(),
+        });
+        output.to_string()
+    }
+
+    fn unary(&mut self, op: &str, input: &str, output: &str) -> String {
+        self.node(op, &[input], output, vec![])
+    }
+
+    fn concat(&mut self, inputs: &[&str], output: &str) -> String {
+        self.node("Concat", inputs, output, vec![int_attribute("axis", 1)])
+    }
+
+    /// A named constant, stored once however often it is used.
+    fn i64_constant(&mut self, name: &str, values: &[i64]) -> String {
+        if !self.initializers.iter().any(|t| t.name == name) {
+            self.initializers.push(TensorProto {
+                dims: vec![values.len() as i64],
+                data_type: data_type::INT64,
+                name: name.into(),
+                raw_data: values.iter().flat_map(|v| v.to_le_bytes()).collect(),
+                ..Default::default()
+            });
+        }
+        name.to_string()
+    }
+
+    fn f32_tensor(&mut self, name: &str, dims: &[usize], values: &[f32]) -> String {
+        self.initializers.push(TensorProto {
+            dims: dims.iter().map(|&d| d as i64).collect(),
+            data_type: data_type::FLOAT,
+            name: name.into(),
+            raw_data: values.iter().flat_map(|v| v.to_le_bytes()).collect(),
+            ..Default::default()
+        });
+        name.to_string()
+    }
+
+    /// `Gemm(input, W, b)` (then `activation`), W stored `[in, out]`.
+    fn dense(&mut self, layer: &DenseLayer, input: &str, activation: Option<&str>) -> String {
+        let w = self.f32_tensor(&format!("{}.weight", layer.name), &[layer.in_dim, layer.out_dim], &layer.weight);
+        let b = self.f32_tensor(&format!("{}.bias", layer.name), &[layer.out_dim], &layer.bias);
+        let linear = self.node("Gemm", &[input, &w, &b], &format!("{}.linear", layer.name), vec![]);
+        match activation {
+            Some(op) => self.unary(op, &linear, &format!("{}.{}", layer.name, op.to_lowercase())),
+            None => linear,
+        }
+    }
+
+    /// The positional encoding of graph input `input` (`[N, 3]` → `[N, e.output_dim()]`).
+    fn encoding(&mut self, input: &str, tag: &str, e: &EncodingSpec) -> String {
+        if e.n_frequencies == 0 {
+            return input.to_string();
+        }
+        let l = e.n_frequencies;
+        let axes = self.i64_constant("axes.1", &[1]);
+        let freqs = self.f32_tensor(&format!("{tag}.frequencies"), &[l, 1], &e.frequencies());
+        // Reshape [N, L, 6] → [N, 6L]; 0 copies N, so an empty batch works too.
+        let shape = self.i64_constant(&format!("{tag}.shape"), &[0, 6 * l as i64]);
+        let unsqueezed = self.node("Unsqueeze", &[input, &axes], &format!("{tag}.unsqueeze"), vec![]);
+        let scaled = self.node("Mul", &[&unsqueezed, &freqs], &format!("{tag}.scaled"), vec![]);
+        let sin = self.unary("Sin", &scaled, &format!("{tag}.sin"));
+        let cos = self.unary("Cos", &scaled, &format!("{tag}.cos"));
+        let pairs = self.node("Concat", &[&sin, &cos], &format!("{tag}.sincos"), vec![int_attribute("axis", 2)]);
+        let periodic = self.node("Reshape", &[&pairs, &shape], &format!("{tag}.periodic"), vec![]);
+        if e.include_input { self.concat(&[input, &periodic], &format!("{tag}.output")) } else { periodic }
+    }
+}
+
+fn int_attribute(name: &str, value: i64) -> AttributeProto {
+    AttributeProto { name: name.into(), r#type: attribute_type::INT, i: value, ..Default::default() }
+}
+
+/// The network description and weights of a model written by [`compile`].
+pub fn read_network(model: &ModelProto) -> Result<PlainNetwork, String> {
+    let spec_json = model
+        .metadata_props
+        .iter()
+        .find(|p| p.key == NETWORK_KEY)
+        .ok_or_else(|| format!("no {NETWORK_KEY} metadata: not a graph written by nerf export"))?;
+    let spec: NetworkSpec = serde_json::from_str(&spec_json.value).map_err(|e| format!("{NETWORK_KEY}: {e}"))?;
+    spec.validate()?;
+    let graph = model.graph.as_ref().ok_or("the model has no graph")?;
+    let tensor = |name: &str, dims: &[usize]| -> Result<Vec<f32>, String> {
+        let t = graph.initializer.iter().find(|t| t.name == name).ok_or_else(|| format!("initializer {name} is missing"))?;
+        let want: Vec<i64> = dims.iter().map(|&d| d as i64).collect();
+        if t.dims != want || t.data_type != data_type::FLOAT {
+            return Err(format!("initializer {name}: dims {:?} type {}, expected {want:?} float", t.dims, t.data_type));
+        }
+        let n: usize = dims.iter().product();
+        if !t.raw_data.is_empty() {
+            if t.raw_data.len() != 4 * n {
+                return Err(format!("initializer {name}: {} bytes, expected {}", t.raw_data.len(), 4 * n));
+            }
+            Ok(t.raw_data.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
+        } else if t.float_data.len() == n {
+            Ok(t.float_data.clone())
+        } else {
+            Err(format!("initializer {name}: {} values, expected {n}", t.float_data.len()))
+        }
+    };
+    let layers = spec
+        .layer_shapes()
+        .into_iter()
+        .map(|(name, in_dim, out_dim)| {
+            Ok(DenseLayer {
+                weight: tensor(&format!("{name}.weight"), &[in_dim, out_dim])?,
+                bias: tensor(&format!("{name}.bias"), &[out_dim])?,
+                name,
+                in_dim,
+                out_dim,
+            })
+        })
+        .collect::<Result<Vec<_>, String>>()?;
+    Ok(PlainNetwork { spec, layers })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nerf_core::Rng;
+    use prost::Message;
+
+    fn random_network(use_viewdirs: bool) -> PlainNetwork {
+        let spec = NetworkSpec {
+            depth: 3,
+            width: 8,
+            skips: vec![1],
+            position_encoding: EncodingSpec { n_frequencies: 2, include_input: true },
+            direction_encoding: EncodingSpec { n_frequencies: 1, include_input: false },
+            use_viewdirs,
+        };
+        let mut rng = Rng::new(4);
+        let layers = spec
+            .layer_shapes()
+            .into_iter()
+            .map(|(name, in_dim, out_dim)| DenseLayer {
+                weight: (0..in_dim * out_dim).map(|_| rng.uniform() - 0.5).collect(),
+                bias: (0..out_dim).map(|_| rng.uniform() - 0.5).collect(),
+                name,
+                in_dim,
+                out_dim,
+            })
+            .collect();
+        PlainNetwork { spec, layers }
+    }
+
+    #[test]
+    fn compiled_models_decode_to_the_same_network() {
+        for use_viewdirs in [true, false] {
+            let net = random_network(use_viewdirs);
+            let model = compile(&net, "coarse", DEFAULT_OPSET, &[("nerf.stage".into(), "coarse".into())]).unwrap();
+            let bytes = model.encode_to_vec();
+            let decoded = ModelProto::decode(bytes.as_slice()).unwrap();
+            assert_eq!(decoded, model);
+            assert_eq!(read_network(&decoded).unwrap(), net);
+            let graph = decoded.graph.unwrap();
+            let names: Vec<&str> = graph.input.iter().chain(&graph.output).map(|v| v.name.as_str()).collect();
+            assert_eq!(names, ["points", "viewdirs", "rgb", "sigma"]);
+            let mut init: Vec<&str> = graph.initializer.iter().map(|t| t.name.as_str()).collect();
+            init.sort();
+            let before = init.len();
+            init.dedup();
+            assert_eq!(init.len(), before, "no initializer is stored twice");
+            assert!(graph.node.iter().any(|n| n.op_type == "Sin") && graph.node.iter().any(|n| n.op_type == "Cos"));
+            assert!(decoded.metadata_props.iter().any(|p| p.key == "nerf.stage"));
+        }
+    }
+
+    #[test]
+    fn opsets_and_ir_versions() {
+        let net = random_network(true);
+        assert_eq!(compile(&net, "x", 17, &[]).unwrap().ir_version, 8);
+        assert_eq!(compile(&net, "x", 21, &[]).unwrap().ir_version, 10);
+        let err = compile(&net, "x", 13, &[]).unwrap_err().to_string();
+        assert!(err.contains("opset 13"), "{err}");
+        let mut broken = net.clone();
+        broken.layers[2].bias.pop();
+        assert!(matches!(compile(&broken, "x", 17, &[]), Err(ExportError::Network(_))));
+    }
+}

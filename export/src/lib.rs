@@ -1,0 +1,33 @@
+//! The ONNX compiler: turns plain NeRF networks ([`nerf_core::network::PlainNetwork`]) into
+//! ONNX graphs written with our own prost messages, and writes scene bundles
+//! (`coarse.onnx`, `fine.onnx`, `scene.json`) that a renderer needs nothing else to use.
+//!
+//! It does not depend on burn: any network given as plain data can be compiled.
+#![warn(missing_docs)]
+
+pub mod bundle;
+pub mod graph;
+pub mod proto;
+
+pub use bundle::{Bundle, SceneDescription, read_bundle_network, read_occupancy, read_scene, write_bundle};
+pub use graph::{DEFAULT_OPSET, compile, read_network};
+
+/// Why a network could not be compiled or a bundle written.
+#[derive(Debug, thiserror::Error)]
+pub enum ExportError {
+    /// The network's description or weights are inconsistent.
+    #[error("invalid network: {0}")]
+    Network(String),
+    /// A requested option is not supported.
+    #[error("{0}")]
+    Unsupported(String),
+    /// Writing the bundle failed.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file or directory.
+        path: std::path::PathBuf,
+        /// The I/O error.
+        #[source]
+        source: std::io::Error,
+    },
+}

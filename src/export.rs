@@ -1,0 +1,50 @@
+//! `nerf export`: a trained run → a scene bundle through the burn-free compiler
+//! ([`nerf_export`]).
+
+use crate::evaluate::LoadedRun;
+use nerf_core::camera::Pose;
+use nerf_core::dataset::{Split, load_split};
+use nerf_export::bundle::{NamedPose, WrittenFile, pose_matrix};
+use nerf_export::{Bundle, SceneDescription, write_bundle};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// Frames of the orbit stored in `scene.json`.
+pub const ORBIT_FRAMES: usize = 40;
+
+/// `<run>/source.json`: the dataset a run was trained on.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct RunSource {
+    /// Scene directory.
+    pub data: PathBuf,
+    /// Downscale factor used.
+    pub downscale: u32,
+}
+
+/// Where a run records its dataset.
+pub fn source_path(run: &Path) -> PathBuf {
+    run.join("source.json")
+}
+
+/// The test poses of the run's dataset, when it is recorded and still there.
+fn test_poses(run: &Path) -> Vec<NamedPose> {
+    let Ok(text) = std::fs::read_to_string(source_path(run)) else { return vec![] };
+    let Ok(source) = serde_json::from_str::<RunSource>(&text) else { return vec![] };
+    match load_split(&source.data, Split::Test, source.downscale, false) {
+        Ok(test) => test.views.iter().map(|v| NamedPose { name: v.name.clone(), transform_matrix: pose_matrix(&v.pose) }).collect(),
+        Err(_) => vec![],
+    }
+}
+
+/// Compile the latest checkpoint of `run` into a bundle at `out`.
+pub fn export_run(run: &Path, out: &Path, opset: i64) -> Result<Vec<WrittenFile>, String> {
+    let loaded = LoadedRun::open(run)?;
+    let coarse = loaded.model.coarse.to_plain();
+    let fine = loaded.model.fine.as_ref().map(|f| f.to_plain());
+    let config = &loaded.config;
+    let mut scene = SceneDescription::new(&loaded.camera, &config.sampling, config.white_background, &coarse, fine.is_some());
+    scene.poses.orbit = Pose::orbit(ORBIT_FRAMES).iter().map(pose_matrix).collect();
+    scene.poses.test = test_poses(run);
+    let bundle = Bundle { coarse, fine, scene, occupancy: loaded.occupancy };
+    write_bundle(out, &bundle, opset).map_err(|e| e.to_string())
+}
