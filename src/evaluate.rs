@@ -2,14 +2,14 @@
 //! renderer, writing PNGs, depth maps, GIFs and metrics.
 
 use crate::inference::BurnField;
-use crate::train::{TrainConfig, load_model, render_image_with};
-use nerf_core::occupancy::OccupancyGrid;
 use crate::field::NerfModel;
+use crate::train::{TrainConfig, load_model};
 use indicatif::{ProgressBar, ProgressStyle};
 use nerf_core::camera::{Intrinsics, Pose};
 use nerf_core::dataset::{Split, load_split};
 use nerf_core::imageio::{depth_to_rgb, save_gif, save_png};
 use nerf_core::metrics::{EvalReport, ImageMetrics, psnr, ssim};
+use nerf_core::occupancy::{OccupancyGrid, render_image_with};
 use nerf_core::render::RenderedImage;
 use std::path::{Path, PathBuf};
 

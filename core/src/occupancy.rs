@@ -20,10 +20,13 @@
 
 use crate::error::{Error, Result};
 use crate::rng::Rng;
-use crate::render::{Field, FieldOutput, Stage};
+use crate::camera::{Intrinsics, Pose};
+use crate::render::{Field, FieldOutput, RenderOptions, RenderedImage, Stage, render_image};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
+/// The grid's file name in checkpoints and scene bundles.
+pub const FILE_NAME: &str = "occupancy.bin";
 const MAGIC: &[u8; 8] = b"NERFOCC1";
 const HEADER_BYTES: usize = 20;
 
@@ -109,6 +112,11 @@ impl OccupancyGrid {
     /// Whether `p` lies in an occupied cell.
     pub fn is_occupied(&self, p: [f32; 3]) -> bool {
         self.cell(p).is_some_and(|c| self.density[c] > self.threshold)
+    }
+
+    /// Indices of the points that lie in occupied cells, in order.
+    pub fn occupied_indices(&self, points: &[[f32; 3]]) -> Vec<usize> {
+        (0..points.len()).filter(|&i| self.is_occupied(points[i])).collect()
     }
 
     /// Fraction of cells that are occupied.
@@ -197,7 +205,7 @@ impl<F: Field> Field for SkippingField<'_, F> {
     type Error = F::Error;
 
     fn evaluate(&mut self, stage: Stage, points: &[[f32; 3]], viewdirs: &[[f32; 3]]) -> std::result::Result<FieldOutput, F::Error> {
-        let keep: Vec<usize> = (0..points.len()).filter(|&i| self.grid.is_occupied(points[i])).collect();
+        let keep = self.grid.occupied_indices(points);
         let mut out = FieldOutput { rgb: vec![[0.0; 3]; points.len()], raw_sigma: vec![0.0; points.len()] };
         if keep.is_empty() {
             return Ok(out);
@@ -210,6 +218,21 @@ impl<F: Field> Field for SkippingField<'_, F> {
             out.raw_sigma[i] = packed.raw_sigma[k];
         }
         Ok(out)
+    }
+}
+
+/// [`render_image`] through `field`, skipping empty space when a grid is given.
+pub fn render_image_with<F: Field>(
+    field: F,
+    occupancy: Option<&OccupancyGrid>,
+    intrinsics: &Intrinsics,
+    pose: &Pose,
+    options: &RenderOptions,
+    progress: &mut dyn FnMut(usize, usize),
+) -> std::result::Result<RenderedImage, F::Error> {
+    match occupancy {
+        Some(grid) => render_image(&mut SkippingField { inner: field, grid }, intrinsics, pose, options, progress),
+        None => render_image(&mut { field }, intrinsics, pose, options, progress),
     }
 }
 

@@ -6,7 +6,7 @@ use crate::graph::{compile, read_network};
 use crate::proto::ModelProto;
 use nerf_core::camera::{Intrinsics, Pose};
 use nerf_core::network::{EncodingSpec, PlainNetwork};
-use nerf_core::occupancy::OccupancyGrid;
+use nerf_core::occupancy::{self, OccupancyGrid};
 use nerf_core::sampling::SamplingConfig;
 use prost::Message;
 use serde::{Deserialize, Serialize};
@@ -161,8 +161,7 @@ pub struct Bundle {
     pub occupancy: Option<OccupancyGrid>,
 }
 
-/// The grid's file name in a bundle.
-pub const OCCUPANCY_FILE: &str = "occupancy.bin";
+
 
 /// A file written into a bundle and its size.
 #[derive(Debug, Clone, PartialEq)]
@@ -197,7 +196,7 @@ fn scene_metadata(scene: &SceneDescription, stage: &str) -> Vec<(String, String)
 pub fn write_bundle(dir: &Path, bundle: &Bundle, opset: i64) -> Result<Vec<WrittenFile>, ExportError> {
     let mut scene = bundle.scene.clone();
     scene.occupancy = bundle.occupancy.as_ref().map(|g| OccupancyDescription {
-        file: OCCUPANCY_FILE.into(),
+        file: occupancy::FILE_NAME.into(),
         resolution: g.resolution(),
         bound: g.bound(),
     });
@@ -213,7 +212,7 @@ pub fn write_bundle(dir: &Path, bundle: &Bundle, opset: i64) -> Result<Vec<Writt
         files.push((name.clone(), compile(net, "fine", opset, &scene_metadata(scene, "fine"))?.encode_to_vec()));
     }
     if let Some(grid) = &bundle.occupancy {
-        files.push((OCCUPANCY_FILE.into(), grid.to_bytes()));
+        files.push((occupancy::FILE_NAME.into(), grid.to_bytes()));
     }
     files.push((SCENE_FILE.into(), serde_json::to_vec_pretty(scene).expect("a scene serialises")));
 

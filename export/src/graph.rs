@@ -52,25 +52,24 @@ pub fn compile(net: &PlainNetwork, name: &str, opset: i64, metadata: &[(String, 
     let mut g = Builder::default();
     let x = g.encoding("points", "position_encoding", &spec.position_encoding);
     let mut h = x.clone();
-    let layers: Vec<&DenseLayer> = net.layers.iter().collect();
-    for i in 0..spec.depth {
-        h = g.dense(layers[i], &h, Some("Relu"));
+    for (i, layer) in net.layers[..spec.depth].iter().enumerate() {
+        h = g.dense(layer, &h, Some("Relu"));
         if spec.skips.contains(&i) {
             h = g.concat(&[&x, &h], &format!("trunk.{i}.skip"));
         }
     }
-    let heads = &layers[spec.depth..];
+    let heads = &net.layers[spec.depth..];
     if spec.use_viewdirs {
-        let sigma_raw = g.dense(heads[0], &h, None);
+        let sigma_raw = g.dense(&heads[0], &h, None);
         g.unary("Relu", &sigma_raw, "sigma");
-        let feature = g.dense(heads[1], &h, None);
+        let feature = g.dense(&heads[1], &h, None);
         let d = g.encoding("viewdirs", "direction_encoding", &spec.direction_encoding);
         let view_in = g.concat(&[&feature, &d], "view.input");
-        let v = g.dense(heads[2], &view_in, Some("Relu"));
-        let rgb_raw = g.dense(heads[3], &v, None);
+        let v = g.dense(&heads[2], &view_in, Some("Relu"));
+        let rgb_raw = g.dense(&heads[3], &v, None);
         g.unary("Sigmoid", &rgb_raw, "rgb");
     } else {
-        let out = g.dense(heads[0], &h, None);
+        let out = g.dense(&heads[0], &h, None);
         let axes = g.i64_constant("slice.axes", &[1]);
         let (s0, s3, s4) = (g.i64_constant("slice.0", &[0]), g.i64_constant("slice.3", &[3]), g.i64_constant("slice.4", &[4]));
         let rgb_raw = g.node("Slice", &[&out, &s0, &s3, &axes], "output.rgb", vec![]);

@@ -10,13 +10,11 @@ use burn::store::{BurnpackStore, ModuleSnapshot};
 use burn::tensor::{Bytes, Device};
 use nerf_core::Rng;
 use nerf_core::error::write_atomic;
-use nerf_core::occupancy::OccupancyGrid;
+use nerf_core::occupancy::{self, OccupancyGrid};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
 const FORMAT: &str = "nerf-rs-checkpoint-1";
-/// The occupancy grid's file in a checkpoint (format in [`nerf_core::occupancy`]).
-pub const OCCUPANCY_FILE: &str = "occupancy.bin";
 
 /// Training progress saved with the weights.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -90,7 +88,7 @@ impl Checkpoint {
         write("model.bpk", &model_bytes)?;
         write("optim.bpk", &optim_bytes)?;
         if let Some(grid) = occupancy {
-            write(OCCUPANCY_FILE, &grid.to_bytes())?;
+            write(occupancy::FILE_NAME, &grid.to_bytes())?;
         }
         write("state.json", serde_json::to_string_pretty(state).expect("state serialises").as_bytes())?;
         if dir.exists() {
@@ -145,7 +143,7 @@ impl Checkpoint {
 
     /// The occupancy grid saved with the weights, if the run skips empty space.
     pub fn load_occupancy(&self) -> Result<Option<OccupancyGrid>, String> {
-        let path = self.dir.join(OCCUPANCY_FILE);
+        let path = self.dir.join(occupancy::FILE_NAME);
         if !path.exists() {
             return Ok(None);
         }

@@ -5,7 +5,7 @@ mod config;
 mod schedule;
 mod trainer;
 
-pub use checkpoint::{OCCUPANCY_FILE, Checkpoint, CheckpointState, latest_checkpoint, load_model};
+pub use checkpoint::{Checkpoint, CheckpointState, latest_checkpoint, load_model};
 pub use config::{Preset, TrainConfig};
 pub use schedule::learning_rate;
-pub use trainer::{StepStats, StepTiming, TrainOptions, TrainSummary, Trainer, render_image_with, render_options, train};
+pub use trainer::{StepStats, StepTiming, TrainOptions, TrainSummary, Trainer, render_options, train};

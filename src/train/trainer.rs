@@ -10,13 +10,11 @@ use burn::module::Module;
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::grad_clipping::GradientClippingConfig;
 use burn::tensor::{Device, IndexingUpdateOp, Int, Tensor, TensorData};
-use nerf_core::camera::{Intrinsics, Pose};
-use nerf_core::occupancy::{OccupancyGrid, SkippingField};
-use nerf_core::render::{Field, RenderedImage};
+use nerf_core::occupancy::{OccupancyGrid, render_image_with};
 use indicatif::{ProgressBar, ProgressStyle};
 use nerf_core::dataset::{RayBatcher, Split, SplitData, load_split};
 use nerf_core::metrics::psnr_from_mse;
-use nerf_core::render::{RenderOptions, render_image};
+use nerf_core::render::RenderOptions;
 use nerf_core::sampling::{DenseSamples, importance, stratified};
 use nerf_core::{Rays, Rng};
 use std::io::Write;
@@ -69,7 +67,8 @@ pub struct StepStats {
 /// Seconds spent in each phase of a step.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct StepTiming {
-    /// Batch, rays, sampling and both forward passes (with the loss read back).
+    /// Occupancy update (when due), batch, rays, sampling and both forward passes (with the
+    /// loss read back).
     pub forward_s: f64,
     /// Backpropagation.
     pub backward_s: f64,
@@ -161,11 +160,13 @@ impl Trainer {
         let (n_rays, n) = (samples.n_rays, samples.n_samples);
         let spec = net.spec();
         let points = samples.points(&rays.origins, &rays.directions);
-        let occupied: Option<Vec<usize>> = self.occupancy.as_ref().map(|grid| (0..points.len()).filter(|&i| grid.is_occupied(points[i])).collect());
+        let occupied = self.occupancy.as_ref().map(|grid| grid.occupied_indices(&points));
         // The inputs need no gradient, so they are encoded here rather than as graph ops.
         let (rgb, sigma) = match occupied {
             Some(mut keep) if keep.len() < points.len() => {
                 // Only occupied samples reach the network; the rest keep σ = 0 (and colour 0).
+                // A batch with nothing occupied still evaluates its first sample, so the graph is
+                // never empty (burn has no zero-row tensors here).
                 if keep.is_empty() {
                     keep.push(0);
                 }
@@ -254,21 +255,6 @@ impl Trainer {
         let options = render_options(&self.config);
         let Ok(image) = render_image_with(field, self.occupancy.as_ref(), &data.intrinsics, &view.pose, &options, &mut |_, _| {});
         nerf_core::metrics::psnr(&image.rays.rgb, target)
-    }
-}
-
-/// Render through `field`, skipping empty space when a grid is given.
-pub fn render_image_with<F: Field>(
-    field: F,
-    occupancy: Option<&OccupancyGrid>,
-    intrinsics: &Intrinsics,
-    pose: &Pose,
-    options: &RenderOptions,
-    progress: &mut dyn FnMut(usize, usize),
-) -> Result<RenderedImage, F::Error> {
-    match occupancy {
-        Some(grid) => render_image(&mut SkippingField { inner: field, grid }, intrinsics, pose, options, progress),
-        None => render_image(&mut { field }, intrinsics, pose, options, progress),
     }
 }
 
