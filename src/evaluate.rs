@@ -1,8 +1,8 @@
 //! `nerf eval` and `nerf render`: test-time rendering of a trained run through the shared
 //! renderer, writing PNGs, depth maps, GIFs and metrics.
 
-use crate::inference::BurnField;
 use crate::field::NerfModel;
+use crate::inference::BurnField;
 use crate::train::{TrainConfig, load_model};
 use indicatif::{ProgressBar, ProgressStyle};
 use nerf_core::camera::{Intrinsics, Pose};
