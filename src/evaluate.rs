@@ -1,16 +1,16 @@
 //! `nerf eval` and `nerf render`: test-time rendering of a trained run through the shared
-//! renderer, writing PNGs, depth maps, GIFs and metrics.
+//! renderer and frame writer (`nerf_core::frames`), the same ones `nerf-render` uses.
 
 use crate::field::NerfModel;
 use crate::inference::BurnField;
 use crate::train::{TrainConfig, load_model};
-use indicatif::{ProgressBar, ProgressStyle};
 use nerf_core::camera::{Intrinsics, Pose};
 use nerf_core::dataset::{Split, load_split};
-use nerf_core::imageio::{depth_to_rgb, save_gif, save_png};
-use nerf_core::metrics::{EvalReport, ImageMetrics, psnr, ssim};
+use nerf_core::frames::{FrameOutput, FrameSpec, FramesReport, render_frames};
+use nerf_core::metrics::EvalReport;
 use nerf_core::occupancy::{OccupancyGrid, render_image_with};
 use nerf_core::render::RenderedImage;
+use std::convert::Infallible;
 use std::path::{Path, PathBuf};
 
 /// `<run>/camera.json`: the training camera, so orbits render at the training resolution.
@@ -43,40 +43,21 @@ impl LoadedRun {
         Ok(LoadedRun { config, model, camera, step: state.step, occupancy })
     }
 
-    /// Render one view deterministically, with a progress bar when `bar` is given.
-    pub fn render(&self, intrinsics: &Intrinsics, pose: &Pose, bar: &ProgressBar) -> RenderedImage {
+    /// Render one view deterministically (test-time sampling, skipping empty space when the
+    /// run has a grid), reporting `progress(done, total)` pixels.
+    pub fn render(&self, intrinsics: &Intrinsics, pose: &Pose, progress: &mut dyn FnMut(usize, usize)) -> RenderedImage {
         let field = BurnField { model: &self.model, device: crate::backend::cpu() };
         let options = crate::train::render_options(&self.config);
-        bar.set_length(intrinsics.num_pixels() as u64);
-        bar.set_position(0);
-        let Ok(image) = render_image_with(field, self.occupancy.as_ref(), intrinsics, pose, &options, &mut |done, _| {
-            bar.set_position(done as u64)
-        });
+        let Ok(image) = render_image_with(field, self.occupancy.as_ref(), intrinsics, pose, &options, progress);
         image
     }
 
-    /// Write `<out>/<name>.png` and `<out>/<name>_depth.png`.
-    pub fn save(&self, image: &RenderedImage, out: &Path, name: &str) -> Result<(), String> {
-        let (w, h) = (image.width, image.height);
-        save_png(&out.join(format!("{name}.png")), w, h, &image.rays.rgb).map_err(|e| e.to_string())?;
+    /// Render `frames` into `out` (PNG + depth map each; metrics when they have ground truth).
+    pub fn render_frames(&self, frames: Vec<FrameSpec>, out: &Path, gif: bool, progress: bool) -> Result<FramesReport, String> {
         let s = &self.config.sampling;
-        let depth = depth_to_rgb(&image.rays.depth, &image.rays.acc, s.near, s.far);
-        save_png(&out.join(format!("{name}_depth.png")), w, h, &depth).map_err(|e| e.to_string())
+        let output = FrameOutput { dir: out.to_path_buf(), depth_range: (s.near, s.far), gif, raw: false, progress };
+        render_frames(frames, &output, |f, p| Ok::<_, Infallible>(self.render(&f.intrinsics, &f.pose, p)))
     }
-}
-
-/// A progress bar for `what` (hidden when `show` is false).
-pub fn frame_bar(show: bool, what: &str) -> ProgressBar {
-    let bar = if show { ProgressBar::new(0) } else { ProgressBar::hidden() };
-    bar.set_style(
-        ProgressStyle::with_template("{prefix} [{elapsed_precise}<{eta_precise}] {wide_bar} {percent}% {msg}").expect("valid template"),
-    );
-    bar.set_prefix(what.to_string());
-    bar
-}
-
-fn create_dir(out: &Path) -> Result<(), String> {
-    std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))
 }
 
 /// Render a split's views, compare with its images, write PNGs and `<out>/metrics.json`.
@@ -84,53 +65,21 @@ pub fn eval(run: &Path, data: &Path, split: Split, downscale: u32, limit: Option
     let loaded = LoadedRun::open(run)?;
     let mut scene = load_split(data, split, downscale, true).map_err(|e| e.to_string())?;
     scene.views.truncate(limit.unwrap_or(usize::MAX));
-    create_dir(out)?;
-    let mut per_image = Vec::new();
-    for (k, view) in scene.views.iter().enumerate() {
-        let bar = frame_bar(progress, &format!("{} {}/{}", view.name, k + 1, scene.views.len()));
-        let image = loaded.render(&scene.intrinsics, &view.pose, &bar);
-        let target = view.image.as_ref().expect("images were loaded");
-        let m = ImageMetrics {
-            name: view.name.clone(),
-            psnr: psnr(&image.rays.rgb, target),
-            ssim: ssim(&image.rays.rgb, target, image.width as usize, image.height as usize),
-        };
-        bar.finish_with_message(format!("PSNR {:.2} dB, SSIM {:.3}", m.psnr, m.ssim));
-        loaded.save(&image, out, &view.name)?;
-        per_image.push(m);
-    }
-    let report = EvalReport::from_images(per_image);
-    report.write_json(&out.join("metrics.json")).map_err(|e| e.to_string())?;
-    Ok(report)
+    let report = loaded.render_frames(FrameSpec::from_split(scene), out, false, progress)?;
+    report.metrics.ok_or_else(|| format!("{}: the split has no views", data.display()))
 }
 
 /// Render a split's poses (no ground truth needed) to PNGs and depth maps.
 pub fn render_split(run: &Path, data: &Path, split: Split, downscale: u32, out: &Path, progress: bool) -> Result<usize, String> {
     let loaded = LoadedRun::open(run)?;
     let scene = load_split(data, split, downscale, false).map_err(|e| e.to_string())?;
-    create_dir(out)?;
-    for (k, view) in scene.views.iter().enumerate() {
-        let bar = frame_bar(progress, &format!("{} {}/{}", view.name, k + 1, scene.views.len()));
-        let image = loaded.render(&scene.intrinsics, &view.pose, &bar);
-        bar.finish();
-        loaded.save(&image, out, &view.name)?;
-    }
-    Ok(scene.views.len())
+    Ok(loaded.render_frames(FrameSpec::from_split(scene), out, false, progress)?.frames)
 }
 
 /// Render the reference 360° orbit: `frame_NNN.png`, depth maps and `orbit.gif`.
 pub fn render_orbit(run: &Path, frames: usize, out: &Path, progress: bool) -> Result<PathBuf, String> {
     let loaded = LoadedRun::open(run)?;
-    create_dir(out)?;
-    let mut colour = Vec::with_capacity(frames);
-    for (k, pose) in Pose::orbit(frames).iter().enumerate() {
-        let bar = frame_bar(progress, &format!("orbit {}/{frames}", k + 1));
-        let image = loaded.render(&loaded.camera, pose, &bar);
-        bar.finish();
-        loaded.save(&image, out, &format!("frame_{k:03}"))?;
-        colour.push(image.rays.rgb);
-    }
-    let gif = out.join("orbit.gif");
-    save_gif(&gif, loaded.camera.width, loaded.camera.height, &colour, 100).map_err(|e| e.to_string())?;
-    Ok(gif)
+    let specs = FrameSpec::orbit(&loaded.camera, &Pose::orbit(frames));
+    let report = loaded.render_frames(specs, out, true, progress)?;
+    report.gif.ok_or_else(|| "an orbit needs at least one frame".to_string())
 }

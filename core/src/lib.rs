@@ -11,12 +11,14 @@
 //! - [`network`]: the NeRF MLP described as plain data (sizes, skips, encodings, weights).
 //! - [`occupancy`]: the occupancy grid for empty-space skipping.
 //! - [`metrics`], [`imageio`]: PSNR/SSIM, PNG/GIF output and depth colouring.
+//! - [`frames`]: rendering a list of views to PNGs, depth maps, `.npy`, metrics and a GIF.
 #![warn(missing_docs)]
 
 pub mod camera;
 pub mod compositing;
 pub mod dataset;
 pub mod error;
+pub mod frames;
 pub mod imageio;
 pub mod metrics;
 pub mod network;

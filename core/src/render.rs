@@ -37,6 +37,14 @@ pub trait Field {
     fn evaluate(&mut self, stage: Stage, points: &[[f32; 3]], viewdirs: &[[f32; 3]]) -> Result<FieldOutput, Self::Error>;
 }
 
+/// A borrowed field is a field, so wrappers such as the skipping one can hold `&mut F`.
+impl<F: Field + ?Sized> Field for &mut F {
+    type Error = F::Error;
+    fn evaluate(&mut self, stage: Stage, points: &[[f32; 3]], viewdirs: &[[f32; 3]]) -> Result<FieldOutput, Self::Error> {
+        (**self).evaluate(stage, points, viewdirs)
+    }
+}
+
 /// How to render.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RenderOptions {

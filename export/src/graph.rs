@@ -27,6 +27,51 @@ pub const DEFAULT_OPSET: i64 = 17;
 /// Metadata key holding the network description as JSON.
 pub const NETWORK_KEY: &str = "nerf.network";
 
+/// The graph inputs, with their second dimension: `[N, 3]` each.
+pub const CONTRACT_INPUTS: [(&str, i64); 2] = [("points", 3), ("viewdirs", 3)];
+/// The graph outputs, with their second dimension: `rgb [N, 3]`, `sigma [N, 1]`.
+pub const CONTRACT_OUTPUTS: [(&str, i64); 2] = [("rgb", 3), ("sigma", 1)];
+
+/// Check that `model`'s graph has exactly the contract's inputs and outputs: float32, rank 2,
+/// the first dimension dynamic or any size, the second as in [`CONTRACT_INPUTS`] /
+/// [`CONTRACT_OUTPUTS`]. Graphs from other tools pass if they follow it.
+pub fn check_contract(model: &ModelProto) -> Result<(), String> {
+    use tensor_shape_proto::dimension::Value;
+    let graph = model.graph.as_ref().ok_or("the model has no graph")?;
+    let side = |what: &str, values: &[ValueInfoProto], expected: &[(&str, i64)]| -> Result<(), String> {
+        let names: Vec<&str> = values.iter().map(|v| v.name.as_str()).collect();
+        let want: Vec<&str> = expected.iter().map(|(n, _)| *n).collect();
+        let mut sorted = names.clone();
+        sorted.sort();
+        let mut want_sorted = want.clone();
+        want_sorted.sort();
+        if sorted != want_sorted {
+            return Err(format!("graph {what}s are {names:?}, the contract needs {want:?}"));
+        }
+        for (name, cols) in expected {
+            let v = values.iter().find(|v| v.name == *name).expect("names checked");
+            let Some(type_proto::Value::TensorType(t)) = v.r#type.as_ref().and_then(|t| t.value.as_ref()) else {
+                return Err(format!("{what} {name}: not a tensor"));
+            };
+            if t.elem_type != data_type::FLOAT {
+                return Err(format!("{what} {name}: element type {}, the contract needs float32 ({})", t.elem_type, data_type::FLOAT));
+            }
+            let dims: Vec<Option<i64>> = t
+                .shape
+                .as_ref()
+                .map(|s| s.dim.iter().map(|d| match d.value { Some(Value::DimValue(v)) => Some(v), _ => None }).collect())
+                .unwrap_or_default();
+            if dims.len() != 2 || dims[1].is_some_and(|c| c != *cols) {
+                let shown: Vec<String> = dims.iter().map(|d| d.map_or("?".into(), |v| v.to_string())).collect();
+                return Err(format!("{what} {name}: shape [{}], the contract needs [N, {cols}]", shown.join(", ")));
+            }
+        }
+        Ok(())
+    };
+    side("input", &graph.input, &CONTRACT_INPUTS)?;
+    side("output", &graph.output, &CONTRACT_OUTPUTS)
+}
+
 /// The IR version that goes with an opset of the default domain (onnx's VERSION_TABLE).
 pub fn ir_version_for(opset: i64) -> i64 {
     match opset {
@@ -94,12 +139,12 @@ pub fn compile(net: &PlainNetwork, name: &str, opset: i64, metadata: &[(String, 
             spec.depth, spec.width, spec.skips, spec.use_viewdirs
         ),
         input: vec![
-            value_info("points", &[None, Some(3)], "World-space sample positions, float32 [N, 3]."),
-            value_info("viewdirs", &[None, Some(3)], "Unit view directions (the ray direction normalised), float32 [N, 3], one per point."),
+            value_info(CONTRACT_INPUTS[0], "World-space sample positions, float32 [N, 3]."),
+            value_info(CONTRACT_INPUTS[1], "Unit view directions (the ray direction normalised), float32 [N, 3], one per point."),
         ],
         output: vec![
-            value_info("rgb", &[None, Some(3)], "Colour in [0, 1] (sigmoid applied), float32 [N, 3]."),
-            value_info("sigma", &[None, Some(1)], "Volume density (ReLU applied), float32 [N, 1]."),
+            value_info(CONTRACT_OUTPUTS[0], "Colour in [0, 1] (sigmoid applied), float32 [N, 3]."),
+            value_info(CONTRACT_OUTPUTS[1], "Volume density (ReLU applied), float32 [N, 1]."),
         ],
         value_info: vec![],
     };
@@ -125,12 +170,10 @@ fn encoding_text(e: &EncodingSpec) -> String {
     )
 }
 
-fn value_info(name: &str, dims: &[Option<i64>], doc: &str) -> ValueInfoProto {
+/// `name` float32 `[N, columns]`.
+fn value_info((name, columns): (&str, i64), doc: &str) -> ValueInfoProto {
     use tensor_shape_proto::{Dimension, dimension::Value};
-    let dim = dims
-        .iter()
-        .map(|d| Dimension { value: Some(d.map_or_else(|| Value::DimParam("N".into()), Value::DimValue)) })
-        .collect();
+    let dim = vec![Dimension { value: Some(Value::DimParam("N".into())) }, Dimension { value: Some(Value::DimValue(columns)) }];
     ValueInfoProto {
         name: name.into(),
         r#type: Some(TypeProto {
@@ -325,7 +368,29 @@ mod tests {
             assert_eq!(init.len(), before, "no initializer is stored twice");
             assert!(graph.node.iter().any(|n| n.op_type == "Sin") && graph.node.iter().any(|n| n.op_type == "Cos"));
             assert!(decoded.metadata_props.iter().any(|p| p.key == "nerf.stage"));
+            check_contract(&decoded).unwrap();
         }
+    }
+
+    #[test]
+    fn contract_violations_are_named() {
+        let model = compile(&random_network(true), "coarse", DEFAULT_OPSET, &[]).unwrap();
+        let mut renamed = model.clone();
+        renamed.graph.as_mut().unwrap().input[1].name = "dirs".into();
+        let err = check_contract(&renamed).unwrap_err();
+        assert!(err.contains("inputs") && err.contains("dirs") && err.contains("viewdirs"), "{err}");
+        let mut wide = model.clone();
+        let sigma = &mut wide.graph.as_mut().unwrap().output[1];
+        let Some(type_proto::Value::TensorType(t)) = sigma.r#type.as_mut().unwrap().value.as_mut() else { panic!() };
+        t.shape.as_mut().unwrap().dim[1].value = Some(tensor_shape_proto::dimension::Value::DimValue(2));
+        let err = check_contract(&wide).unwrap_err();
+        assert!(err.contains("output sigma") && err.contains("[N, 1]"), "{err}");
+        let mut typed = model;
+        let points = &mut typed.graph.as_mut().unwrap().input[0];
+        let Some(type_proto::Value::TensorType(t)) = points.r#type.as_mut().unwrap().value.as_mut() else { panic!() };
+        t.elem_type = data_type::INT64;
+        let err = check_contract(&typed).unwrap_err();
+        assert!(err.contains("input points") && err.contains("float32"), "{err}");
     }
 
     #[test]

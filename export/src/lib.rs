@@ -10,7 +10,7 @@ pub mod graph;
 pub mod proto;
 
 pub use bundle::{Bundle, SceneDescription, read_bundle_network, read_occupancy, read_scene, write_bundle};
-pub use graph::{DEFAULT_OPSET, compile, read_network};
+pub use graph::{DEFAULT_OPSET, check_contract, compile, read_network};
 
 /// Why a network could not be compiled or a bundle written.
 #[derive(Debug, thiserror::Error)]

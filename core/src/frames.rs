@@ -1,0 +1,260 @@
+//! Frame output shared by `nerf eval`/`nerf render` (burn) and `nerf-render` (onnxruntime):
+//! the views to render, a progress bar per frame, PNG + depth map (+ optional raw `.npy`),
+//! metrics against ground truth and the orbit GIF. The renderer is a closure, so both binaries
+//! write the same files the same way.
+
+use crate::camera::{Intrinsics, Pose};
+use crate::dataset::SplitData;
+use crate::error::{Error, Result, write_atomic};
+use crate::imageio::{depth_to_rgb, save_gif, save_png};
+use crate::metrics::{EvalReport, ImageMetrics, psnr, ssim};
+use crate::render::RenderedImage;
+use indicatif::{ProgressBar, ProgressStyle};
+use std::fmt::Display;
+use std::path::{Path, PathBuf};
+
+/// File name of the metrics written when the frames have ground truth.
+pub const METRICS_FILE: &str = "metrics.json";
+/// File name of the orbit animation.
+pub const GIF_FILE: &str = "orbit.gif";
+/// Milliseconds per GIF frame.
+pub const GIF_DELAY_MS: u16 = 100;
+
+/// One image to render.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameSpec {
+    /// Output file stem (`r_0`, `frame_007`).
+    pub name: String,
+    /// Camera.
+    pub intrinsics: Intrinsics,
+    /// Camera-to-world pose.
+    pub pose: Pose,
+    /// Ground truth (row-major RGB, white background) for metrics.
+    pub target: Option<Vec<[f32; 3]>>,
+}
+
+impl FrameSpec {
+    /// The orbit frames `frame_000`, `frame_001`, … for `poses`.
+    pub fn orbit(intrinsics: &Intrinsics, poses: &[Pose]) -> Vec<FrameSpec> {
+        poses
+            .iter()
+            .enumerate()
+            .map(|(k, pose)| FrameSpec { name: format!("frame_{k:03}"), intrinsics: *intrinsics, pose: *pose, target: None })
+            .collect()
+    }
+
+    /// A split's views, named after their images, with the images as targets when loaded.
+    pub fn from_split(data: SplitData) -> Vec<FrameSpec> {
+        let intrinsics = data.intrinsics;
+        data.views.into_iter().map(|v| FrameSpec { name: v.name, intrinsics, pose: v.pose, target: v.image }).collect()
+    }
+}
+
+/// Where and what to write.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameOutput {
+    /// Output directory (created if missing).
+    pub dir: PathBuf,
+    /// Depth range of the colour map (near, far).
+    pub depth_range: (f32, f32),
+    /// Also write `orbit.gif` of all frames.
+    pub gif: bool,
+    /// Also write `<name>.npy`: float32 `[H, W, 5]` = r, g, b, depth, acc (exact values for
+    /// comparisons; PNGs are 8-bit).
+    pub raw: bool,
+    /// Show a progress bar per frame.
+    pub progress: bool,
+}
+
+/// What [`render_frames`] wrote.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FramesReport {
+    /// Number of frames rendered.
+    pub frames: usize,
+    /// Metrics (also in `metrics.json`) when every frame had ground truth.
+    pub metrics: Option<EvalReport>,
+    /// The GIF, when asked for.
+    pub gif: Option<PathBuf>,
+}
+
+/// A progress bar for one frame labelled `what` (hidden when `show` is false).
+pub fn frame_bar(show: bool, what: &str) -> ProgressBar {
+    let bar = if show { ProgressBar::new(0) } else { ProgressBar::hidden() };
+    bar.set_style(
+        ProgressStyle::with_template("{prefix} [{elapsed_precise}<{eta_precise}] {wide_bar} {percent}% {msg}").expect("valid template"),
+    );
+    bar.set_prefix(what.to_string());
+    bar
+}
+
+/// Render every frame with `render(frame, progress(done, total))` and write PNG + depth map
+/// per frame, then `metrics.json` (if all frames have targets) and `orbit.gif` (if asked).
+pub fn render_frames<E: Display>(
+    frames: Vec<FrameSpec>,
+    out: &FrameOutput,
+    mut render: impl FnMut(&FrameSpec, &mut dyn FnMut(usize, usize)) -> std::result::Result<RenderedImage, E>,
+) -> std::result::Result<FramesReport, String> {
+    std::fs::create_dir_all(&out.dir).map_err(|e| Error::io(&out.dir, e).to_string())?;
+    let with_metrics = !frames.is_empty() && frames.iter().all(|f| f.target.is_some());
+    let total = frames.len();
+    let mut per_image = Vec::new();
+    let mut gif_frames = Vec::new();
+    for (k, frame) in frames.iter().enumerate() {
+        let bar = frame_bar(out.progress, &format!("{} {}/{total}", frame.name, k + 1));
+        bar.set_length(frame.intrinsics.num_pixels() as u64);
+        let image = render(frame, &mut |done, _| bar.set_position(done as u64)).map_err(|e| e.to_string())?;
+        save_frame(&image, &out.dir, &frame.name, out.depth_range, out.raw).map_err(|e| e.to_string())?;
+        if let Some(target) = frame.target.as_ref().filter(|_| with_metrics) {
+            let m = ImageMetrics {
+                name: frame.name.clone(),
+                psnr: psnr(&image.rays.rgb, target),
+                ssim: ssim(&image.rays.rgb, target, image.width as usize, image.height as usize),
+            };
+            bar.finish_with_message(format!("PSNR {:.2} dB, SSIM {:.3}", m.psnr, m.ssim));
+            per_image.push(m);
+        } else {
+            bar.finish();
+        }
+        if out.gif {
+            gif_frames.push(image.rays.rgb);
+        }
+    }
+    let metrics = if with_metrics {
+        let report = EvalReport::from_images(per_image);
+        report.write_json(&out.dir.join(METRICS_FILE)).map_err(|e| e.to_string())?;
+        Some(report)
+    } else {
+        None
+    };
+    let gif = match (out.gif, frames.first()) {
+        (true, Some(first)) => {
+            let path = out.dir.join(GIF_FILE);
+            let k = first.intrinsics;
+            save_gif(&path, k.width, k.height, &gif_frames, GIF_DELAY_MS).map_err(|e| e.to_string())?;
+            Some(path)
+        }
+        _ => None,
+    };
+    Ok(FramesReport { frames: total, metrics, gif })
+}
+
+/// Write `<dir>/<name>.png`, `<dir>/<name>_depth.png` and, with `raw`, `<dir>/<name>.npy`.
+pub fn save_frame(image: &RenderedImage, dir: &Path, name: &str, depth_range: (f32, f32), raw: bool) -> Result<()> {
+    let (w, h) = (image.width, image.height);
+    save_png(&dir.join(format!("{name}.png")), w, h, &image.rays.rgb)?;
+    let depth = depth_to_rgb(&image.rays.depth, &image.rays.acc, depth_range.0, depth_range.1);
+    save_png(&dir.join(format!("{name}_depth.png")), w, h, &depth)?;
+    if raw {
+        save_npy(&dir.join(format!("{name}.npy")), image)?;
+    }
+    Ok(())
+}
+
+/// `[H, W, 5]` little-endian float32 `.npy` (format 1.0) of r, g, b, depth, acc per pixel.
+pub fn npy_bytes(image: &RenderedImage) -> Vec<u8> {
+    let r = &image.rays;
+    let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({}, {}, 5), }}", image.height, image.width);
+    // Magic (6) + version (2) + length (2) + header + '\n' is a multiple of 64.
+    while (10 + header.len() + 1) % 64 != 0 {
+        header.push(' ');
+    }
+    header.push('\n');
+    let mut bytes = Vec::with_capacity(10 + header.len() + r.rgb.len() * 20);
+    bytes.extend_from_slice(b"\x93NUMPY\x01\x00");
+    bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    bytes.extend_from_slice(header.as_bytes());
+    for ((c, d), a) in r.rgb.iter().zip(&r.depth).zip(&r.acc) {
+        for v in [c[0], c[1], c[2], *d, *a] {
+            bytes.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    bytes
+}
+
+/// Write [`npy_bytes`] atomically.
+pub fn save_npy(path: &Path, image: &RenderedImage) -> Result<()> {
+    write_atomic(path, &npy_bytes(image))
+}
+
+/// Read back the `[H, W, 5]` float32 arrays [`save_npy`] writes: (height, width, values).
+pub fn load_npy(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bad = |what: &str| Error::invalid(path, format!("not a float32 [H, W, 5] .npy file: {what}"));
+    if bytes.len() < 10 || &bytes[..8] != b"\x93NUMPY\x01\x00" {
+        return Err(bad("bad magic"));
+    }
+    let header_len = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
+    let header = std::str::from_utf8(bytes.get(10..10 + header_len).ok_or_else(|| bad("truncated header"))?).map_err(|_| bad("header"))?;
+    if !header.contains("'<f4'") || header.contains("'fortran_order': True") {
+        return Err(bad("need little-endian float32 in C order"));
+    }
+    let shape = header.split("'shape': (").nth(1).and_then(|s| s.split(')').next()).ok_or_else(|| bad("no shape"))?;
+    let dims: Vec<usize> = shape.split(',').filter(|s| !s.trim().is_empty()).map(|s| s.trim().parse()).collect::<std::result::Result<_, _>>().map_err(|_| bad("shape"))?;
+    let [h, w, 5] = dims[..] else { return Err(bad("shape is not [H, W, 5]")) };
+    let data = &bytes[10 + header_len..];
+    if data.len() != h * w * 5 * 4 {
+        return Err(bad("data length does not match the shape (truncated?)"));
+    }
+    Ok((h, w, data.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::render::RenderedRays;
+
+    fn image() -> RenderedImage {
+        RenderedImage {
+            width: 3,
+            height: 2,
+            rays: RenderedRays {
+                rgb: (0..6).map(|k| [k as f32 * 0.1, 0.5, 1.0]).collect(),
+                depth: (0..6).map(|k| 2.0 + k as f32).collect(),
+                acc: vec![0.25; 6],
+            },
+        }
+    }
+
+    #[test]
+    fn npy_round_trip_keeps_layout_and_values() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("x.npy");
+        save_npy(&path, &image()).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        assert_eq!((10 + u16::from_le_bytes([bytes[8], bytes[9]]) as usize) % 64, 0, "data is 64-byte aligned");
+        let (h, w, v) = load_npy(&path).unwrap();
+        assert_eq!((h, w, v.len()), (2, 3, 30));
+        // Pixel (row 1, column 2) = index 5: r = 0.5, depth = 7, acc = 0.25.
+        assert_eq!(&v[25..30], &[0.5, 0.5, 1.0, 7.0, 0.25]);
+        std::fs::write(&path, &bytes[..bytes.len() - 4]).unwrap();
+        let err = load_npy(&path).unwrap_err().to_string();
+        assert!(err.contains("x.npy") && err.contains("truncated"), "{err}");
+    }
+
+    #[test]
+    fn frames_write_pngs_metrics_and_gif() {
+        let dir = tempfile::tempdir().unwrap();
+        let k = Intrinsics { width: 3, height: 2, focal: 3.0 };
+        let pose = Pose::spherical(0.0, -30.0, 4.0);
+        let mut frames = FrameSpec::orbit(&k, &[pose, pose]);
+        let truth = image().rays.rgb;
+        let out = FrameOutput { dir: dir.path().join("out"), depth_range: (2.0, 6.0), gif: true, raw: true, progress: false };
+        // Without targets: no metrics.
+        let report = render_frames(frames.clone(), &out, |_, _| Ok::<_, String>(image())).unwrap();
+        assert_eq!((report.frames, report.metrics.is_none()), (2, true));
+        assert!(report.gif.unwrap().exists());
+        for name in ["frame_000.png", "frame_001_depth.png", "frame_001.npy"] {
+            assert!(out.dir.join(name).exists(), "{name}");
+        }
+        // With targets: one exact frame (infinite PSNR) and one off by 0.1 everywhere (20 dB).
+        frames[0].target = Some(truth.clone());
+        frames[1].target = Some(truth.iter().map(|c| c.map(|v| v - 0.1)).collect());
+        let report = render_frames(frames, &out, |_, _| Ok::<_, String>(image())).unwrap();
+        let m = report.metrics.unwrap();
+        assert!((m.per_image[1].psnr - 20.0).abs() < 1e-3, "{}", m.per_image[1].psnr);
+        assert_eq!(EvalReport::read_json(&out.dir.join(METRICS_FILE)).unwrap().per_image.len(), 2);
+        // A renderer error stops the run with its message.
+        let err = render_frames(FrameSpec::orbit(&k, &[pose]), &out, |_, _| Err("network exploded")).unwrap_err();
+        assert_eq!(err, "network exploded");
+    }
+}

@@ -1,0 +1,178 @@
+//! `nerf-render`: render an exported scene bundle through onnxruntime (no burn).
+
+use anyhow::{Result, anyhow, bail};
+use clap::Parser;
+use nerf_core::camera::{Intrinsics, Pose};
+use nerf_core::dataset::{Split, load_split};
+use nerf_core::frames::{FrameOutput, FrameSpec, render_frames};
+use nerf_runtime::{OpenOptions, OrtScene, scene::DEFAULT_CHUNK};
+use std::io::IsTerminal;
+use std::path::PathBuf;
+use std::time::Instant;
+
+#[derive(Parser)]
+#[command(
+    name = "nerf-render",
+    version,
+    about = "Render a NeRF scene bundle (nerf export) through onnxruntime",
+    after_help = "onnxruntime is loaded from $ORT_DYLIB_PATH, else from the wheel that scripts/setup.sh installs \
+                  under ~/.cache/nerf-rs/venv (override the root with $NERF_HOME)."
+)]
+struct Cli {
+    /// Bundle directory: scene.json, coarse.onnx, fine.onnx[, occupancy.bin].
+    #[arg(long)]
+    bundle: PathBuf,
+    /// Render the bundle's 360° orbit (scene.json poses.orbit) and orbit.gif.
+    #[arg(long, conflicts_with = "split")]
+    orbit: bool,
+    /// Orbit frames (default: the bundle's orbit; another count renders the reference orbit,
+    /// radius 4, elevation −30°, with that many frames).
+    #[arg(long, requires = "orbit")]
+    frames: Option<usize>,
+    /// Render this split's views: from --data (with metrics.json when its images exist), or the
+    /// bundle's own test poses when --data is not given (--split test only).
+    #[arg(long, value_enum)]
+    split: Option<SplitArg>,
+    /// Blender-format scene directory (transforms_<split>.json and images).
+    #[arg(long, requires = "split")]
+    data: Option<PathBuf>,
+    /// Image downscale factor for --data (use the one the scene was trained at).
+    #[arg(long, default_value_t = 1)]
+    downscale: u32,
+    /// Only the first K views.
+    #[arg(long)]
+    limit: Option<usize>,
+    /// Output directory.
+    #[arg(long)]
+    out: PathBuf,
+    /// Threads (onnxruntime and the compositing; default: one per core).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Rays per onnxruntime call: memory is bounded by this, not by the image size.
+    #[arg(long, default_value_t = DEFAULT_CHUNK)]
+    chunk: usize,
+    /// Render at this width (focal scales with it; height keeps the aspect unless given).
+    #[arg(long)]
+    width: Option<u32>,
+    /// Render at this height (needs --width).
+    #[arg(long, requires = "width")]
+    height: Option<u32>,
+    /// Ignore the bundle's occupancy grid: evaluate every sample (the dense 64 + 128 path).
+    #[arg(long)]
+    dense: bool,
+    /// Also write <name>.npy per frame: float32 [H, W, 5] = r, g, b, depth, acc.
+    #[arg(long)]
+    npy: bool,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum SplitArg {
+    Train,
+    Val,
+    Test,
+}
+
+impl From<SplitArg> for Split {
+    fn from(s: SplitArg) -> Split {
+        match s {
+            SplitArg::Train => Split::Train,
+            SplitArg::Val => Split::Val,
+            SplitArg::Test => Split::Test,
+        }
+    }
+}
+
+fn main() {
+    if let Err(e) = run(Cli::parse()) {
+        eprintln!("error: {e:#}");
+        std::process::exit(1);
+    }
+}
+
+fn resize(k: Intrinsics, width: Option<u32>, height: Option<u32>) -> Result<Intrinsics> {
+    let Some(w) = width else { return Ok(k) };
+    let h = height.unwrap_or(((w as u64 * k.height as u64 + k.width as u64 / 2) / k.width as u64) as u32);
+    if w == 0 || h == 0 {
+        bail!("--width/--height must be positive");
+    }
+    Ok(k.resized(w, h))
+}
+
+fn run(cli: Cli) -> Result<()> {
+    if let Some(n) = cli.threads {
+        if n == 0 {
+            bail!("--threads must be at least 1");
+        }
+        rayon::ThreadPoolBuilder::new().num_threads(n).build_global()?;
+    }
+    let options = OpenOptions { threads: cli.threads, chunk: cli.chunk, skip_empty_space: !cli.dense };
+    let mut scene = OrtScene::open(&cli.bundle, &options)?;
+    let mut frames = match (cli.orbit, cli.split, &cli.data) {
+        (true, _, _) => {
+            let poses = match cli.frames {
+                Some(n) if n != scene.description.poses.orbit.len() => Pose::orbit(n),
+                _ => scene.orbit_poses()?,
+            };
+            if poses.is_empty() {
+                bail!("the orbit has no frames");
+            }
+            FrameSpec::orbit(&resize(scene.intrinsics(None), cli.width, cli.height)?, &poses)
+        }
+        (false, Some(split), Some(data)) => {
+            let split: Split = split.into();
+            let loaded = match load_split(data, split, cli.downscale, true) {
+                Ok(d) => d,
+                Err(with_images) => {
+                    let d = load_split(data, split, cli.downscale, false).map_err(|e| anyhow!("{e}"))?;
+                    eprintln!("note: rendering the {} poses without metrics: {with_images}", split.name());
+                    d
+                }
+            };
+            let mut specs = FrameSpec::from_split(loaded);
+            if cli.width.is_some() {
+                for f in &mut specs {
+                    f.intrinsics = resize(f.intrinsics, cli.width, cli.height)?;
+                    f.target = None; // ground truth is at the dataset's resolution
+                }
+            }
+            specs
+        }
+        (false, Some(SplitArg::Test), None) => {
+            let k = resize(scene.intrinsics(None), cli.width, cli.height)?;
+            scene
+                .description
+                .poses
+                .test
+                .iter()
+                .map(|p| FrameSpec { name: p.name.clone(), intrinsics: k, pose: Pose::from_rows(p.transform_matrix), target: None })
+                .collect()
+        }
+        (false, Some(_), None) => bail!("--split val/train needs --data <scene dir> (the bundle only stores test poses)"),
+        (false, None, _) => bail!("say what to render: --orbit, or --split <val|test> [--data <scene dir>]"),
+    };
+    frames.truncate(cli.limit.unwrap_or(usize::MAX));
+    if frames.is_empty() {
+        bail!("nothing to render: no poses");
+    }
+    let s = &scene.options.sampling;
+    let output = FrameOutput { dir: cli.out.clone(), depth_range: (s.near, s.far), gif: cli.orbit, raw: cli.npy, progress: std::io::stderr().is_terminal() };
+    let (first, n) = (frames[0].intrinsics, frames.len());
+    let start = Instant::now();
+    let report = render_frames(frames, &output, |f, progress| scene.render(&f.intrinsics, &f.pose, progress)).map_err(|e| anyhow!(e))?;
+    let seconds = start.elapsed().as_secs_f64();
+    println!(
+        "{n} frames at {}×{} in {seconds:.1} s ({:.2} s per frame, {}) into {}",
+        first.width,
+        first.height,
+        seconds / n as f64,
+        if scene.occupancy.is_some() { "empty space skipped" } else { "dense sampling" },
+        cli.out.display()
+    );
+    if let Some(m) = &report.metrics {
+        println!("PSNR {:.2} dB, SSIM {:.4} over {} views: {}", m.psnr_mean, m.ssim_mean, m.per_image.len(), cli.out.join(nerf_core::frames::METRICS_FILE).display());
+    }
+    if let Some(gif) = &report.gif {
+        println!("orbit: {}", gif.display());
+    }
+    Ok(())
+}

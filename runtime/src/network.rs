@@ -1,0 +1,66 @@
+//! One exported network as an onnxruntime session that follows the graph contract
+//! (`nerf_export::graph`): `points`, `viewdirs` `[N, 3]` in; `rgb [N, 3]`, `sigma [N, 1]` out.
+
+use crate::environment::environment;
+use crate::error::{Result, RuntimeError};
+use nerf_core::render::FieldOutput;
+use nerf_export::check_contract;
+use nerf_export::proto::ModelProto;
+use ort::session::Session;
+use ort::value::TensorRef;
+use prost::Message;
+use std::path::{Path, PathBuf};
+
+/// A graph loaded into onnxruntime.
+pub struct OrtNetwork {
+    session: Session,
+    path: PathBuf,
+}
+
+impl OrtNetwork {
+    /// Load `path`, checking it decodes and follows the contract before onnxruntime sees it.
+    /// `threads`: onnxruntime's intra-op threads (`None`: one per core).
+    pub fn load(path: &Path, threads: Option<usize>) -> Result<Self> {
+        let bytes = std::fs::read(path).map_err(|e| RuntimeError::bundle(path, format!("cannot read the graph: {e}")))?;
+        let model = ModelProto::decode(bytes.as_slice())
+            .map_err(|e| RuntimeError::bundle(path, format!("not a valid ONNX file (truncated?): {e}")))?;
+        check_contract(&model).map_err(|e| RuntimeError::bundle(path, e))?;
+        let ort_err = |e: &dyn std::fmt::Display| RuntimeError::Ort { path: path.to_path_buf(), message: e.to_string() };
+        let mut builder = Session::builder(environment()?).map_err(|e| ort_err(&e))?;
+        if let Some(n) = threads {
+            builder = builder.with_intra_threads(n).map_err(|e| ort_err(&e))?;
+        }
+        let session = builder.commit_from_memory(&bytes).map_err(|e| ort_err(&e))?;
+        Ok(OrtNetwork { session, path: path.to_path_buf() })
+    }
+
+    /// The graph file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Evaluate the network on `points` with unit `viewdirs` (same length).
+    pub fn run(&mut self, points: &[[f32; 3]], viewdirs: &[[f32; 3]]) -> Result<FieldOutput> {
+        assert_eq!(points.len(), viewdirs.len(), "one view direction per point");
+        let n = points.len();
+        if n == 0 {
+            return Ok(FieldOutput::default());
+        }
+        let path = self.path.clone();
+        let ort_err = |e: &dyn std::fmt::Display| RuntimeError::Ort { path: path.clone(), message: e.to_string() };
+        let p = TensorRef::from_array_view(([n, 3], points.as_flattened())).map_err(|e| ort_err(&e))?;
+        let d = TensorRef::from_array_view(([n, 3], viewdirs.as_flattened())).map_err(|e| ort_err(&e))?;
+        let outputs = self.session.run(ort::inputs!["points" => p, "viewdirs" => d]).map_err(|e| ort_err(&e))?;
+        let column = |name: &str, cols: usize| -> Result<&[f32]> {
+            let value = outputs.get(name).ok_or_else(|| RuntimeError::bundle(&path, format!("no output {name}")))?;
+            let (shape, data) = value.try_extract_tensor::<f32>().map_err(|e| ort_err(&e))?;
+            if shape[..] != [n as i64, cols as i64] {
+                return Err(RuntimeError::bundle(&path, format!("output {name} has shape {:?} for {n} points, expected [{n}, {cols}]", &shape[..])));
+            }
+            Ok(data)
+        };
+        let rgb = column("rgb", 3)?.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        let raw_sigma = column("sigma", 1)?.to_vec();
+        Ok(FieldOutput { rgb, raw_sigma })
+    }
+}

@@ -1,0 +1,101 @@
+//! A scene bundle opened for rendering: `scene.json`, the graphs in onnxruntime and the
+//! occupancy grid, rendered through the shared core (`nerf_core::occupancy::render_image_with`).
+
+use crate::error::{Result, RuntimeError};
+use crate::field::OrtField;
+use crate::network::OrtNetwork;
+use nerf_core::camera::{Intrinsics, Pose};
+use nerf_core::occupancy::{OccupancyGrid, render_image_with};
+use nerf_core::render::{RenderOptions, RenderedImage};
+use nerf_export::bundle::{SCENE_FILE, SceneDescription, read_occupancy, read_scene};
+use std::path::{Path, PathBuf};
+
+/// Default rays per onnxruntime call: 1024 rays × 192 samples ≈ 200k points per fine call,
+/// a few hundred MB of activations for the paper network, whatever the image size.
+pub const DEFAULT_CHUNK: usize = 1024;
+
+/// How to open a bundle.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OpenOptions {
+    /// onnxruntime intra-op threads (`None`: one per core).
+    pub threads: Option<usize>,
+    /// Rays per onnxruntime call (bounds memory).
+    pub chunk: usize,
+    /// Use the bundle's occupancy grid (when it has one) to skip empty space.
+    pub skip_empty_space: bool,
+}
+
+impl Default for OpenOptions {
+    fn default() -> Self {
+        OpenOptions { threads: None, chunk: DEFAULT_CHUNK, skip_empty_space: true }
+    }
+}
+
+/// A bundle ready to render.
+pub struct OrtScene {
+    /// The bundle directory.
+    pub dir: PathBuf,
+    /// Its `scene.json`.
+    pub description: SceneDescription,
+    /// Its networks.
+    pub field: OrtField,
+    /// Its occupancy grid, if any and if skipping is on.
+    pub occupancy: Option<OccupancyGrid>,
+    /// Sampling, background and chunk.
+    pub options: RenderOptions,
+}
+
+impl OrtScene {
+    /// Open `dir`: read and check `scene.json`, load the graphs and the grid.
+    pub fn open(dir: &Path, options: &OpenOptions) -> Result<Self> {
+        if !dir.is_dir() {
+            return Err(RuntimeError::bundle(dir, "no such bundle directory (write one with `nerf export --run <run> --out <dir>`)"));
+        }
+        if options.chunk == 0 {
+            return Err(RuntimeError::Other("--chunk must be at least 1 ray".into()));
+        }
+        let scene_error = |e: String| RuntimeError::Other(e);
+        let description = read_scene(dir).map_err(scene_error)?;
+        let coarse = OrtNetwork::load(&dir.join(&description.networks.coarse), options.threads)?;
+        let fine = match &description.networks.fine {
+            Some(file) => Some(OrtNetwork::load(&dir.join(file), options.threads)?),
+            None => None,
+        };
+        let occupancy = if options.skip_empty_space { read_occupancy(dir, &description).map_err(scene_error)? } else { None };
+        let render_options = RenderOptions {
+            sampling: description.sampling.clone(),
+            white_background: description.white_background,
+            chunk: options.chunk,
+        };
+        Ok(OrtScene { dir: dir.to_path_buf(), description, field: OrtField { coarse, fine }, occupancy, options: render_options })
+    }
+
+    /// The training camera, optionally at another resolution (focal scaled with the width).
+    pub fn intrinsics(&self, size: Option<(u32, u32)>) -> Intrinsics {
+        let k = self.description.intrinsics();
+        match size {
+            Some((w, h)) => k.resized(w, h),
+            None => k,
+        }
+    }
+
+    /// The bundle's orbit poses (`scene.json` `poses.orbit`).
+    pub fn orbit_poses(&self) -> Result<Vec<Pose>> {
+        let path = self.dir.join(SCENE_FILE);
+        self.description
+            .poses
+            .orbit
+            .iter()
+            .enumerate()
+            .map(|(k, m)| {
+                let pose = Pose::from_rows(*m);
+                if pose.is_finite() { Ok(pose) } else { Err(RuntimeError::bundle(&path, format!("poses.orbit[{k}] has a non-finite entry"))) }
+            })
+            .collect()
+    }
+
+    /// Render one view deterministically, reporting `progress(done, total)` pixels.
+    pub fn render(&mut self, intrinsics: &Intrinsics, pose: &Pose, progress: &mut dyn FnMut(usize, usize)) -> Result<RenderedImage> {
+        render_image_with(&mut self.field, self.occupancy.as_ref(), intrinsics, pose, &self.options, progress)
+    }
+}
