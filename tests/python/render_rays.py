@@ -1,0 +1,177 @@
+"""Render rays of a nerf-rs scene bundle with numpy and onnxruntime only, following the
+documented contract, and compare them with nerf-render's exact output (--npy).
+
+usage: render_rays.py <bundle-dir> --npy <frame.npy> (--test-pose K | --orbit-pose K)
+                      [--rays 64] [--seed 0] [--dense] [--tolerance 1e-4]
+
+The renderer below is the whole recipe a consumer needs (scene.json says the same):
+  rays      d = c2w[:3,:3] @ ((i - W/2)/f, -(j - H/2)/f, -1) (not normalised, no +0.5), o = c2w[:3,3]
+  coarse    t_k = near·(1 - k/(n-1)) + far·k/(n-1)  (test time: no jitter; lindisp in 1/t)
+  networks  points o + t·d and viewdirs d/|d| → rgb [N,3], sigma [N,1]; with occupancy.bin,
+            points in empty cells are not evaluated (sigma = 0)
+  weights   delta = (t_{k+1} - t_k)·|d| (last 1e10·|d|), alpha = 1 - exp(-sigma·delta),
+            w = alpha · exclusive cumprod(1 - alpha + 1e-10)
+  fine      inverse CDF of w[1:-1] + 1e-5 over the coarse midpoints at u = linspace(0, 1, n_fine)
+            (right-side search), merged and sorted with the coarse t, then the fine network
+  pixel     rgb = Σ w·c (+ 1 - Σ w on a white background), depth = Σ w·t, acc = Σ w
+The .npy written by `nerf-render --npy` is float32 [H, W, 5]: r, g, b, depth, acc.
+"""
+import argparse
+import json
+import os
+import sys
+
+import numpy as np
+import onnxruntime as ort
+
+F32 = np.float32
+
+
+class Bundle:
+    def __init__(self, path, dense=False):
+        with open(os.path.join(path, "scene.json")) as f:
+            self.scene = json.load(f)
+        nets = self.scene["networks"]
+        opts = ort.SessionOptions()
+        self.coarse = ort.InferenceSession(os.path.join(path, nets["coarse"]), opts, providers=["CPUExecutionProvider"])
+        self.fine = None
+        if nets.get("fine"):
+            self.fine = ort.InferenceSession(os.path.join(path, nets["fine"]), opts, providers=["CPUExecutionProvider"])
+        self.occupied = None
+        occ = self.scene.get("occupancy")
+        if occ and not dense:
+            raw = np.fromfile(os.path.join(path, occ["file"]), dtype="<u1")
+            assert raw[:8].tobytes() == b"NERFOCC1", "not an occupancy grid"
+            res, = np.frombuffer(raw[8:12].tobytes(), "<u4")
+            bound, threshold = np.frombuffer(raw[12:20].tobytes(), "<f4")
+            density = np.frombuffer(raw[20:].tobytes(), "<f4").reshape(res, res, res)
+            self.occupied, self.bound = density > threshold, F32(bound)
+
+    def is_occupied(self, points):
+        """Cell (i, j, k) of point p: floor((p + b) / 2b · R) per axis; outside the cube is empty."""
+        if self.occupied is None:
+            return np.ones(len(points), bool)
+        res = self.occupied.shape[0]
+        u = (points + self.bound) / (F32(2) * self.bound) * F32(res)
+        inside = np.all((u >= 0) & (u < res), axis=1)
+        ijk = np.where(inside[:, None], u, 0).astype(np.int64)
+        return inside & self.occupied[ijk[:, 0], ijk[:, 1], ijk[:, 2]]
+
+    def field(self, session, points, viewdirs):
+        rgb = np.zeros((len(points), 3), F32)
+        sigma = np.zeros(len(points), F32)
+        keep = self.is_occupied(points)
+        if keep.any():
+            out_rgb, out_sigma = session.run(["rgb", "sigma"], {"points": points[keep], "viewdirs": viewdirs[keep]})
+            rgb[keep], sigma[keep] = out_rgb, out_sigma[:, 0]
+        return rgb, sigma
+
+
+def camera_rays(scene, c2w, width, height, pixels):
+    cam = scene["camera"]
+    focal = F32(cam["focal"] * width / cam["width"])
+    i, j = pixels[:, 0].astype(F32), pixels[:, 1].astype(F32)
+    dirs = np.stack([(i - F32(0.5 * width)) / focal, -(j - F32(0.5 * height)) / focal, -np.ones_like(i)], axis=1)
+    d = (dirs @ c2w[:3, :3].T).astype(F32)
+    o = np.broadcast_to(c2w[:3, 3], d.shape).astype(F32)
+    return o, d
+
+
+def weights_of(t, sigma, dnorm):
+    delta = np.concatenate([t[:, 1:] - t[:, :-1], np.full((len(t), 1), 1e10, F32)], axis=1) * dnorm[:, None]
+    alpha = F32(1) - np.exp(-np.maximum(sigma, 0) * delta)
+    trans = np.cumprod(F32(1) - alpha + F32(1e-10), axis=1)
+    trans = np.concatenate([np.ones((len(t), 1), F32), trans[:, :-1]], axis=1)
+    return alpha * trans
+
+
+def sample_pdf(bins, weights, n):
+    w = weights + F32(1e-5)
+    cdf = np.cumsum(w / w.sum(axis=1, keepdims=True), axis=1)
+    cdf = np.concatenate([np.zeros((len(w), 1), F32), cdf], axis=1)
+    u = np.linspace(0, 1, n, dtype=F32)
+    out = np.empty((len(w), n), F32)
+    for r in range(len(w)):
+        above = np.searchsorted(cdf[r], u, side="right")
+        below = np.maximum(above - 1, 0)
+        above = np.minimum(above, cdf.shape[1] - 1)
+        c0, c1 = cdf[r, below], cdf[r, above]
+        denom = np.where(c1 - c0 < 1e-5, F32(1), c1 - c0)
+        out[r] = bins[r, below] + (u - c0) / denom * (bins[r, above] - bins[r, below])
+    return out
+
+
+def render(bundle, o, d):
+    scene = bundle.scene
+    s = scene["sampling"]
+    near, far, n_coarse, n_fine = F32(s["near"]), F32(s["far"]), s["n_coarse"], s["n_fine"]
+    k = np.arange(n_coarse, dtype=F32) / F32(max(n_coarse - 1, 1))
+    t = 1 / (1 / near * (1 - k) + 1 / far * k) if s["lindisp"] else near * (1 - k) + far * k
+    t = np.broadcast_to(t.astype(F32), (len(o), n_coarse))
+    dnorm = np.linalg.norm(d, axis=1).astype(F32)
+    viewdirs = d / dnorm[:, None]
+
+    def stage(session, t):
+        pts = (o[:, None, :] + t[..., None] * d[:, None, :]).reshape(-1, 3).astype(F32)
+        dirs = np.repeat(viewdirs, t.shape[1], axis=0)
+        rgb, sigma = bundle.field(session, pts, dirs)
+        w = weights_of(t, sigma.reshape(t.shape), dnorm)
+        return w, rgb.reshape(*t.shape, 3)
+
+    w, rgb = stage(bundle.coarse, t)
+    if n_fine > 0:
+        mids = F32(0.5) * (t[:, 1:] + t[:, :-1])
+        extra = sample_pdf(mids, w[:, 1:-1], n_fine)
+        t = np.sort(np.concatenate([t, extra], axis=1), axis=1)
+        w, rgb = stage(bundle.fine, t)
+    acc = w.sum(axis=1)
+    colour = (w[..., None] * rgb).sum(axis=1)
+    if scene["white_background"]:
+        colour = colour + (1 - acc)[:, None]
+    return colour, (w * t).sum(axis=1), acc
+
+
+def main():
+    p = argparse.ArgumentParser()
+    p.add_argument("bundle")
+    p.add_argument("--npy", required=True)
+    p.add_argument("--test-pose", type=int)
+    p.add_argument("--orbit-pose", type=int)
+    p.add_argument("--rays", type=int, default=64)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--dense", action="store_true", help="ignore occupancy.bin (as nerf-render --dense)")
+    p.add_argument("--tolerance", type=float, default=1e-4)
+    a = p.parse_args()
+    bundle = Bundle(a.bundle, a.dense)
+    poses = bundle.scene["poses"]
+    if a.test_pose is not None:
+        c2w = np.array(poses["test"][a.test_pose]["transform_matrix"], F32)
+    else:
+        c2w = np.array(poses["orbit"][a.orbit_pose], F32)
+    expected = np.load(a.npy)
+    height, width = expected.shape[:2]
+    rng = np.random.default_rng(a.seed)
+    # Half the rays where nerf-render saw the scene (acc > 0.5), half anywhere.
+    hit = np.argwhere(expected[..., 4] > 0.5)
+    picks = [hit[rng.integers(len(hit), size=min(len(hit), a.rays // 2))]] if len(hit) else []
+    picks.append(np.stack([rng.integers(height, size=a.rays - sum(map(len, picks))), rng.integers(width, size=a.rays - sum(map(len, picks)))], 1))
+    rows_cols = np.concatenate(picks)
+    pixels = rows_cols[:, ::-1]  # (column i, row j)
+    o, d = camera_rays(bundle.scene, c2w, width, height, pixels)
+    rgb, depth, acc = render(bundle, o, d)
+    want = expected[rows_cols[:, 0], rows_cols[:, 1]]
+    diff_rgb = np.abs(rgb - want[:, :3]).max()
+    diff_acc = np.abs(acc - want[:, 4]).max()
+    diff_depth = np.abs(depth - want[:, 3]).max()
+    print(f"{len(pixels)} rays ({int((want[:, 4] > 0.5).sum())} on the scene): max |Δrgb| {diff_rgb:.2e}, "
+          f"|Δacc| {diff_acc:.2e}, |Δdepth| {diff_depth:.2e} (tolerance {a.tolerance:g})")
+    if not (diff_rgb <= a.tolerance and diff_acc <= a.tolerance):
+        print("FAIL: the numpy renderer and nerf-render disagree", file=sys.stderr)
+        sys.exit(1)
+    if (want[:, 4] > 0.5).sum() == 0:
+        print("FAIL: no ray hit the scene; the comparison would mean nothing", file=sys.stderr)
+        sys.exit(1)
+
+
+if __name__ == "__main__":
+    main()
