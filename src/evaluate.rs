@@ -52,10 +52,11 @@ impl LoadedRun {
         image
     }
 
-    /// Render `frames` into `out` (PNG + depth map each; metrics when they have ground truth).
-    pub fn render_frames(&self, frames: Vec<FrameSpec>, out: &Path, gif: bool, progress: bool) -> Result<FramesReport, String> {
+    /// Render `frames` into `out` (PNG + depth map each, `.npy` with `raw`; metrics when they
+    /// have ground truth).
+    pub fn render_frames(&self, frames: Vec<FrameSpec>, out: &Path, gif: bool, raw: bool, progress: bool) -> Result<FramesReport, String> {
         let s = &self.config.sampling;
-        let output = FrameOutput { dir: out.to_path_buf(), depth_range: (s.near, s.far), gif, raw: false, progress };
+        let output = FrameOutput { dir: out.to_path_buf(), depth_range: (s.near, s.far), gif, raw, progress };
         render_frames(frames, &output, |f, p| Ok::<_, Infallible>(self.render(&f.intrinsics, &f.pose, p)))
     }
 }
@@ -65,21 +66,21 @@ pub fn eval(run: &Path, data: &Path, split: Split, downscale: u32, limit: Option
     let loaded = LoadedRun::open(run)?;
     let mut scene = load_split(data, split, downscale, true).map_err(|e| e.to_string())?;
     scene.views.truncate(limit.unwrap_or(usize::MAX));
-    let report = loaded.render_frames(FrameSpec::from_split(scene), out, false, progress)?;
+    let report = loaded.render_frames(FrameSpec::from_split(scene), out, false, false, progress)?;
     report.metrics.ok_or_else(|| format!("{}: the split has no views", data.display()))
 }
 
-/// Render a split's poses (no ground truth needed) to PNGs and depth maps.
-pub fn render_split(run: &Path, data: &Path, split: Split, downscale: u32, out: &Path, progress: bool) -> Result<usize, String> {
+/// Render a split's poses (no ground truth needed) to PNGs and depth maps (and `.npy` with `raw`).
+pub fn render_split(run: &Path, data: &Path, split: Split, downscale: u32, out: &Path, raw: bool, progress: bool) -> Result<usize, String> {
     let loaded = LoadedRun::open(run)?;
     let scene = load_split(data, split, downscale, false).map_err(|e| e.to_string())?;
-    Ok(loaded.render_frames(FrameSpec::from_split(scene), out, false, progress)?.frames)
+    Ok(loaded.render_frames(FrameSpec::from_split(scene), out, false, raw, progress)?.frames)
 }
 
-/// Render the reference 360° orbit: `frame_NNN.png`, depth maps and `orbit.gif`.
-pub fn render_orbit(run: &Path, frames: usize, out: &Path, progress: bool) -> Result<PathBuf, String> {
+/// Render the reference 360° orbit: `frame_NNN.png`, depth maps (`.npy` with `raw`) and `orbit.gif`.
+pub fn render_orbit(run: &Path, frames: usize, out: &Path, raw: bool, progress: bool) -> Result<PathBuf, String> {
     let loaded = LoadedRun::open(run)?;
     let specs = FrameSpec::orbit(&loaded.camera, &Pose::orbit(frames));
-    let report = loaded.render_frames(specs, out, true, progress)?;
+    let report = loaded.render_frames(specs, out, true, raw, progress)?;
     report.gif.ok_or_else(|| "an orbit needs at least one frame".to_string())
 }

@@ -89,6 +89,9 @@ enum Command {
         /// Output directory.
         #[arg(long)]
         out: PathBuf,
+        /// Also write <name>.npy per frame: float32 [H, W, 5] = r, g, b, depth, acc.
+        #[arg(long)]
+        npy: bool,
     },
     /// Compile a trained run into an ONNX scene bundle: coarse.onnx, fine.onnx, scene.json.
     Export {
@@ -180,13 +183,13 @@ fn main() -> Result<()> {
             let r = eval(&run, &data, split.into(), downscale, limit, &out, progress).map_err(err)?;
             println!("{} views: PSNR {:.2} dB, SSIM {:.4}; {}", r.per_image.len(), r.psnr_mean, r.ssim_mean, out.join("metrics.json").display());
         }
-        Command::Render { run, orbit, frames, split, data, downscale, out } => match (orbit, split, data) {
+        Command::Render { run, orbit, frames, split, data, downscale, out, npy } => match (orbit, split, data) {
             (true, None, _) => {
-                let gif = render_orbit(&run, frames, &out, progress).map_err(err)?;
+                let gif = render_orbit(&run, frames, &out, npy, progress).map_err(err)?;
                 println!("{frames} frames and depth maps in {}; {}", out.display(), gif.display());
             }
             (false, Some(split), Some(data)) => {
-                let n = render_split(&run, &data, split.into(), downscale, &out, progress).map_err(err)?;
+                let n = render_split(&run, &data, split.into(), downscale, &out, npy, progress).map_err(err)?;
                 println!("{n} views and depth maps in {}", out.display());
             }
             (false, Some(_), None) => bail!("--split needs --data <scene dir>"),
@@ -235,7 +238,7 @@ fn demo(out: PathBuf, minutes: f64, progress: bool) -> Result<()> {
     let eval_dir = out.join("eval");
     let r = eval(&run, &scene, Split::Val, 1, None, &eval_dir, progress).map_err(err)?;
     let orbit_dir = out.join("orbit");
-    let gif = render_orbit(&run, 40, &orbit_dir, progress).map_err(err)?;
+    let gif = render_orbit(&run, 40, &orbit_dir, false, progress).map_err(err)?;
     println!("\ndemo done in {:.1} min", start.elapsed().as_secs_f64() / 60.0);
     println!("  val PSNR {:.2} dB, SSIM {:.4} over {} views: {}", r.psnr_mean, r.ssim_mean, r.per_image.len(), eval_dir.join("metrics.json").display());
     println!("  renders and depth maps: {}", eval_dir.display());

@@ -44,6 +44,18 @@ pub fn nerf(args: &[&str]) -> (bool, String) {
     (out.status.success(), text)
 }
 
+/// Run the `nerf-render` binary (built by `cargo test --workspace` next to these tests):
+/// (success, stdout + stderr); a panic fails the test.
+pub fn nerf_render(args: &[&str]) -> (bool, String) {
+    let exe = std::env::current_exe().unwrap();
+    let bin = exe.parent().and_then(Path::parent).unwrap().join("nerf-render");
+    assert!(bin.is_file(), "{} is missing: build it with `cargo build --release -p nerf-runtime` (cargo test --workspace does)", bin.display());
+    let out = Command::new(&bin).args(args).output().expect("run nerf-render");
+    let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    assert!(!text.contains("panicked"), "nerf-render {args:?} panicked:\n{text}");
+    (out.status.success(), text)
+}
+
 /// A generated scene and a run trained on it for 20 steps: (scene, run).
 pub fn trained_run(dir: &Path) -> (PathBuf, PathBuf) {
     let scene = small_scene(dir);

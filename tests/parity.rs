@@ -1,0 +1,127 @@
+//! burn ↔ onnxruntime parity: the exported graphs compute what the burn networks compute
+//! (network level, ≤ 1e-5), and `nerf render` (burn) and `nerf-render` (onnxruntime) render the
+//! same images (≥ 60 dB between them) on the generated scene and on lego.
+
+mod common;
+
+use common::{lego_dir, nerf, nerf_render, s, tiny_config, trained_run};
+use nerf::field::NerfMlp;
+use nerf::inference::{tensor_vec3, vec3_tensor};
+use nerf::train::{TrainOptions, train};
+use nerf_core::frames::load_npy;
+use nerf_core::metrics::psnr;
+use nerf_core::network::{DenseLayer, NetworkSpec, PlainNetwork};
+use nerf_core::Rng;
+use nerf_runtime::OrtNetwork;
+use prost::Message;
+use std::path::Path;
+
+fn random_inputs(n: usize, seed: u64) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
+    let mut rng = Rng::new(seed);
+    let points = (0..n).map(|_| [0; 3].map(|_: i32| rng.uniform() * 3.0 - 1.5)).collect();
+    let dirs = (0..n)
+        .map(|_| {
+            let v = [0; 3].map(|_: i32| rng.uniform() * 2.0 - 1.0);
+            let norm = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt().max(1e-3);
+            v.map(|x| x / norm)
+        })
+        .collect();
+    (points, dirs)
+}
+
+/// Compile `net`, run both on 12,000 points, return (max |Δrgb|, max |Δσ|, max σ).
+fn network_difference(net: &NerfMlp, dir: &Path) -> (f32, f32, f32) {
+    let path = dir.join(format!("net-{}.onnx", net.spec().width));
+    let model = nerf_export::compile(&net.to_plain(), "coarse", nerf_export::DEFAULT_OPSET, &[]).unwrap();
+    std::fs::write(&path, model.encode_to_vec()).unwrap();
+    let mut ort = OrtNetwork::load(&path, None).unwrap();
+    let (points, dirs) = random_inputs(12_000, 7);
+    let ort_out = ort.run(&points, &dirs).unwrap();
+    let device = nerf::backend::cpu();
+    let (rgb, sigma) = net.forward(vec3_tensor(&points, &device), vec3_tensor(&dirs, &device));
+    let burn_rgb = tensor_vec3(rgb);
+    let burn_sigma: Vec<f32> = sigma.into_data().try_to_vec::<f32>().unwrap().iter().map(|s| s.max(0.0)).collect();
+    let d_rgb = burn_rgb.iter().flatten().zip(ort_out.rgb.iter().flatten()).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
+    let d_sigma = burn_sigma.iter().zip(&ort_out.raw_sigma).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
+    (d_rgb, d_sigma, burn_sigma.iter().copied().fold(0.0, f32::max))
+}
+
+#[test]
+fn networks_agree_paper_size_and_small() {
+    let dir = tempfile::tempdir().unwrap();
+    let device = nerf::backend::cpu();
+    // The paper network with seeded PyTorch-style weights (uniform ±1/√fan_in), its σ head
+    // scaled so densities reach trained magnitudes (≈ 10; a fresh head gives ≈ 0.01, which
+    // would make 1e-5 lenient).
+    let spec = NetworkSpec::paper();
+    let mut rng = Rng::new(11);
+    let layers = spec
+        .layer_shapes()
+        .into_iter()
+        .map(|(name, in_dim, out_dim)| {
+            let bound = (in_dim as f32).powf(-0.5) * if name == "sigma" { 100.0 } else { 1.0 };
+            let mut uniform = |n: usize| (0..n).map(|_| (rng.uniform() * 2.0 - 1.0) * bound).collect::<Vec<f32>>();
+            DenseLayer { weight: uniform(in_dim * out_dim), bias: uniform(out_dim), name, in_dim, out_dim }
+        })
+        .collect();
+    let paper = NerfMlp::from_plain(&PlainNetwork { spec, layers }, &device).unwrap();
+    let (d_rgb, d_sigma, max_sigma) = network_difference(&paper, dir.path());
+    println!("paper network: max |Δrgb| {d_rgb:.2e}, max |Δσ| {d_sigma:.2e} (σ up to {max_sigma:.3})");
+    assert!(d_rgb <= 1e-5 && d_sigma <= 1e-5, "paper network: max |Δrgb| {d_rgb:e}, |Δσ| {d_sigma:e}");
+    assert!(max_sigma > 1.0, "σ stays below 1 ({max_sigma}): the comparison would be lenient");
+    // A small network after some training (larger densities).
+    let (_, run) = trained_run(dir.path());
+    let (_, model, _, _) = nerf::train::load_model(&run, &device).unwrap();
+    let (d_rgb, d_sigma, max_sigma) = network_difference(model.fine.as_ref().unwrap(), dir.path());
+    println!("small network: max |Δrgb| {d_rgb:.2e}, max |Δσ| {d_sigma:.2e} (σ up to {max_sigma:.3})");
+    assert!(d_rgb <= 1e-5 && d_sigma <= 1e-5, "small network: max |Δrgb| {d_rgb:e}, |Δσ| {d_sigma:e}");
+    assert!(max_sigma > 0.1, "σ stays below 0.1 ({max_sigma})");
+}
+
+/// Render `split` view 0 through `nerf render --npy` (burn) and `nerf-render --npy`
+/// (onnxruntime, from the exported bundle): (PSNR between them, largest deviation from white).
+fn image_parity(run: &Path, data: &Path, split: &str, downscale: u32, name: &str, dir: &Path) -> (f32, f32) {
+    let bundle = dir.join("bundle");
+    let (ok, text) = nerf(&["export", "--run", s(run), "--out", s(&bundle)]);
+    assert!(ok, "{text}");
+    let burn_out = dir.join("burn");
+    let ds = downscale.to_string();
+    let (ok, text) = nerf(&["render", "--run", s(run), "--split", split, "--data", s(data), "--downscale", &ds, "--out", s(&burn_out), "--npy"]);
+    assert!(ok, "{text}");
+    let ort_out = dir.join("ort");
+    let (ok, text) = nerf_render(&["--bundle", s(&bundle), "--split", split, "--data", s(data), "--downscale", &ds, "--limit", "1", "--out", s(&ort_out), "--npy"]);
+    assert!(ok, "{text}");
+    let (h1, w1, a) = load_npy(&burn_out.join(format!("{name}.npy"))).unwrap();
+    let (h2, w2, b) = load_npy(&ort_out.join(format!("{name}.npy"))).unwrap();
+    assert_eq!((h1, w1), (h2, w2));
+    let rgb = |v: &[f32]| v.chunks_exact(5).map(|p| [p[0], p[1], p[2]]).collect::<Vec<_>>();
+    let (a, b) = (rgb(&a), rgb(&b));
+    let off_white = a.iter().flatten().map(|v| (1.0 - v).abs()).fold(0.0, f32::max);
+    (psnr(&a, &b), off_white)
+}
+
+#[test]
+fn burn_and_onnxruntime_render_the_same_generated_scene() {
+    let dir = tempfile::tempdir().unwrap();
+    let (scene, run) = trained_run(dir.path());
+    let (db, off_white) = image_parity(&run, &scene, "test", 1, "r_0", dir.path());
+    println!("generated scene: burn vs onnxruntime {db:.1} dB");
+    assert!(off_white > 0.05, "the image is blank: parity would mean nothing");
+    assert!(db >= 60.0, "burn vs onnxruntime: {db:.1} dB");
+}
+
+#[test]
+fn burn_and_onnxruntime_render_the_same_lego_view() {
+    let lego = lego_dir();
+    assert!(lego.join("transforms_train.json").is_file(), "{} is missing (CI provides ../shared)", lego.display());
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    let mut config = tiny_config();
+    config.iters = 30;
+    train(&TrainOptions { data: lego.clone(), run: run.clone(), config, downscale: 8, time_budget_min: None, iters: None, progress: false })
+        .unwrap();
+    let (db, off_white) = image_parity(&run, &lego, "val", 8, "r_0", dir.path());
+    println!("lego: burn vs onnxruntime {db:.1} dB");
+    assert!(off_white > 0.05, "the image is blank: parity would mean nothing");
+    assert!(db >= 60.0, "burn vs onnxruntime on lego: {db:.1} dB");
+}
