@@ -1,9 +1,20 @@
-//! `nerf bench`: training-step timings measured in one run, so ratios between them are fair on
-//! a shared, noisy machine.
+//! `nerf bench`: training-step, network and frame timings measured in one run, so ratios
+//! between them are fair on a shared, noisy machine.
 
+use crate::export::model_bundle;
+use crate::field::{NerfMlp, NerfModel};
+use crate::inference::{BurnField, vec3_tensor};
 use crate::train::{Preset, StepTiming, Trainer};
+use nerf_core::camera::{Intrinsics, Pose};
 use nerf_core::dataset::{Split, SyntheticSceneConfig, generate_scene, load_split};
+use nerf_core::metrics::psnr;
+use nerf_core::network::{NetworkSpec, PlainNetwork};
+use nerf_core::occupancy::render_image_with;
+use nerf_core::Rng;
+use nerf_export::write_bundle;
+use nerf_runtime::{OpenOptions, OrtNetwork, OrtScene};
 use std::path::Path;
+use std::time::Instant;
 
 /// Mean timings of one preset's training step.
 #[derive(Debug, Clone, serde::Serialize)]
@@ -61,4 +72,136 @@ pub fn bench_train_step(preset: Preset, data: Option<&Path>, downscale: u32, war
         backward_s: total.backward_s / n,
         update_s: total.update_s / n,
     })
+}
+
+/// Forward throughput of one network on a batch of points.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct MlpBench {
+    /// `burn` or `onnxruntime`.
+    pub backend: String,
+    /// Points per forward pass.
+    pub points: usize,
+    /// Best seconds per forward pass (encoding included).
+    pub seconds: f64,
+    /// Dense-layer GFLOP/s (2 · multiply-adds per point · points / seconds; the encoding's
+    /// work is timed but not counted).
+    pub gflops: f64,
+}
+
+fn random_points(n: usize, seed: u64) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
+    let mut rng = Rng::new(seed);
+    let points = (0..n).map(|_| [0; 3].map(|_: i32| rng.uniform() * 3.0 - 1.5)).collect();
+    let dirs = (0..n)
+        .map(|_| {
+            let v = [0; 3].map(|_: i32| rng.uniform() * 2.0 - 1.0);
+            let norm = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt().max(1e-3);
+            v.map(|x| x / norm)
+        })
+        .collect();
+    (points, dirs)
+}
+
+fn best_of(repeats: usize, mut f: impl FnMut() -> Result<(), String>) -> Result<f64, String> {
+    f()?; // warm-up: allocations, onnxruntime's first-run setup
+    let mut best = f64::INFINITY;
+    for _ in 0..repeats.max(1) {
+        let start = Instant::now();
+        f()?;
+        best = best.min(start.elapsed().as_secs_f64());
+    }
+    Ok(best)
+}
+
+/// The paper network (seeded weights) in burn and through onnxruntime on the same `points`
+/// random inputs: best of `repeats` forward passes each.
+pub fn bench_mlp(points: usize, repeats: usize) -> Result<Vec<MlpBench>, String> {
+    let plain = PlainNetwork::seeded(&NetworkSpec::paper(), 1);
+    let flops = 2.0 * plain.spec.macs_per_point() as f64 * points as f64;
+    let (p, d) = random_points(points, 2);
+    let device = crate::backend::cpu();
+    let net = NerfMlp::from_plain(&plain, &device)?;
+    let burn_s = best_of(repeats, || {
+        let (rgb, sigma) = net.forward(vec3_tensor(&p, &device), vec3_tensor(&d, &device));
+        let _ = (rgb.into_data(), sigma.into_data());
+        Ok(())
+    })?;
+    let dir = tempfile::tempdir().map_err(|e| e.to_string())?;
+    let path = dir.path().join("paper.onnx");
+    let model = nerf_export::compile(&plain, "coarse", nerf_export::DEFAULT_OPSET, &[]).map_err(|e| e.to_string())?;
+    nerf_core::error::write_atomic(&path, &prost::Message::encode_to_vec(&model)).map_err(|e| e.to_string())?;
+    let mut ort = OrtNetwork::load(&path, None).map_err(|e| e.to_string())?;
+    let ort_s = best_of(repeats, || ort.run(&p, &d).map(|_| ()).map_err(|e| e.to_string()))?;
+    Ok([("burn", burn_s), ("onnxruntime", ort_s)]
+        .into_iter()
+        .map(|(backend, seconds)| MlpBench { backend: backend.into(), points, seconds, gflops: flops / seconds / 1e9 })
+        .collect())
+}
+
+/// One rendered frame's time.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct FrameBench {
+    /// `burn` or `onnxruntime`.
+    pub backend: String,
+    /// Image width.
+    pub width: u32,
+    /// Image height.
+    pub height: u32,
+    /// Samples per ray (coarse + fine).
+    pub samples: String,
+    /// Seconds for the frame.
+    pub seconds: f64,
+    /// PSNR of this frame against the burn frame of the same size (∞ for burn itself).
+    pub psnr_vs_burn_db: f32,
+}
+
+/// The lego validation pose r_0 and camera from `data` (or, without data, the reference orbit's
+/// first pose and lego's field of view): frame times are the same for any pose on the dense path.
+fn bench_view(data: Option<&Path>) -> Result<(Intrinsics, Pose), String> {
+    match data {
+        Some(dir) => {
+            let val = load_split(dir, Split::Val, 1, false).map_err(|e| e.to_string())?;
+            Ok((val.intrinsics, val.views[0].pose))
+        }
+        None => Ok((Intrinsics::from_camera_angle_x(800, 800, nerf_core::dataset::CAMERA_ANGLE_X), Pose::orbit(1)[0])),
+    }
+}
+
+/// Render one frame per size with the paper network (seeded weights; 64 + 128 samples, dense)
+/// through burn and through onnxruntime (the exported graphs, as `nerf-render` runs them).
+pub fn bench_frames(data: Option<&Path>, sizes: &[u32], chunk: usize, progress: bool) -> Result<Vec<FrameBench>, String> {
+    let (camera, pose) = bench_view(data)?;
+    let mut config = Preset::Paper.config();
+    config.chunk = chunk;
+    let plain = PlainNetwork::seeded(&config.network, 3);
+    let fine_plain = PlainNetwork::seeded(&config.network, 4);
+    let device = crate::backend::cpu();
+    let model = NerfModel { coarse: NerfMlp::from_plain(&plain, &device)?, fine: Some(NerfMlp::from_plain(&fine_plain, &device)?) };
+    let dir = tempfile::tempdir().map_err(|e| e.to_string())?;
+    let bundle = dir.path().join("bundle");
+    write_bundle(&bundle, &model_bundle(&model, &config, &camera, None), nerf_export::DEFAULT_OPSET).map_err(|e| e.to_string())?;
+    let options = OpenOptions { threads: None, chunk, skip_empty_space: false };
+    let mut scene = OrtScene::open(&bundle, &options).map_err(|e| e.to_string())?;
+    let render_options = crate::train::render_options(&config);
+    let samples = format!("{} + {}", config.sampling.n_coarse, config.sampling.n_fine);
+    let mut out = Vec::new();
+    for &size in sizes {
+        let k = camera.resized(size, size);
+        let bar = nerf_core::frames::frame_bar(progress, &format!("burn {size}×{size}"));
+        bar.set_length(k.num_pixels() as u64);
+        let start = Instant::now();
+        let field = BurnField { model: &model, device: device.clone() };
+        let Ok(burn) = render_image_with(field, None, &k, &pose, &render_options, &mut |d, _| bar.set_position(d as u64));
+        let burn_s = start.elapsed().as_secs_f64();
+        bar.finish_and_clear();
+        let bar = nerf_core::frames::frame_bar(progress, &format!("onnxruntime {size}×{size}"));
+        bar.set_length(k.num_pixels() as u64);
+        let start = Instant::now();
+        let ort = scene.render(&k, &pose, &mut |d, _| bar.set_position(d as u64)).map_err(|e| e.to_string())?;
+        let ort_s = start.elapsed().as_secs_f64();
+        bar.finish_and_clear();
+        for (backend, seconds, psnr_vs_burn_db) in [("burn", burn_s, f32::INFINITY), ("onnxruntime", ort_s, psnr(&ort.rays.rgb, &burn.rays.rgb))] {
+            out.push(FrameBench { backend: backend.into(), width: size, height: size, samples: samples.clone(), seconds, psnr_vs_burn_db });
+        }
+    }
+    Ok(out)
 }

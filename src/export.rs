@@ -2,7 +2,10 @@
 //! ([`nerf_export`]).
 
 use crate::evaluate::LoadedRun;
-use nerf_core::camera::Pose;
+use crate::field::NerfModel;
+use crate::train::TrainConfig;
+use nerf_core::camera::{Intrinsics, Pose};
+use nerf_core::occupancy::OccupancyGrid;
 use nerf_core::dataset::{Split, load_split};
 use nerf_export::bundle::{NamedPose, WrittenFile, pose_matrix};
 use nerf_export::{Bundle, SceneDescription, write_bundle};
@@ -36,15 +39,20 @@ fn test_poses(run: &Path) -> Vec<NamedPose> {
     }
 }
 
+/// The bundle of `model` trained with `config` on images from `camera` (orbit poses included,
+/// no test poses).
+pub fn model_bundle(model: &NerfModel, config: &TrainConfig, camera: &Intrinsics, occupancy: Option<OccupancyGrid>) -> Bundle {
+    let coarse = model.coarse.to_plain();
+    let fine = model.fine.as_ref().map(|f| f.to_plain());
+    let mut scene = SceneDescription::new(camera, &config.sampling, config.white_background, &coarse, fine.is_some());
+    scene.poses.orbit = Pose::orbit(ORBIT_FRAMES).iter().map(pose_matrix).collect();
+    Bundle { coarse, fine, scene, occupancy }
+}
+
 /// Compile the latest checkpoint of `run` into a bundle at `out`.
 pub fn export_run(run: &Path, out: &Path, opset: i64) -> Result<Vec<WrittenFile>, String> {
     let loaded = LoadedRun::open(run)?;
-    let coarse = loaded.model.coarse.to_plain();
-    let fine = loaded.model.fine.as_ref().map(|f| f.to_plain());
-    let config = &loaded.config;
-    let mut scene = SceneDescription::new(&loaded.camera, &config.sampling, config.white_background, &coarse, fine.is_some());
-    scene.poses.orbit = Pose::orbit(ORBIT_FRAMES).iter().map(pose_matrix).collect();
-    scene.poses.test = test_poses(run);
-    let bundle = Bundle { coarse, fine, scene, occupancy: loaded.occupancy };
+    let mut bundle = model_bundle(&loaded.model, &loaded.config, &loaded.camera, loaded.occupancy);
+    bundle.scene.poses.test = test_poses(run);
     write_bundle(out, &bundle, opset).map_err(|e| e.to_string())
 }

@@ -10,7 +10,7 @@ use nerf::inference::{tensor_vec3, vec3_tensor};
 use nerf::train::{TrainOptions, train};
 use nerf_core::frames::load_npy;
 use nerf_core::metrics::psnr;
-use nerf_core::network::{DenseLayer, NetworkSpec, PlainNetwork};
+use nerf_core::network::{NetworkSpec, PlainNetwork};
 use nerf_core::Rng;
 use nerf_runtime::OrtNetwork;
 use prost::Message;
@@ -50,21 +50,13 @@ fn network_difference(net: &NerfMlp, dir: &Path) -> (f32, f32, f32) {
 fn networks_agree_paper_size_and_small() {
     let dir = tempfile::tempdir().unwrap();
     let device = nerf::backend::cpu();
-    // The paper network with seeded PyTorch-style weights (uniform ±1/√fan_in), its σ head
-    // scaled so densities reach trained magnitudes (≈ 10; a fresh head gives ≈ 0.01, which
-    // would make 1e-5 lenient).
-    let spec = NetworkSpec::paper();
-    let mut rng = Rng::new(11);
-    let layers = spec
-        .layer_shapes()
-        .into_iter()
-        .map(|(name, in_dim, out_dim)| {
-            let bound = (in_dim as f32).powf(-0.5) * if name == "sigma" { 100.0 } else { 1.0 };
-            let mut uniform = |n: usize| (0..n).map(|_| (rng.uniform() * 2.0 - 1.0) * bound).collect::<Vec<f32>>();
-            DenseLayer { weight: uniform(in_dim * out_dim), bias: uniform(out_dim), name, in_dim, out_dim }
-        })
-        .collect();
-    let paper = NerfMlp::from_plain(&PlainNetwork { spec, layers }, &device).unwrap();
+    // The paper network with seeded PyTorch-style weights, its σ head scaled ×100 so that
+    // densities reach trained magnitudes (≈ 10; a fresh head gives ≈ 0.01, which would make
+    // 1e-5 lenient).
+    let mut plain = PlainNetwork::seeded(&NetworkSpec::paper(), 11);
+    let sigma = plain.layers.iter_mut().find(|l| l.name == "sigma").unwrap();
+    sigma.weight.iter_mut().chain(sigma.bias.iter_mut()).for_each(|w| *w *= 100.0);
+    let paper = NerfMlp::from_plain(&plain, &device).unwrap();
     let (d_rgb, d_sigma, max_sigma) = network_difference(&paper, dir.path());
     println!("paper network: max |Δrgb| {d_rgb:.2e}, max |Δσ| {d_sigma:.2e} (σ up to {max_sigma:.3})");
     assert!(d_rgb <= 1e-5 && d_sigma <= 1e-5, "paper network: max |Δrgb| {d_rgb:e}, |Δσ| {d_sigma:e}");

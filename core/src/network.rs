@@ -184,6 +184,21 @@ pub struct FieldSample {
 }
 
 impl PlainNetwork {
+    /// Seeded PyTorch-style initial weights (uniform ±1/√fan_in), for tests and benchmarks.
+    pub fn seeded(spec: &NetworkSpec, seed: u64) -> Self {
+        let mut rng = crate::rng::Rng::new(seed);
+        let layers = spec
+            .layer_shapes()
+            .into_iter()
+            .map(|(name, in_dim, out_dim)| {
+                let bound = (in_dim as f32).powf(-0.5);
+                let mut uniform = |n: usize| (0..n).map(|_| (rng.uniform() * 2.0 - 1.0) * bound).collect::<Vec<f32>>();
+                DenseLayer { weight: uniform(in_dim * out_dim), bias: uniform(out_dim), name, in_dim, out_dim }
+            })
+            .collect();
+        PlainNetwork { spec: spec.clone(), layers }
+    }
+
     /// Checks that the layers match the spec's shapes.
     pub fn validate(&self) -> Result<(), String> {
         self.spec.validate()?;

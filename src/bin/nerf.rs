@@ -105,20 +105,34 @@ enum Command {
         #[arg(long, default_value_t = nerf_export::DEFAULT_OPSET)]
         opset: i64,
     },
-    /// Measure training-step speed (all figures from one run).
+    /// Measure speed, all figures from one run: training steps, network throughput (burn and
+    /// onnxruntime) and frame times (burn and onnxruntime, paper network, 64 + 128 samples).
     Bench {
-        /// Presets to time (default: cpu-fast and paper).
+        /// What to measure (default: all).
+        #[arg(long, value_enum)]
+        only: Vec<BenchPart>,
+        /// Presets for the training step (default: cpu-fast and paper).
         #[arg(long, value_enum)]
         preset: Vec<Preset>,
-        /// Scene to draw training rays from (default: a generated scene).
+        /// Blender scene: training rays and the frame's camera (lego val r_0). Default: the lego
+        /// scene in ../shared/data if present, else a generated scene.
         #[arg(long)]
         data: Option<PathBuf>,
-        /// Image downscale factor for --data.
+        /// Image downscale factor for the training rays.
         #[arg(long, default_value_t = 4)]
         downscale: u32,
-        /// Timed steps per preset (after 2 warm-up steps).
+        /// Timed training steps per preset (after 2 warm-up steps).
         #[arg(long, default_value_t = 5)]
         steps: usize,
+        /// Points per network forward pass.
+        #[arg(long, default_value_t = 65_536)]
+        points: usize,
+        /// Square frame sizes to render.
+        #[arg(long, value_delimiter = ',', default_values_t = vec![100u32, 200])]
+        sizes: Vec<u32>,
+        /// Rays per network call when rendering.
+        #[arg(long, default_value_t = nerf_runtime::scene::DEFAULT_CHUNK)]
+        chunk: usize,
         /// Also write the results as JSON here.
         #[arg(long)]
         json: Option<PathBuf>,
@@ -132,6 +146,16 @@ enum Command {
         #[arg(long, default_value_t = 4.0)]
         minutes: f64,
     },
+}
+
+#[derive(Clone, Copy, PartialEq, clap::ValueEnum)]
+enum BenchPart {
+    /// Training steps.
+    Train,
+    /// Network forward throughput.
+    Mlp,
+    /// Frame times.
+    Render,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -201,21 +225,68 @@ fn main() -> Result<()> {
                 println!("{:>10} bytes  {}", f.bytes, f.path.display());
             }
         }
-        Command::Bench { preset, data, downscale, steps, json } => {
-            let presets = if preset.is_empty() { vec![Preset::CpuFast, Preset::Paper] } else { preset };
-            let mut results = Vec::new();
-            println!("{:<10} {:>6} {:>9} {:>9} {:>9} {:>9}", "preset", "rays", "step s", "forward", "backward", "update");
-            for p in presets {
-                let b = nerf::bench::bench_train_step(p, data.as_deref(), downscale, 2, steps).map_err(err)?;
-                println!("{:<10} {:>6} {:>9.3} {:>9.3} {:>9.3} {:>9.3}", b.preset, b.batch_rays, b.step_s, b.forward_s, b.backward_s, b.update_s);
-                results.push(b);
-            }
-            if let Some(path) = json {
-                let text = serde_json::to_string_pretty(&serde_json::json!({ "train_steps": results }))?;
-                nerf_core::error::write_atomic(&path, text.as_bytes()).map_err(|e| err(e.to_string()))?;
-            }
+        Command::Bench { only, preset, data, downscale, steps, points, sizes, chunk, json } => {
+            bench(&only, preset, data, downscale, steps, points, &sizes, chunk, json, progress)?
         }
         Command::Demo { out, minutes } => demo(out, minutes, progress)?,
+    }
+    Ok(())
+}
+
+#[allow(clippy::too_many_arguments)]
+fn bench(
+    only: &[BenchPart],
+    preset: Vec<Preset>,
+    data: Option<PathBuf>,
+    downscale: u32,
+    steps: usize,
+    points: usize,
+    sizes: &[u32],
+    chunk: usize,
+    json: Option<PathBuf>,
+    progress: bool,
+) -> Result<()> {
+    let wanted = |p: BenchPart| only.is_empty() || only.contains(&p);
+    let lego = PathBuf::from("../shared/data/nerf_synthetic/lego");
+    let data = data.or_else(|| lego.join("transforms_val.json").is_file().then_some(lego));
+    match &data {
+        Some(d) => println!("scene: {}", d.display()),
+        None => println!("scene: generated (no --data, no ../shared/data/nerf_synthetic/lego)"),
+    }
+    let mut report = serde_json::Map::new();
+    if wanted(BenchPart::Train) {
+        let presets = if preset.is_empty() { vec![Preset::CpuFast, Preset::Paper] } else { preset };
+        let mut results = Vec::new();
+        println!("\ntraining step (1/{downscale} resolution rays, mean of {steps} after 2 warm-up)");
+        println!("{:<10} {:>6} {:>9} {:>9} {:>9} {:>9}", "preset", "rays", "step s", "forward", "backward", "update");
+        for p in presets {
+            let b = nerf::bench::bench_train_step(p, data.as_deref(), downscale, 2, steps).map_err(err)?;
+            println!("{:<10} {:>6} {:>9.3} {:>9.3} {:>9.3} {:>9.3}", b.preset, b.batch_rays, b.step_s, b.forward_s, b.backward_s, b.update_s);
+            results.push(b);
+        }
+        report.insert("train_steps".into(), serde_json::to_value(results)?);
+    }
+    if wanted(BenchPart::Mlp) {
+        println!("\npaper MLP forward on {points} points (best of 3, encoding included)");
+        let results = nerf::bench::bench_mlp(points, 3).map_err(err)?;
+        for b in &results {
+            println!("{:<12} {:>8.3} s {:>8.1} GFLOP/s", b.backend, b.seconds, b.gflops);
+        }
+        report.insert("mlp".into(), serde_json::to_value(results)?);
+    }
+    if wanted(BenchPart::Render) {
+        println!("\nframe time, paper network, dense 64 + 128 samples, {chunk} rays per call");
+        let results = nerf::bench::bench_frames(data.as_deref(), sizes, chunk, progress).map_err(err)?;
+        println!("{:<12} {:>9} {:>9} {:>14}", "backend", "size", "seconds", "PSNR vs burn");
+        for b in &results {
+            println!("{:<12} {:>9} {:>9.2} {:>11.1} dB", b.backend, format!("{}×{}", b.width, b.height), b.seconds, b.psnr_vs_burn_db);
+        }
+        report.insert("frames".into(), serde_json::to_value(results)?);
+    }
+    if let Some(path) = json {
+        let text = serde_json::to_string_pretty(&serde_json::Value::Object(report))?;
+        nerf_core::error::write_atomic(&path, text.as_bytes()).map_err(|e| err(e.to_string()))?;
+        println!("\nJSON: {}", path.display());
     }
     Ok(())
 }
