@@ -88,7 +88,8 @@ pub struct MlpBench {
     pub gflops: f64,
 }
 
-fn random_points(n: usize, seed: u64) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
+/// `n` seeded random points in [−1.5, 1.5]³ and unit directions.
+pub fn random_points(n: usize, seed: u64) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
     let mut rng = Rng::new(seed);
     let points = (0..n).map(|_| [0; 3].map(|_: i32| rng.uniform() * 3.0 - 1.5)).collect();
     let dirs = (0..n)

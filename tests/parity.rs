@@ -5,29 +5,16 @@
 mod common;
 
 use common::{lego_dir, nerf, nerf_render, s, tiny_config, trained_run};
+use nerf::bench::random_points;
 use nerf::field::NerfMlp;
 use nerf::inference::{tensor_vec3, vec3_tensor};
 use nerf::train::{TrainOptions, train};
 use nerf_core::frames::load_npy;
 use nerf_core::metrics::psnr;
 use nerf_core::network::{NetworkSpec, PlainNetwork};
-use nerf_core::Rng;
 use nerf_runtime::OrtNetwork;
 use prost::Message;
 use std::path::Path;
-
-fn random_inputs(n: usize, seed: u64) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
-    let mut rng = Rng::new(seed);
-    let points = (0..n).map(|_| [0; 3].map(|_: i32| rng.uniform() * 3.0 - 1.5)).collect();
-    let dirs = (0..n)
-        .map(|_| {
-            let v = [0; 3].map(|_: i32| rng.uniform() * 2.0 - 1.0);
-            let norm = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt().max(1e-3);
-            v.map(|x| x / norm)
-        })
-        .collect();
-    (points, dirs)
-}
 
 /// Compile `net`, run both on 12,000 points, return (max |Δrgb|, max |Δσ|, max σ).
 fn network_difference(net: &NerfMlp, dir: &Path) -> (f32, f32, f32) {
@@ -35,7 +22,7 @@ fn network_difference(net: &NerfMlp, dir: &Path) -> (f32, f32, f32) {
     let model = nerf_export::compile(&net.to_plain(), "coarse", nerf_export::DEFAULT_OPSET, &[]).unwrap();
     std::fs::write(&path, model.encode_to_vec()).unwrap();
     let mut ort = OrtNetwork::load(&path, None).unwrap();
-    let (points, dirs) = random_inputs(12_000, 7);
+    let (points, dirs) = random_points(12_000, 7);
     let ort_out = ort.run(&points, &dirs).unwrap();
     let device = nerf::backend::cpu();
     let (rgb, sigma) = net.forward(vec3_tensor(&points, &device), vec3_tensor(&dirs, &device));

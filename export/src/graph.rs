@@ -368,7 +368,7 @@ mod tests {
             assert_eq!(init.len(), before, "no initializer is stored twice");
             assert!(graph.node.iter().any(|n| n.op_type == "Sin") && graph.node.iter().any(|n| n.op_type == "Cos"));
             assert!(decoded.metadata_props.iter().any(|p| p.key == "nerf.stage"));
-            check_contract(&decoded).unwrap();
+            check_contract(&model).unwrap();
         }
     }
 
