@@ -6,7 +6,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh   # Python venv with onnxruntime (nerf-render loads its libonnxruntime.so)
 . scripts/env.sh
-cargo build --release --bin nerf --bin nerf-render
+cargo build --release -p nerf --bin nerf -p nerf-runtime --bin nerf-render
 OUT=demo-out
 args=("$@")
 for ((k = 0; k < ${#args[@]}; k++)); do
