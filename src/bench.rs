@@ -206,3 +206,77 @@ pub fn bench_frames(data: Option<&Path>, sizes: &[u32], chunk: usize, progress: 
     }
     Ok(out)
 }
+
+/// Rendering lego val views through onnxruntime (as `nerf-render` does) with the dense path and
+/// with empty-space skipping + early termination, both with `n_coarse + n_fine` samples.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct SkipBench {
+    /// Views rendered (val r_0, r_1, …).
+    pub views: usize,
+    /// Image size.
+    pub width: u32,
+    /// Image size.
+    pub height: u32,
+    /// Samples per ray, as "coarse + fine".
+    pub samples: String,
+    /// Mean seconds per frame, dense.
+    pub dense_s: f64,
+    /// Mean seconds per frame, skipping empty space and terminating early.
+    pub skip_s: f64,
+    /// Mean PSNR against the images, dense.
+    pub dense_psnr_db: f32,
+    /// Mean PSNR against the images, skipping.
+    pub skip_psnr_db: f32,
+    /// Network evaluations per ray (coarse + fine), dense.
+    pub dense_points_per_ray: f64,
+    /// Network evaluations per ray (coarse + fine), skipping.
+    pub skip_points_per_ray: f64,
+}
+
+/// Render the first `views` val views of `data` at `1/downscale` through the bundle at `bundle`,
+/// dense and skipping, with `n_coarse + n_fine` samples per ray.
+pub fn bench_skipping(bundle: &Path, data: &Path, downscale: u32, views: usize, samples: (usize, usize), march: (usize, Option<f32>), progress: bool) -> Result<SkipBench, String> {
+    let mut val = load_split(data, Split::Val, downscale, true).map_err(|e| e.to_string())?;
+    val.views.truncate(views.max(1));
+    let measure = |skip: bool| -> Result<(f64, f32, f64), String> {
+        let options = OpenOptions { threads: None, chunk: nerf_runtime::scene::DEFAULT_CHUNK, skip_empty_space: skip };
+        let mut scene = OrtScene::open(bundle, &options).map_err(|e| e.to_string())?;
+        if skip && scene.occupancy.is_none() {
+            return Err(format!("{}: the bundle has no occupancy grid to skip with", bundle.display()));
+        }
+        (scene.options.sampling.n_coarse, scene.options.sampling.n_fine) = samples;
+        scene.options.march_steps = march.0;
+        if let Some(threshold) = march.1 {
+            scene.occupancy = scene.occupancy.take().map(|g| g.with_threshold(threshold));
+        }
+        let (mut seconds, mut db) = (0.0, 0.0);
+        for view in &val.views {
+            let bar = nerf_core::frames::frame_bar(progress, &format!("{} {}", if skip { "skip" } else { "dense" }, view.name));
+            bar.set_length(val.intrinsics.num_pixels() as u64);
+            let start = Instant::now();
+            let image = scene.render(&val.intrinsics, &view.pose, &mut |d, _| bar.set_position(d as u64)).map_err(|e| e.to_string())?;
+            seconds += start.elapsed().as_secs_f64();
+            bar.finish_and_clear();
+            db += psnr(&image.rays.rgb, view.image.as_ref().expect("loaded with images"));
+        }
+        let n = val.views.len();
+        let f = &scene.field;
+        let points = f.coarse.evaluated + f.fine.as_ref().map_or(0, |n| n.evaluated);
+        Ok((seconds / n as f64, db / n as f32, points as f64 / (n * val.intrinsics.num_pixels()) as f64))
+    };
+    let (dense_s, dense_psnr_db, dense_points_per_ray) = measure(false)?;
+    let (skip_s, skip_psnr_db, skip_points_per_ray) = measure(true)?;
+    let k = val.intrinsics;
+    let samples = format!("{} + {}", samples.0, samples.1);
+    Ok(SkipBench { views: val.views.len(), width: k.width, height: k.height, samples, dense_s, skip_s, dense_psnr_db, skip_psnr_db, dense_points_per_ray, skip_points_per_ray })
+}
+
+/// Peak resident memory of this process so far, in MB (`getrusage`).
+pub fn peak_rss_mb() -> f64 {
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    // SAFETY: getrusage fills the struct we pass; RUSAGE_SELF is always valid.
+    if unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut usage) } != 0 {
+        return f64::NAN;
+    }
+    usage.ru_maxrss as f64 / 1024.0 // Linux reports kilobytes
+}

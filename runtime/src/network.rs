@@ -15,6 +15,8 @@ use std::path::{Path, PathBuf};
 pub struct OrtNetwork {
     session: Session,
     path: PathBuf,
+    /// Points evaluated so far (for benchmarks: how much work skipping saves).
+    pub evaluated: usize,
 }
 
 impl OrtNetwork {
@@ -31,7 +33,7 @@ impl OrtNetwork {
             builder = builder.with_intra_threads(n).map_err(|e| ort_err(&e))?;
         }
         let session = builder.commit_from_memory(&bytes).map_err(|e| ort_err(&e))?;
-        Ok(OrtNetwork { session, path: path.to_path_buf() })
+        Ok(OrtNetwork { session, path: path.to_path_buf(), evaluated: 0 })
     }
 
     /// The graph file.
@@ -46,6 +48,7 @@ impl OrtNetwork {
         if n == 0 {
             return Ok(FieldOutput::default());
         }
+        self.evaluated += n;
         let path = self.path.clone();
         let ort_err = |e: &dyn std::fmt::Display| RuntimeError::Ort { path: path.clone(), message: e.to_string() };
         let p = TensorRef::from_array_view(([n, 3], points.as_flattened())).map_err(|e| ort_err(&e))?;

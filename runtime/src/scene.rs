@@ -21,7 +21,8 @@ pub struct OpenOptions {
     pub threads: Option<usize>,
     /// Rays per onnxruntime call (bounds memory).
     pub chunk: usize,
-    /// Use the bundle's occupancy grid (when it has one) to skip empty space.
+    /// Use the bundle's occupancy grid (when it has one) to skip empty space, and stop
+    /// marching rays whose transmittance is below 1e-4 (early termination).
     pub skip_empty_space: bool,
 }
 
@@ -66,6 +67,8 @@ impl OrtScene {
             sampling: description.sampling.clone(),
             white_background: description.white_background,
             chunk: options.chunk,
+            min_transmittance: options.skip_empty_space.then_some(nerf_core::render::DEFAULT_MIN_TRANSMITTANCE),
+            march_steps: nerf_core::render::DEFAULT_MARCH_STEPS,
         };
         Ok(OrtScene { dir: dir.to_path_buf(), description, field: OrtField { coarse, fine }, occupancy, options: render_options })
     }

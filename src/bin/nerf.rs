@@ -133,6 +133,18 @@ enum Command {
         /// Rays per network call when rendering.
         #[arg(long, default_value_t = nerf_runtime::scene::DEFAULT_CHUNK)]
         chunk: usize,
+        /// Trained bundle with an occupancy grid for the skipping measurement (lego).
+        #[arg(long, default_value = "models/lego")]
+        bundle: PathBuf,
+        /// Val views for the skipping measurement.
+        #[arg(long, default_value_t = 5)]
+        views: usize,
+        /// Marching intervals over [near, far] for the skipping measurement.
+        #[arg(long, default_value_t = nerf_core::render::DEFAULT_MARCH_STEPS)]
+        march_steps: usize,
+        /// Occupancy threshold for the skipping measurement (default: the grid's own).
+        #[arg(long)]
+        skip_threshold: Option<f32>,
         /// Also write the results as JSON here.
         #[arg(long)]
         json: Option<PathBuf>,
@@ -154,8 +166,10 @@ enum BenchPart {
     Train,
     /// Network forward throughput.
     Mlp,
-    /// Frame times.
+    /// Frame times, burn and onnxruntime.
     Render,
+    /// Empty-space skipping and early termination against the dense path (onnxruntime).
+    Skip,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -225,8 +239,8 @@ fn main() -> Result<()> {
                 println!("{:>10} bytes  {}", f.bytes, f.path.display());
             }
         }
-        Command::Bench { only, preset, data, downscale, steps, points, sizes, chunk, json } => {
-            bench(&only, preset, data, downscale, steps, points, &sizes, chunk, json, progress)?
+        Command::Bench { only, preset, data, downscale, steps, points, sizes, chunk, bundle, views, march_steps, skip_threshold, json } => {
+            bench(&only, preset, data, downscale, steps, points, &sizes, chunk, (&bundle, views, march_steps, skip_threshold), json, progress)?
         }
         Command::Demo { out, minutes } => demo(out, minutes, progress)?,
     }
@@ -243,6 +257,7 @@ fn bench(
     points: usize,
     sizes: &[u32],
     chunk: usize,
+    (bundle, views, march_steps, skip_threshold): (&std::path::Path, usize, usize, Option<f32>),
     json: Option<PathBuf>,
     progress: bool,
 ) -> Result<()> {
@@ -262,8 +277,15 @@ fn bench(
         for p in presets {
             let b = nerf::bench::bench_train_step(p, data.as_deref(), downscale, 2, steps).map_err(err)?;
             println!("{:<10} {:>6} {:>9.3} {:>9.3} {:>9.3} {:>9.3}", b.preset, b.batch_rays, b.step_s, b.forward_s, b.backward_s, b.update_s);
+            if b.preset == Preset::Paper.name() {
+                report.insert("train_step_paper_s".into(), b.step_s.into());
+            }
             results.push(b);
         }
+        // Training runs first, so the process peak so far is the training peak.
+        let rss = nerf::bench::peak_rss_mb();
+        println!("peak RSS so far: {rss:.0} MB");
+        report.insert("train_peak_rss_mb".into(), rss.into());
         report.insert("train_steps".into(), serde_json::to_value(results)?);
     }
     if wanted(BenchPart::Mlp) {
@@ -271,6 +293,7 @@ fn bench(
         let results = nerf::bench::bench_mlp(points, 3).map_err(err)?;
         for b in &results {
             println!("{:<12} {:>8.3} s {:>8.1} GFLOP/s", b.backend, b.seconds, b.gflops);
+            report.insert(if b.backend == "burn" { "mlp_gflops_burn" } else { "mlp_gflops_ort" }.into(), b.gflops.into());
         }
         report.insert("mlp".into(), serde_json::to_value(results)?);
     }
@@ -282,6 +305,23 @@ fn bench(
             println!("{:<12} {:>9} {:>9.2} {:>11.1} dB", b.backend, format!("{}×{}", b.width, b.height), b.seconds, b.psnr_vs_burn_db);
         }
         report.insert("frames".into(), serde_json::to_value(results)?);
+    }
+    if wanted(BenchPart::Skip) {
+        match &data {
+            Some(d) => {
+                println!("\nskipping vs dense through onnxruntime: {}, lego val at 1/{downscale}, 64 + 128 samples dense, {march_steps} marching steps", bundle.display());
+                let b = nerf::bench::bench_skipping(bundle, d, downscale, views, (64, 128), (march_steps, skip_threshold), progress).map_err(err)?;
+                println!("{:<8} {:>12} {:>10} {:>14}", "path", "s / frame", "PSNR", "points / ray");
+                println!("{:<8} {:>12.3} {:>7.2} dB {:>14.1}", "dense", b.dense_s, b.dense_psnr_db, b.dense_points_per_ray);
+                println!("{:<8} {:>12.3} {:>7.2} dB {:>14.1}", "skip", b.skip_s, b.skip_psnr_db, b.skip_points_per_ray);
+                println!("{:.1}× faster, PSNR loss {:.2} dB ({} views at {}×{})", b.dense_s / b.skip_s, b.dense_psnr_db - b.skip_psnr_db, b.views, b.width, b.height);
+                report.insert("render_dense_s".into(), b.dense_s.into());
+                report.insert("render_skip_s".into(), b.skip_s.into());
+                report.insert("render_skip_psnr_loss_db".into(), (b.dense_psnr_db - b.skip_psnr_db).into());
+                report.insert("skip".into(), serde_json::to_value(b)?);
+            }
+            None => println!("\nskipping: needs the lego data (--data) for ground truth; not measured"),
+        }
     }
     if let Some(path) = json {
         let text = serde_json::to_string_pretty(&serde_json::Value::Object(report))?;

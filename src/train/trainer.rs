@@ -260,7 +260,14 @@ impl Trainer {
 
 /// How a run's networks are rendered at test time.
 pub fn render_options(config: &TrainConfig) -> RenderOptions {
-    RenderOptions { sampling: config.sampling.clone(), white_background: config.white_background, chunk: config.chunk }
+    RenderOptions {
+        sampling: config.sampling.clone(),
+        white_background: config.white_background,
+        chunk: config.chunk,
+        // Runs that skip empty space also stop marching behind opaque surfaces.
+        min_transmittance: config.skip_empty_space.then_some(nerf_core::render::DEFAULT_MIN_TRANSMITTANCE),
+        march_steps: nerf_core::render::DEFAULT_MARCH_STEPS,
+    }
 }
 
 impl NerfModel {
