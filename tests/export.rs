@@ -5,7 +5,6 @@ mod common;
 
 use common::{nerf, s, small_scene, tiny_config, trained_run};
 use nerf::train::{TrainOptions, load_model, train};
-use nerf_core::Rng;
 use std::path::Path;
 use std::process::Command;
 
@@ -16,15 +15,7 @@ fn python() -> String {
 
 /// Random points in the scene cube and unit directions, with the plain network's answers.
 fn reference(net: &nerf_core::network::PlainNetwork, n: usize, seed: u64) -> serde_json::Value {
-    let mut rng = Rng::new(seed);
-    let points: Vec<[f32; 3]> = (0..n).map(|_| [0; 3].map(|_: i32| rng.uniform() * 3.0 - 1.5)).collect();
-    let dirs: Vec<[f32; 3]> = (0..n)
-        .map(|_| {
-            let v = [0; 3].map(|_: i32| rng.uniform() * 2.0 - 1.0);
-            let norm = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt().max(1e-3);
-            v.map(|x| x / norm)
-        })
-        .collect();
+    let (points, dirs) = nerf::bench::random_points(n, seed);
     let out: Vec<_> = points.iter().zip(&dirs).map(|(p, d)| net.forward(*p, *d)).collect();
     serde_json::json!({
         "points": points,

@@ -224,6 +224,8 @@ pub fn march_rays<F: Field>(
     let min_transmittance = options.min_transmittance.unwrap_or(0.0);
     let interval = (s.far - s.near) / steps as f32;
     let viewdirs = rays.view_directions();
+    // Each sample's δ: the interval in world units along its (unnormalised) ray.
+    let deltas: Vec<f32> = rays.directions.iter().map(|d| interval * (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()).collect();
     // Per ray: the occupied interval midpoints, front to back.
     let occupied: Vec<Vec<f32>> = (0..rays.len())
         .map(|r| {
@@ -255,9 +257,7 @@ pub fn march_rays<F: Field>(
         }
         let part = field.evaluate(stage, &points, &dirs)?;
         for (j, &(r, t)) in owner.iter().enumerate() {
-            let d = rays.directions[r];
-            let delta = interval * (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-            let alpha = alpha_from_density(part.raw_sigma[j], delta);
+            let alpha = alpha_from_density(part.raw_sigma[j], deltas[r]);
             let w = alpha * transmittance[r];
             let o = &mut out[r];
             for c in 0..3 {

@@ -322,7 +322,6 @@ pub fn read_network(model: &ModelProto) -> Result<PlainNetwork, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nerf_core::Rng;
     use prost::Message;
 
     fn random_network(use_viewdirs: bool) -> PlainNetwork {
@@ -334,19 +333,7 @@ mod tests {
             direction_encoding: EncodingSpec { n_frequencies: 1, include_input: false },
             use_viewdirs,
         };
-        let mut rng = Rng::new(4);
-        let layers = spec
-            .layer_shapes()
-            .into_iter()
-            .map(|(name, in_dim, out_dim)| DenseLayer {
-                weight: (0..in_dim * out_dim).map(|_| rng.uniform() - 0.5).collect(),
-                bias: (0..out_dim).map(|_| rng.uniform() - 0.5).collect(),
-                name,
-                in_dim,
-                out_dim,
-            })
-            .collect();
-        PlainNetwork { spec, layers }
+        PlainNetwork::seeded(&spec, 4)
     }
 
     #[test]

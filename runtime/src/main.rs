@@ -29,10 +29,10 @@ struct Cli {
     /// radius 4, elevation −30°, with that many frames).
     #[arg(long, requires = "orbit")]
     frames: Option<usize>,
-    /// Render this split's views: from --data (with metrics.json when its images exist), or the
-    /// bundle's own test poses when --data is not given (--split test only).
-    #[arg(long, value_enum)]
-    split: Option<SplitArg>,
+    /// Render this split's views (train, val or test): from --data (with metrics.json when its
+    /// images exist), or the bundle's own test poses when --data is not given (test only).
+    #[arg(long)]
+    split: Option<Split>,
     /// Blender-format scene directory (transforms_<split>.json and images).
     #[arg(long, requires = "split")]
     data: Option<PathBuf>,
@@ -63,23 +63,6 @@ struct Cli {
     /// Also write <name>.npy per frame: float32 [H, W, 5] = r, g, b, depth, acc.
     #[arg(long)]
     npy: bool,
-}
-
-#[derive(Clone, Copy, clap::ValueEnum)]
-enum SplitArg {
-    Train,
-    Val,
-    Test,
-}
-
-impl From<SplitArg> for Split {
-    fn from(s: SplitArg) -> Split {
-        match s {
-            SplitArg::Train => Split::Train,
-            SplitArg::Val => Split::Val,
-            SplitArg::Test => Split::Test,
-        }
-    }
 }
 
 fn main() {
@@ -119,7 +102,6 @@ fn run(cli: Cli) -> Result<()> {
             FrameSpec::orbit(&resize(scene.intrinsics(None), cli.width, cli.height)?, &poses)
         }
         (false, Some(split), Some(data)) => {
-            let split: Split = split.into();
             let loaded = match load_split(data, split, cli.downscale, true) {
                 Ok(d) => d,
                 Err(with_images) => {
@@ -137,7 +119,7 @@ fn run(cli: Cli) -> Result<()> {
             }
             specs
         }
-        (false, Some(SplitArg::Test), None) => {
+        (false, Some(Split::Test), None) => {
             let k = resize(scene.intrinsics(None), cli.width, cli.height)?;
             scene
                 .description

@@ -53,9 +53,9 @@ enum Command {
         /// Scene directory.
         #[arg(long)]
         data: PathBuf,
-        /// Which views.
-        #[arg(long, value_enum, default_value = "val")]
-        split: SplitArg,
+        /// Which views: train, val or test.
+        #[arg(long, default_value = "val")]
+        split: Split,
         /// Image downscale factor (use the one you trained with).
         #[arg(long, default_value_t = 1)]
         downscale: u32,
@@ -77,9 +77,9 @@ enum Command {
         /// Frames in the orbit.
         #[arg(long, default_value_t = 40)]
         frames: usize,
-        /// Render this split's poses (needs --data).
-        #[arg(long, value_enum)]
-        split: Option<SplitArg>,
+        /// Render this split's poses (train, val or test; needs --data).
+        #[arg(long)]
+        split: Option<Split>,
         /// Scene directory (with --split).
         #[arg(long)]
         data: Option<PathBuf>,
@@ -172,23 +172,6 @@ enum BenchPart {
     Skip,
 }
 
-#[derive(Clone, Copy, clap::ValueEnum)]
-enum SplitArg {
-    Train,
-    Val,
-    Test,
-}
-
-impl From<SplitArg> for Split {
-    fn from(s: SplitArg) -> Split {
-        match s {
-            SplitArg::Train => Split::Train,
-            SplitArg::Val => Split::Val,
-            SplitArg::Test => Split::Test,
-        }
-    }
-}
-
 fn err(s: String) -> anyhow::Error {
     anyhow::anyhow!(s)
 }
@@ -218,7 +201,7 @@ fn main() -> Result<()> {
             );
         }
         Command::Eval { run, data, split, downscale, limit, out } => {
-            let r = eval(&run, &data, split.into(), downscale, limit, &out, progress).map_err(err)?;
+            let r = eval(&run, &data, split, downscale, limit, &out, progress).map_err(err)?;
             println!("{} views: PSNR {:.2} dB, SSIM {:.4}; {}", r.per_image.len(), r.psnr_mean, r.ssim_mean, out.join("metrics.json").display());
         }
         Command::Render { run, orbit, frames, split, data, downscale, out, npy } => match (orbit, split, data) {
@@ -227,7 +210,7 @@ fn main() -> Result<()> {
                 println!("{frames} frames and depth maps in {}; {}", out.display(), gif.display());
             }
             (false, Some(split), Some(data)) => {
-                let n = render_split(&run, &data, split.into(), downscale, &out, npy, progress).map_err(err)?;
+                let n = render_split(&run, &data, split, downscale, &out, npy, progress).map_err(err)?;
                 println!("{n} views and depth maps in {}", out.display());
             }
             (false, Some(_), None) => bail!("--split needs --data <scene dir>"),
