@@ -3,7 +3,7 @@
 //! run the same sampling and compositing code and differ only in who evaluates the networks.
 
 use crate::camera::{Intrinsics, Pose, Rays};
-use crate::compositing::{Composited, LAST_DELTA, RayOutput, TRANSMITTANCE_EPS, alpha_from_density, composite};
+use crate::compositing::{Composited, RayOutput, TRANSMITTANCE_EPS, alpha_from_density, composite, deltas};
 use crate::rng::Rng;
 use crate::sampling::{DenseSamples, SamplingConfig, importance, stratified};
 use serde::{Deserialize, Serialize};
@@ -132,7 +132,7 @@ fn march<F: Field>(
     let mut out = FieldOutput { rgb: vec![[0.0; 3]; samples.t.len()], raw_sigma: vec![0.0; samples.t.len()] };
     let mut transmittance = vec![1.0f32; rays.len()];
     let mut active: Vec<usize> = (0..rays.len()).collect();
-    let (mut points, mut dirs, mut index) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut points, mut dirs, mut index, mut ray_deltas) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for start in (0..n).step_by(MARCH_SEGMENT) {
         let end = (start + MARCH_SEGMENT).min(n);
         points.clear();
@@ -152,12 +152,10 @@ fn march<F: Field>(
             out.raw_sigma[i] = part.raw_sigma[j];
         }
         for &r in &active {
-            let t = samples.ray(r);
             let d = rays.directions[r];
-            let norm = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            deltas(samples.ray(r), (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt(), &mut ray_deltas);
             for k in start..end {
-                let delta = if k + 1 < n { (t[k + 1] - t[k]) * norm } else { LAST_DELTA * norm };
-                transmittance[r] *= 1.0 - alpha_from_density(out.raw_sigma[r * n + k], delta) + TRANSMITTANCE_EPS;
+                transmittance[r] *= 1.0 - alpha_from_density(out.raw_sigma[r * n + k], ray_deltas[k]) + TRANSMITTANCE_EPS;
             }
         }
         active.retain(|&r| transmittance[r] >= min_transmittance);
@@ -168,7 +166,8 @@ fn march<F: Field>(
     Ok(out)
 }
 
-/// Render a batch of rays (one field call per stage; split big batches with [`render_rays`]).
+/// Render a batch of rays (one field call per stage, or one per marching segment; images are
+/// split into batches of `options.chunk` rays by [`render_image`]).
 /// `rng` jitters the samples (training-style); `None` gives the deterministic test-time path.
 pub fn render_batch<F: Field>(
     field: &mut F,
@@ -186,27 +185,6 @@ pub fn render_batch<F: Field>(
     let extra = importance(&coarse, &coarse_out.weights, s.n_fine, rng);
     let all = coarse.merge_sorted(&extra);
     evaluate_samples(field, Stage::Fine, rays, &viewdirs, &all, options)
-}
-
-/// Render any number of rays in chunks of `options.chunk`, calling `progress(done, total)`.
-pub fn render_rays<F: Field>(
-    field: &mut F,
-    rays: &Rays,
-    options: &RenderOptions,
-    mut rng: Option<&mut Rng>,
-    progress: &mut dyn FnMut(usize, usize),
-) -> Result<RenderedRays, F::Error> {
-    let mut out = RenderedRays::default();
-    let chunk = options.chunk.max(1);
-    let mut start = 0;
-    while start < rays.len() {
-        let end = (start + chunk).min(rays.len());
-        let c = render_batch(field, &rays.slice(start..end), options, rng.as_deref_mut())?;
-        out.append(&c.rays);
-        progress(end, rays.len());
-        start = end;
-    }
-    Ok(out)
 }
 
 /// A rendered image, row-major.
