@@ -78,8 +78,7 @@ impl NerfMlp {
         let n = h.dims()[0];
         if self.spec.use_viewdirs {
             let sigma = self.heads[0].forward(h.clone()).reshape([n]);
-            let feature = self.heads[1].forward(h);
-            let v = relu(dense_with_shared_rows(&self.heads[2], feature, encoded_dirs, samples_per_direction));
+            let v = relu(self.view_layer_on_trunk(h, encoded_dirs, samples_per_direction));
             (sigmoid(self.heads[3].forward(v)), sigma)
         } else {
             let out = self.heads[0].forward(h);
@@ -161,21 +160,34 @@ fn dense(layer: &Linear, inputs: &[Tensor<2>]) -> Tensor<2> {
     add_bias(layer, out.expect("at least one input"))
 }
 
-/// `layer` applied to `[per_row, shared]`, where each row of `shared` belongs to `group`
-/// consecutive rows of `per_row`: the shared part's product is broadcast, not repeated.
-fn dense_with_shared_rows(layer: &Linear, per_row: Tensor<2>, shared: Tensor<2>, group: usize) -> Tensor<2> {
-    let weight = layer.weight.val();
-    let [n, width] = per_row.dims();
-    let [groups, shared_width] = shared.dims();
-    let out_dim = weight.dims()[1];
-    let own = per_row.matmul(weight.clone().narrow(0, 0, width));
-    let common = shared.matmul(weight.narrow(0, width, shared_width));
-    let sum = if group == 1 {
-        own + common
-    } else {
-        (own.reshape([groups, group, out_dim]) + common.reshape([groups, 1, out_dim])).reshape([n, out_dim])
-    };
-    add_bias(layer, sum)
+impl NerfMlp {
+    /// The view layer's pre-activation, `[feature(h), d]·W_v + b_v`, without the feature.
+    ///
+    /// The feature layer has no activation, so it folds into the view layer's weights:
+    /// `feature·W_v,f = h·(W_f·W_v,f) + b_f·W_v,f`. The folded 256×128 product replaces the
+    /// 256×256 feature layer (11% of the paper network's work per sample) and the feature
+    /// activations are never stored. Gradients reach `W_f`, `b_f` and `W_v` through the fold, so
+    /// the parameters and the function are the paper's.
+    fn view_layer_on_trunk(&self, h: Tensor<2>, encoded_dirs: Tensor<2>, group: usize) -> Tensor<2> {
+        let (feature, view) = (&self.heads[1], &self.heads[2]);
+        let weight = view.weight.val();
+        let [n, _] = h.dims();
+        let [groups, dir_width] = encoded_dirs.dims();
+        let [_, out_dim] = weight.dims();
+        let feature_rows = weight.clone().narrow(0, 0, self.spec.width);
+        let mut own = h.matmul(feature.weight.val().matmul(feature_rows.clone()));
+        if let Some(bias) = &feature.bias {
+            own = own + bias.val().unsqueeze::<2>().matmul(feature_rows);
+        }
+        // One direction per `group` consecutive rows: its product is broadcast, not repeated.
+        let common = encoded_dirs.matmul(weight.narrow(0, self.spec.width, dir_width));
+        let sum = if group == 1 {
+            own + common
+        } else {
+            (own.reshape([groups, group, out_dim]) + common.reshape([groups, 1, out_dim])).reshape([n, out_dim])
+        };
+        add_bias(view, sum)
+    }
 }
 
 fn add_bias(layer: &Linear, x: Tensor<2>) -> Tensor<2> {

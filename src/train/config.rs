@@ -6,6 +6,10 @@ use nerf_core::SamplingConfig;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
+/// Default [`TrainConfig::pass_points`]: the paper step (1024 rays × 192 samples) runs as
+/// four passes of 256 rays, two at a time, which keeps its peak memory under 3 GB.
+pub const DEFAULT_PASS_POINTS: usize = 1 << 16;
+
 /// The named starting points for a configuration.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -50,6 +54,8 @@ impl Preset {
                 checkpoint_every: 5_000,
                 eval_every_min: 10.0,
                 chunk: 4096,
+                pass_points: DEFAULT_PASS_POINTS,
+                concurrent_passes: 2,
                 skip_empty_space: false,
                 occupancy: OccupancyConfig::default(),
             },
@@ -117,6 +123,13 @@ pub struct TrainConfig {
     pub eval_every_min: f64,
     /// Rays per network call when rendering.
     pub chunk: usize,
+    /// Most samples (coarse + fine, per ray × rays) in one forward/backward pass. A larger
+    /// batch is split into passes by rays and their gradients are summed before the update: the
+    /// same step, with the activations of one pass in memory at a time.
+    pub pass_points: usize,
+    /// Passes in flight at once, each on its own autodiff graph (their activations are in
+    /// memory together). Two keep both cores busy: burn's elementwise kernels use one thread.
+    pub concurrent_passes: usize,
     /// Keep an occupancy grid and send only samples in occupied cells to the networks (in
     /// training and rendering).
     pub skip_empty_space: bool,
@@ -166,8 +179,8 @@ impl TrainConfig {
         if s.n_coarse < 3 && s.n_fine > 0 {
             return Err("sampling: hierarchical sampling needs n_coarse ≥ 3".into());
         }
-        if self.batch_rays == 0 || self.chunk == 0 {
-            return Err("batch_rays and chunk must be positive".into());
+        if self.batch_rays == 0 || self.chunk == 0 || self.pass_points == 0 || self.concurrent_passes == 0 {
+            return Err("batch_rays, chunk, pass_points and concurrent_passes must be positive".into());
         }
         if !(self.lr > 0.0 && self.lr_decay_ksteps > 0.0) {
             return Err("lr and lr_decay_ksteps must be positive".into());
