@@ -74,6 +74,44 @@ pub fn bench_train_step(preset: Preset, data: Option<&Path>, downscale: u32, war
     })
 }
 
+/// The nerf-pytorch-style paper step of `scripts/pytorch_step.py`, as it reports it.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct PytorchStep {
+    /// PyTorch version.
+    pub torch: String,
+    /// Intra-op threads.
+    pub threads: usize,
+    /// Mean seconds per step.
+    pub step_s: f64,
+    /// Mean seconds in the forward pass.
+    pub forward_s: f64,
+    /// Mean seconds in backpropagation.
+    pub backward_s: f64,
+    /// Mean seconds in the Adam update.
+    pub update_s: f64,
+    /// Peak RSS of the Python process.
+    pub peak_rss_mb: f64,
+}
+
+/// Run `scripts/pytorch_step.py` with `python` (which must have PyTorch) for `steps` timed
+/// steps on two threads.
+pub fn bench_pytorch_step(python: &Path, steps: usize) -> Result<PytorchStep, String> {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/pytorch_step.py");
+    let out = tempfile::NamedTempFile::new().map_err(|e| e.to_string())?;
+    let status = std::process::Command::new(python)
+        .arg(&script)
+        .args(["--steps", &steps.to_string(), "--threads", "2", "--json"])
+        .arg(out.path())
+        .stdout(std::process::Stdio::null())
+        .status()
+        .map_err(|e| format!("{}: {e}", python.display()))?;
+    if !status.success() {
+        return Err(format!("{} {} failed ({status}); does that Python have PyTorch?", python.display(), script.display()));
+    }
+    let text = std::fs::read_to_string(out.path()).map_err(|e| e.to_string())?;
+    serde_json::from_str(&text).map_err(|e| format!("{}: {e}", script.display()))
+}
+
 /// Forward throughput of one network on a batch of points.
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct MlpBench {

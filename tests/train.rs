@@ -65,6 +65,36 @@ fn lego_brief_training_beats_a_blank_image() {
 }
 
 #[test]
+fn passes_add_up_to_the_whole_batch() {
+    // Without fine samples a step's samples do not depend on how its batch is split, so one
+    // pass, four sequential passes and four passes two at a time must take the same step.
+    let dir = tempfile::tempdir().unwrap();
+    let scene = small_scene(dir.path());
+    let run = |pass_points: usize, concurrent_passes: usize| {
+        let mut config = tiny_config();
+        config.sampling.n_fine = 0;
+        config.precrop_iters = 0;
+        config.skip_empty_space = false;
+        config.pass_points = pass_points;
+        config.concurrent_passes = concurrent_passes;
+        let rays = config.batch_rays;
+        let mut t = new_trainer(&scene, config, 1);
+        let losses: Vec<f32> = (0..3).map(|_| t.step().loss).collect();
+        assert_eq!(t.step, 3);
+        (rays, losses, model_weights(t.model()))
+    };
+    let (rays, one_loss, one) = run(usize::MAX, 1);
+    let samples = rays * tiny_config().sampling.n_coarse;
+    for (label, (_, loss, weights)) in [("4 sequential", run(samples / 4, 1)), ("4, 2 at a time", run(samples / 4, 2))] {
+        for (a, b) in one_loss.iter().zip(&loss) {
+            assert!((a - b).abs() <= 1e-5 * a.abs(), "{label} passes: loss {b} vs {a} in one pass");
+        }
+        let worst = one.iter().zip(&weights).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
+        assert!(worst < 1e-5, "{label} passes: weights differ by {worst} from one pass");
+    }
+}
+
+#[test]
 fn resume_continues_exactly_and_runs_are_deterministic() {
     let dir = tempfile::tempdir().unwrap();
     let scene = small_scene(dir.path());

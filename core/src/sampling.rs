@@ -46,6 +46,12 @@ impl DenseSamples {
         &self.t[r * self.n_samples..(r + 1) * self.n_samples]
     }
 
+    /// The samples of rays `rays` only.
+    pub fn rays(&self, rays: std::ops::Range<usize>) -> DenseSamples {
+        let t = self.t[rays.start * self.n_samples..rays.end * self.n_samples].to_vec();
+        DenseSamples { n_rays: rays.len(), n_samples: self.n_samples, t }
+    }
+
     /// World positions `o + t·d` of every sample, `[n_rays · n_samples]` of 3-vectors.
     pub fn points(&self, origins: &[[f32; 3]], directions: &[[f32; 3]]) -> Vec<[f32; 3]> {
         let mut out = Vec::with_capacity(self.t.len());

@@ -145,6 +145,10 @@ enum Command {
         /// Occupancy threshold for the skipping measurement (default: the grid's own).
         #[arg(long)]
         skip_threshold: Option<f32>,
+        /// Also time the nerf-pytorch-style paper step (scripts/pytorch_step.py) with this Python,
+        /// which must have PyTorch, right after ours (not installed by the project).
+        #[arg(long)]
+        pytorch: Option<PathBuf>,
         /// Also write the results as JSON here.
         #[arg(long)]
         json: Option<PathBuf>,
@@ -222,8 +226,8 @@ fn main() -> Result<()> {
                 println!("{:>10} bytes  {}", f.bytes, f.path.display());
             }
         }
-        Command::Bench { only, preset, data, downscale, steps, points, sizes, chunk, bundle, views, march_steps, skip_threshold, json } => {
-            bench(&only, preset, data, downscale, steps, points, &sizes, chunk, (&bundle, views, march_steps, skip_threshold), json, progress)?
+        Command::Bench { only, preset, data, downscale, steps, points, sizes, chunk, bundle, views, march_steps, skip_threshold, pytorch, json } => {
+            bench(&only, preset, data, downscale, steps, points, &sizes, chunk, (&bundle, views, march_steps, skip_threshold), pytorch, json, progress)?
         }
         Command::Demo { out, minutes } => demo(out, minutes, progress)?,
     }
@@ -241,6 +245,7 @@ fn bench(
     sizes: &[u32],
     chunk: usize,
     (bundle, views, march_steps, skip_threshold): (&std::path::Path, usize, usize, Option<f32>),
+    pytorch: Option<PathBuf>,
     json: Option<PathBuf>,
     progress: bool,
 ) -> Result<()> {
@@ -269,6 +274,21 @@ fn bench(
         let rss = nerf::bench::peak_rss_mb();
         println!("peak RSS so far: {rss:.0} MB");
         report.insert("train_peak_rss_mb".into(), rss.into());
+        if let Some(python) = &pytorch {
+            let torch = nerf::bench::bench_pytorch_step(python, steps).map_err(err)?;
+            let ours = results.iter().find(|b| b.preset == Preset::Paper.name());
+            println!(
+                "{:<10} {:>6} {:>9.3} {:>9.3} {:>9.3} {:>9.3}   peak RSS {:.0} MB{}",
+                "pytorch", 1024, torch.step_s, torch.forward_s, torch.backward_s, torch.update_s, torch.peak_rss_mb,
+                ours.map(|b| format!("; ours / pytorch = {:.2}", b.step_s / torch.step_s)).unwrap_or_default()
+            );
+            report.insert("train_step_pytorch_s".into(), torch.step_s.into());
+            report.insert("train_peak_rss_pytorch_mb".into(), torch.peak_rss_mb.into());
+            if let Some(b) = ours {
+                report.insert("train_step_ratio_vs_pytorch".into(), (b.step_s / torch.step_s).into());
+            }
+            report.insert("pytorch".into(), serde_json::to_value(torch)?);
+        }
         report.insert("train_steps".into(), serde_json::to_value(results)?);
     }
     if wanted(BenchPart::Mlp) {

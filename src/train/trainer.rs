@@ -178,6 +178,10 @@ impl Trainer {
         let concurrent = cfg.concurrent_passes;
         let passes = (rays.len() * samples_per_ray).div_ceil(cfg.pass_points).next_multiple_of(concurrent).min(rays.len());
         let rays_per_pass = rays.len().div_ceil(passes);
+        // Drawn for the whole batch, so the coarse samples do not depend on the split.
+        let coarse = stratified(&cfg.sampling, rays.len(), Some(&mut self.rng));
+        // One draw from the step's generator however many passes there are.
+        let mut pass_rngs = self.rng.fork();
         let work: Vec<PassWork> = (0..rays.len())
             .step_by(rays_per_pass)
             .map(|first| {
@@ -185,8 +189,9 @@ impl Trainer {
                 PassWork {
                     rays: Rays { origins: rays.origins[first..end].to_vec(), directions: rays.directions[first..end].to_vec() },
                     target: batch.2[first..end].to_vec(),
+                    coarse: coarse.rays(first..end),
                     share: (end - first) as f32 / rays.len() as f32,
-                    rng: self.rng.fork(),
+                    rng: pass_rngs.fork(),
                 }
             })
             .collect();
@@ -242,6 +247,8 @@ impl Trainer {
 struct PassWork {
     rays: Rays,
     target: Vec<[f32; 3]>,
+    /// The rays' stratified samples.
+    coarse: DenseSamples,
     /// This pass's fraction of the step's rays (its loss weight).
     share: f32,
     rng: Rng,
@@ -275,14 +282,14 @@ impl PassContext<'_> {
         let rays = &work.rays;
         let viewdirs = rays.view_directions();
         let sampling = &self.config.sampling;
-        let coarse = stratified(sampling, rays.len(), Some(&mut work.rng));
-        let coarse_out = self.render_stage(&model.coarse, rays, &viewdirs, &coarse);
+        let coarse = &work.coarse;
+        let coarse_out = self.render_stage(&model.coarse, rays, &viewdirs, coarse);
         let mse_coarse = (coarse_out.rgb.clone() - target.clone()).square().mean();
         let (loss, mse_last) = match &model.fine {
             Some(fine_net) => {
                 // The new samples come from detached weights: no gradient flows through them.
                 let w = coarse_out.weights.clone().detach().into_data().try_to_vec::<f32>().expect("f32 weights");
-                let extra = importance(&coarse, &w, sampling.n_fine, Some(&mut work.rng));
+                let extra = importance(coarse, &w, sampling.n_fine, Some(&mut work.rng));
                 let all = coarse.merge_sorted(&extra);
                 let fine_out = self.render_stage(fine_net, rays, &viewdirs, &all);
                 let mse_fine = (fine_out.rgb - target).square().mean();
