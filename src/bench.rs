@@ -121,7 +121,8 @@ pub struct MlpBench {
     pub points: usize,
     /// Best seconds per forward pass (encoding included).
     pub seconds: f64,
-    /// Dense-layer GFLOP/s (2 · multiply-adds per point · points / seconds; the encoding's
+    /// Dense-layer GFLOP/s (2 · multiply-adds per point · points / seconds, counting the
+    /// multiply-adds this backend performs: burn folds the feature layer away; the encoding's
     /// work is timed but not counted).
     pub gflops: f64,
 }
@@ -155,7 +156,7 @@ fn best_of(repeats: usize, mut f: impl FnMut() -> Result<(), String>) -> Result<
 /// random inputs: best of `repeats` forward passes each.
 pub fn bench_mlp(points: usize, repeats: usize) -> Result<Vec<MlpBench>, String> {
     let plain = PlainNetwork::seeded(&NetworkSpec::paper(), 1);
-    let flops = 2.0 * plain.spec.macs_per_point() as f64 * points as f64;
+    let flops = |macs: usize| 2.0 * macs as f64 * points as f64;
     let (p, d) = random_points(points, 2);
     let device = crate::backend::cpu();
     let net = NerfMlp::from_plain(&plain, &device)?;
@@ -170,9 +171,9 @@ pub fn bench_mlp(points: usize, repeats: usize) -> Result<Vec<MlpBench>, String>
     nerf_core::error::write_atomic(&path, &prost::Message::encode_to_vec(&model)).map_err(|e| e.to_string())?;
     let mut ort = OrtNetwork::load(&path, None).map_err(|e| e.to_string())?;
     let ort_s = best_of(repeats, || ort.run(&p, &d).map(|_| ()).map_err(|e| e.to_string()))?;
-    Ok([("burn", burn_s), ("onnxruntime", ort_s)]
+    Ok([("burn", burn_s, net.macs_per_point()), ("onnxruntime", ort_s, plain.spec.macs_per_point())]
         .into_iter()
-        .map(|(backend, seconds)| MlpBench { backend: backend.into(), points, seconds, gflops: flops / seconds / 1e9 })
+        .map(|(backend, seconds, macs)| MlpBench { backend: backend.into(), points, seconds, gflops: flops(macs) / seconds / 1e9 })
         .collect())
 }
 
@@ -225,24 +226,27 @@ pub fn bench_frames(data: Option<&Path>, sizes: &[u32], chunk: usize, progress: 
     let mut out = Vec::new();
     for &size in sizes {
         let k = camera.resized(size, size);
-        let bar = nerf_core::frames::frame_bar(progress, &format!("burn {size}×{size}"));
-        bar.set_length(k.num_pixels() as u64);
-        let start = Instant::now();
         let field = BurnField { model: &model, device: device.clone() };
-        let Ok(burn) = render_image_with(field, None, &k, &pose, &render_options, &mut |d, _| bar.set_position(d as u64));
-        let burn_s = start.elapsed().as_secs_f64();
-        bar.finish_and_clear();
-        let bar = nerf_core::frames::frame_bar(progress, &format!("onnxruntime {size}×{size}"));
-        bar.set_length(k.num_pixels() as u64);
-        let start = Instant::now();
-        let ort = scene.render(&k, &pose, &mut |d, _| bar.set_position(d as u64)).map_err(|e| e.to_string())?;
-        let ort_s = start.elapsed().as_secs_f64();
-        bar.finish_and_clear();
+        let (Ok(burn), burn_s) =
+            timed_frame(progress, &format!("burn {size}×{size}"), k.num_pixels(), |p| render_image_with(field, None, &k, &pose, &render_options, p));
+        let (ort, ort_s) = timed_frame(progress, &format!("onnxruntime {size}×{size}"), k.num_pixels(), |p| scene.render(&k, &pose, p));
+        let ort = ort.map_err(|e| e.to_string())?;
         for (backend, seconds, psnr_vs_burn_db) in [("burn", burn_s, f32::INFINITY), ("onnxruntime", ort_s, psnr(&ort.rays.rgb, &burn.rays.rgb))] {
             out.push(FrameBench { backend: backend.into(), width: size, height: size, samples: samples.clone(), seconds, psnr_vs_burn_db });
         }
     }
     Ok(out)
+}
+
+/// `render(progress)` under a progress bar labelled `what` over `pixels`, and its seconds.
+fn timed_frame<R>(show: bool, what: &str, pixels: usize, render: impl FnOnce(&mut dyn FnMut(usize, usize)) -> R) -> (R, f64) {
+    let bar = nerf_core::frames::frame_bar(show, what);
+    bar.set_length(pixels as u64);
+    let start = Instant::now();
+    let out = render(&mut |done, _| bar.set_position(done as u64));
+    let seconds = start.elapsed().as_secs_f64();
+    bar.finish_and_clear();
+    (out, seconds)
 }
 
 /// Rendering lego val views through onnxruntime (as `nerf-render` does) with the dense path and
@@ -289,12 +293,10 @@ pub fn bench_skipping(bundle: &Path, data: &Path, downscale: u32, views: usize, 
         }
         let (mut seconds, mut db) = (0.0, 0.0);
         for view in &val.views {
-            let bar = nerf_core::frames::frame_bar(progress, &format!("{} {}", if skip { "skip" } else { "dense" }, view.name));
-            bar.set_length(val.intrinsics.num_pixels() as u64);
-            let start = Instant::now();
-            let image = scene.render(&val.intrinsics, &view.pose, &mut |d, _| bar.set_position(d as u64)).map_err(|e| e.to_string())?;
-            seconds += start.elapsed().as_secs_f64();
-            bar.finish_and_clear();
+            let label = format!("{} {}", if skip { "skip" } else { "dense" }, view.name);
+            let (image, s) = timed_frame(progress, &label, val.intrinsics.num_pixels(), |p| scene.render(&val.intrinsics, &view.pose, p));
+            let image = image.map_err(|e| e.to_string())?;
+            seconds += s;
             db += psnr(&image.rays.rgb, view.image.as_ref().expect("loaded with images"));
         }
         let n = val.views.len();

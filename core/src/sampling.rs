@@ -46,10 +46,10 @@ impl DenseSamples {
         &self.t[r * self.n_samples..(r + 1) * self.n_samples]
     }
 
-    /// The samples of rays `rays` only.
-    pub fn rays(&self, rays: std::ops::Range<usize>) -> DenseSamples {
-        let t = self.t[rays.start * self.n_samples..rays.end * self.n_samples].to_vec();
-        DenseSamples { n_rays: rays.len(), n_samples: self.n_samples, t }
+    /// The samples of rays `range` only (as [`Rays::slice`](crate::Rays::slice) for the rays).
+    pub fn slice(&self, range: std::ops::Range<usize>) -> DenseSamples {
+        let t = self.t[range.start * self.n_samples..range.end * self.n_samples].to_vec();
+        DenseSamples { n_rays: range.len(), n_samples: self.n_samples, t }
     }
 
     /// World positions `o + t·d` of every sample, `[n_rays · n_samples]` of 3-vectors.

@@ -98,6 +98,14 @@ impl NerfMlp {
         if self.spec.use_viewdirs { out.reshape([n]) } else { out.narrow(1, 3, 1).reshape([n]) }
     }
 
+    /// Multiply-adds per point this network performs: the spec's count
+    /// ([`NetworkSpec::macs_per_point`]) less the feature layer's, which is folded into the view
+    /// layer ([`Self::view_layer_on_trunk`]).
+    pub fn macs_per_point(&self) -> usize {
+        let folded = if self.spec.use_viewdirs { self.spec.width * self.spec.width } else { 0 };
+        self.spec.macs_per_point() - folded
+    }
+
     /// The ReLU layers on the encoded position (skip inputs as split products).
     fn trunk_forward(&self, x: Tensor<2>) -> Tensor<2> {
         let mut inputs = vec![x.clone()];
@@ -106,6 +114,35 @@ impl NerfMlp {
             inputs = if self.spec.skips.contains(&i) { vec![x.clone(), h] } else { vec![h] };
         }
         inputs.pop().expect("one trunk output")
+    }
+
+    /// The view layer's pre-activation, `[feature(h), d]·W_v + b_v`, without the feature.
+    ///
+    /// The feature layer has no activation, so it folds into the view layer's weights:
+    /// `feature·W_v,f = h·(W_f·W_v,f) + b_f·W_v,f`. The folded 256×128 product replaces the
+    /// 256×256 feature layer (11% of the paper network's work per sample) and the feature
+    /// activations are never stored. Gradients reach `W_f`, `b_f` and `W_v` through the fold, so
+    /// the parameters and the function are the paper's.
+    fn view_layer_on_trunk(&self, h: Tensor<2>, encoded_dirs: Tensor<2>, group: usize) -> Tensor<2> {
+        let (feature, view) = (&self.heads[1], &self.heads[2]);
+        let weight = view.weight.val();
+        let [n, _] = h.dims();
+        let [groups, dir_width] = encoded_dirs.dims();
+        let [_, out_dim] = weight.dims();
+        let feature_rows = weight.clone().narrow(0, 0, self.spec.width);
+        let own = h.matmul(feature.weight.val().matmul(feature_rows.clone()));
+        // One direction per `group` consecutive rows: its product is broadcast, not repeated.
+        // The folded feature bias joins it there, on one row per ray rather than per sample.
+        let mut common = encoded_dirs.matmul(weight.narrow(0, self.spec.width, dir_width));
+        if let Some(bias) = &feature.bias {
+            common = common + bias.val().unsqueeze::<2>().matmul(feature_rows);
+        }
+        let sum = if group == 1 {
+            own + common
+        } else {
+            (own.reshape([groups, group, out_dim]) + common.reshape([groups, 1, out_dim])).reshape([n, out_dim])
+        };
+        add_bias(view, sum)
     }
 
     /// The weights as plain data (for the ONNX compiler and checks).
@@ -158,36 +195,6 @@ fn dense(layer: &Linear, inputs: &[Tensor<2>]) -> Tensor<2> {
         });
     }
     add_bias(layer, out.expect("at least one input"))
-}
-
-impl NerfMlp {
-    /// The view layer's pre-activation, `[feature(h), d]·W_v + b_v`, without the feature.
-    ///
-    /// The feature layer has no activation, so it folds into the view layer's weights:
-    /// `feature·W_v,f = h·(W_f·W_v,f) + b_f·W_v,f`. The folded 256×128 product replaces the
-    /// 256×256 feature layer (11% of the paper network's work per sample) and the feature
-    /// activations are never stored. Gradients reach `W_f`, `b_f` and `W_v` through the fold, so
-    /// the parameters and the function are the paper's.
-    fn view_layer_on_trunk(&self, h: Tensor<2>, encoded_dirs: Tensor<2>, group: usize) -> Tensor<2> {
-        let (feature, view) = (&self.heads[1], &self.heads[2]);
-        let weight = view.weight.val();
-        let [n, _] = h.dims();
-        let [groups, dir_width] = encoded_dirs.dims();
-        let [_, out_dim] = weight.dims();
-        let feature_rows = weight.clone().narrow(0, 0, self.spec.width);
-        let mut own = h.matmul(feature.weight.val().matmul(feature_rows.clone()));
-        if let Some(bias) = &feature.bias {
-            own = own + bias.val().unsqueeze::<2>().matmul(feature_rows);
-        }
-        // One direction per `group` consecutive rows: its product is broadcast, not repeated.
-        let common = encoded_dirs.matmul(weight.narrow(0, self.spec.width, dir_width));
-        let sum = if group == 1 {
-            own + common
-        } else {
-            (own.reshape([groups, group, out_dim]) + common.reshape([groups, 1, out_dim])).reshape([n, out_dim])
-        };
-        add_bias(view, sum)
-    }
 }
 
 fn add_bias(layer: &Linear, x: Tensor<2>) -> Tensor<2> {

@@ -187,9 +187,9 @@ impl Trainer {
             .map(|first| {
                 let end = (first + rays_per_pass).min(rays.len());
                 PassWork {
-                    rays: Rays { origins: rays.origins[first..end].to_vec(), directions: rays.directions[first..end].to_vec() },
+                    rays: rays.slice(first..end),
                     target: batch.2[first..end].to_vec(),
-                    coarse: coarse.rays(first..end),
+                    coarse: coarse.slice(first..end),
                     share: (end - first) as f32 / rays.len() as f32,
                     rng: pass_rngs.fork(),
                 }
@@ -200,8 +200,9 @@ impl Trainer {
         let context = PassContext { config: &self.config, occupancy: self.occupancy.as_ref(), device: &self.device };
         let mut accumulated = GradientsAccumulator::<NerfModel>::new();
         let (mut loss_value, mut mse_value) = (0.0, 0.0);
-        let mut timing = StepTiming::default();
-        let mut mark = start;
+        // The occupancy update, batch, rays and samples count as forward time.
+        let mut mark = Instant::now();
+        let mut timing = StepTiming { forward_s: (mark - start).as_secs_f64(), ..StepTiming::default() };
         let mut work = work.into_iter();
         loop {
             let wave: Vec<PassWork> = work.by_ref().take(concurrent).collect();
