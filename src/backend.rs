@@ -10,8 +10,7 @@ pub fn cpu() -> Device {
 /// The CPU device with autodiff, for training.
 ///
 /// Gradient checkpointing is on: burn's ReLU keeps its *input* for the backward pass while the
-/// next layer's matmul keeps the ReLU's *output*, two activations per layer (5.4 GB for the
-/// paper step). With checkpointing only the matmul outputs are kept, and the bias add and ReLU
+/// next layer's matmul keeps the ReLU's *output*, two activations per layer. With checkpointing only the matmul outputs are kept, and the bias add and ReLU
 /// are recomputed in the backward pass (two cheap elementwise passes per layer).
 pub fn cpu_autodiff() -> Device {
     Device::flex().autodiff().gradient_checkpointing()

@@ -1,18 +1,17 @@
-//! `nerf bench`: training-step, network and frame timings measured in one run, so ratios
-//! between them are fair on a shared, noisy machine.
+//! The burn side of `nerf bench`: training steps, the network's forward throughput and frame
+//! times in burn, and the PyTorch comparison. The onnxruntime side lives in the `nerf` binary,
+//! so this library does not depend on the runtime; the binary measures both in one run, so
+//! ratios between them are fair on a shared, noisy machine.
 
-use crate::export::model_bundle;
+use crate::error::{Error, Result};
 use crate::field::{NerfMlp, NerfModel};
 use crate::inference::{BurnField, vec3_tensor};
-use crate::train::{Preset, StepTiming, Trainer};
-use nerf_core::camera::{Intrinsics, Pose};
-use nerf_core::dataset::{Split, SyntheticSceneConfig, generate_scene, load_split};
-use nerf_core::metrics::psnr;
-use nerf_core::network::{NetworkSpec, PlainNetwork};
-use nerf_core::occupancy::render_image_with;
+use crate::train::{Preset, StepTiming, TrainConfig, Trainer};
 use nerf_core::Rng;
-use nerf_export::write_bundle;
-use nerf_runtime::{OpenOptions, OrtNetwork, OrtScene};
+use nerf_core::camera::{Intrinsics, Pose, length};
+use nerf_core::dataset::{Split, SyntheticSceneConfig, generate_scene, load_split};
+use nerf_core::network::{NetworkSpec, PlainNetwork};
+use nerf_core::render::{RenderedImage, render_image};
 use std::path::Path;
 use std::time::Instant;
 
@@ -37,17 +36,17 @@ pub struct StepBench {
 
 /// Time `steps` training steps of `preset` (after `warmup` untimed ones) on the scene in `data`,
 /// or on a generated scene when `data` is `None`. Precrop is off so every step is full-size.
-pub fn bench_train_step(preset: Preset, data: Option<&Path>, downscale: u32, warmup: usize, steps: usize) -> Result<StepBench, String> {
+pub fn bench_train_step(preset: Preset, data: Option<&Path>, downscale: u32, warmup: usize, steps: usize) -> Result<StepBench> {
     let generated;
     let dir = match data {
         Some(d) => d,
         None => {
-            generated = tempfile::tempdir().map_err(|e| e.to_string())?;
-            generate_scene(generated.path(), &SyntheticSceneConfig::default()).map_err(|e| e.to_string())?;
+            generated = tempfile::tempdir().map_err(|e| Error::io(std::env::temp_dir(), e))?;
+            generate_scene(generated.path(), &SyntheticSceneConfig::default())?;
             generated.path()
         }
     };
-    let train = load_split(dir, Split::Train, downscale, true).map_err(|e| e.to_string())?;
+    let train = load_split(dir, Split::Train, downscale, true)?;
     let mut config = preset.config();
     config.precrop_iters = 0;
     let batch_rays = config.batch_rays;
@@ -95,21 +94,22 @@ pub struct PytorchStep {
 
 /// Run `scripts/pytorch_step.py` with `python` (which must have PyTorch) for `steps` timed
 /// steps on two threads.
-pub fn bench_pytorch_step(python: &Path, steps: usize) -> Result<PytorchStep, String> {
+pub fn bench_pytorch_step(python: &Path, steps: usize) -> Result<PytorchStep> {
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/pytorch_step.py");
-    let out = tempfile::NamedTempFile::new().map_err(|e| e.to_string())?;
+    let out = tempfile::NamedTempFile::new().map_err(|e| Error::io(std::env::temp_dir(), e))?;
     let status = std::process::Command::new(python)
         .arg(&script)
         .args(["--steps", &steps.to_string(), "--threads", "2", "--json"])
         .arg(out.path())
         .stdout(std::process::Stdio::null())
         .status()
-        .map_err(|e| format!("{}: {e}", python.display()))?;
+        .map_err(|e| Error::External { program: python.to_path_buf(), problem: e.to_string() })?;
     if !status.success() {
-        return Err(format!("{} {} failed ({status}); does that Python have PyTorch?", python.display(), script.display()));
+        let problem = format!("{} failed ({status}); does that Python have PyTorch?", script.display());
+        return Err(Error::External { program: python.to_path_buf(), problem });
     }
-    let text = std::fs::read_to_string(out.path()).map_err(|e| e.to_string())?;
-    serde_json::from_str(&text).map_err(|e| format!("{}: {e}", script.display()))
+    let text = std::fs::read_to_string(out.path()).map_err(|e| Error::io(out.path(), e))?;
+    serde_json::from_str(&text).map_err(|e| Error::External { program: script, problem: format!("unreadable report: {e}") })
 }
 
 /// Forward throughput of one network on a batch of points.
@@ -134,14 +134,15 @@ pub fn random_points(n: usize, seed: u64) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
     let dirs = (0..n)
         .map(|_| {
             let v = [0; 3].map(|_: i32| rng.uniform() * 2.0 - 1.0);
-            let norm = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt().max(1e-3);
+            let norm = length(v).max(1e-3);
             v.map(|x| x / norm)
         })
         .collect();
     (points, dirs)
 }
 
-fn best_of(repeats: usize, mut f: impl FnMut() -> Result<(), String>) -> Result<f64, String> {
+/// The best of `repeats` timings of `f` (after one untimed warm-up call), in seconds.
+pub fn best_of<E>(repeats: usize, mut f: impl FnMut() -> std::result::Result<(), E>) -> std::result::Result<f64, E> {
     f()?; // warm-up: allocations, onnxruntime's first-run setup
     let mut best = f64::INFINITY;
     for _ in 0..repeats.max(1) {
@@ -152,29 +153,30 @@ fn best_of(repeats: usize, mut f: impl FnMut() -> Result<(), String>) -> Result<
     Ok(best)
 }
 
-/// The paper network (seeded weights) in burn and through onnxruntime on the same `points`
-/// random inputs: best of `repeats` forward passes each.
-pub fn bench_mlp(points: usize, repeats: usize) -> Result<Vec<MlpBench>, String> {
-    let plain = PlainNetwork::seeded(&NetworkSpec::paper(), 1);
-    let flops = |macs: usize| 2.0 * macs as f64 * points as f64;
-    let (p, d) = random_points(points, 2);
+/// The paper network with seeded weights, as plain data and in burn (the same weights the
+/// onnxruntime side compiles).
+pub fn paper_network(seed: u64) -> Result<(PlainNetwork, NerfMlp)> {
+    let plain = PlainNetwork::seeded(&NetworkSpec::paper(), seed);
+    let net = NerfMlp::from_plain(&plain, &crate::backend::cpu())?;
+    Ok((plain, net))
+}
+
+/// Best of `repeats` forward passes of `net` in burn on `points` and `dirs`.
+pub fn bench_mlp_burn(net: &NerfMlp, points: &[[f32; 3]], dirs: &[[f32; 3]], repeats: usize) -> Result<MlpBench> {
     let device = crate::backend::cpu();
-    let net = NerfMlp::from_plain(&plain, &device)?;
-    let burn_s = best_of(repeats, || {
-        let (rgb, sigma) = net.forward(vec3_tensor(&p, &device), vec3_tensor(&d, &device));
+    let seconds = best_of(repeats, || {
+        let (rgb, sigma) = net.forward(vec3_tensor(points, &device), vec3_tensor(dirs, &device));
         let _ = (rgb.into_data(), sigma.into_data());
-        Ok(())
+        Ok::<_, Error>(())
     })?;
-    let dir = tempfile::tempdir().map_err(|e| e.to_string())?;
-    let path = dir.path().join("paper.onnx");
-    let model = nerf_export::compile(&plain, "coarse", nerf_export::DEFAULT_OPSET, &[]).map_err(|e| e.to_string())?;
-    nerf_core::error::write_atomic(&path, &prost::Message::encode_to_vec(&model)).map_err(|e| e.to_string())?;
-    let mut ort = OrtNetwork::load(&path, None).map_err(|e| e.to_string())?;
-    let ort_s = best_of(repeats, || ort.run(&p, &d).map(|_| ()).map_err(|e| e.to_string()))?;
-    Ok([("burn", burn_s, net.macs_per_point()), ("onnxruntime", ort_s, plain.spec.macs_per_point())]
-        .into_iter()
-        .map(|(backend, seconds, macs)| MlpBench { backend: backend.into(), points, seconds, gflops: flops(macs) / seconds / 1e9 })
-        .collect())
+    Ok(MlpBench::new("burn", points.len(), seconds, net.macs_per_point()))
+}
+
+impl MlpBench {
+    /// A measurement of `points` points in `seconds`, `macs` multiply-adds per point.
+    pub fn new(backend: &str, points: usize, seconds: f64, macs: usize) -> Self {
+        MlpBench { backend: backend.into(), points, seconds, gflops: 2.0 * macs as f64 * points as f64 / seconds / 1e9 }
+    }
 }
 
 /// One rendered frame's time.
@@ -196,50 +198,39 @@ pub struct FrameBench {
 
 /// The lego validation pose r_0 and camera from `data` (or, without data, the reference orbit's
 /// first pose and lego's field of view): frame times are the same for any pose on the dense path.
-fn bench_view(data: Option<&Path>) -> Result<(Intrinsics, Pose), String> {
+pub fn bench_view(data: Option<&Path>) -> Result<(Intrinsics, Pose)> {
     match data {
         Some(dir) => {
-            let val = load_split(dir, Split::Val, 1, false).map_err(|e| e.to_string())?;
+            let val = load_split(dir, Split::Val, 1, false)?;
             Ok((val.intrinsics, val.views[0].pose))
         }
         None => Ok((Intrinsics::from_camera_angle_x(800, 800, nerf_core::dataset::CAMERA_ANGLE_X), Pose::orbit(1)[0])),
     }
 }
 
-/// Render one frame per size with the paper network (seeded weights; 64 + 128 samples, dense)
-/// through burn and through onnxruntime (the exported graphs, as `nerf-render` runs them).
-pub fn bench_frames(data: Option<&Path>, sizes: &[u32], chunk: usize, progress: bool) -> Result<Vec<FrameBench>, String> {
-    let (camera, pose) = bench_view(data)?;
+/// The paper preset with `chunk` rays per call, and its networks with seeded weights (as plain
+/// data for the compiler and in burn).
+pub fn paper_model(chunk: usize) -> Result<(TrainConfig, PlainNetwork, PlainNetwork, NerfModel)> {
     let mut config = Preset::Paper.config();
     config.chunk = chunk;
-    let plain = PlainNetwork::seeded(&config.network, 3);
-    let fine_plain = PlainNetwork::seeded(&config.network, 4);
+    let coarse = PlainNetwork::seeded(&config.network, 3);
+    let fine = PlainNetwork::seeded(&config.network, 4);
     let device = crate::backend::cpu();
-    let model = NerfModel { coarse: NerfMlp::from_plain(&plain, &device)?, fine: Some(NerfMlp::from_plain(&fine_plain, &device)?) };
-    let dir = tempfile::tempdir().map_err(|e| e.to_string())?;
-    let bundle = dir.path().join("bundle");
-    write_bundle(&bundle, &model_bundle(&model, &config, &camera, None), nerf_export::DEFAULT_OPSET).map_err(|e| e.to_string())?;
-    let options = OpenOptions { threads: None, chunk, skip_empty_space: false };
-    let mut scene = OrtScene::open(&bundle, &options).map_err(|e| e.to_string())?;
-    let render_options = crate::train::render_options(&config);
-    let samples = format!("{} + {}", config.sampling.n_coarse, config.sampling.n_fine);
-    let mut out = Vec::new();
-    for &size in sizes {
-        let k = camera.resized(size, size);
-        let field = BurnField { model: &model, device: device.clone() };
-        let (Ok(burn), burn_s) =
-            timed_frame(progress, &format!("burn {size}×{size}"), k.num_pixels(), |p| render_image_with(field, None, &k, &pose, &render_options, p));
-        let (ort, ort_s) = timed_frame(progress, &format!("onnxruntime {size}×{size}"), k.num_pixels(), |p| scene.render(&k, &pose, p));
-        let ort = ort.map_err(|e| e.to_string())?;
-        for (backend, seconds, psnr_vs_burn_db) in [("burn", burn_s, f32::INFINITY), ("onnxruntime", ort_s, psnr(&ort.rays.rgb, &burn.rays.rgb))] {
-            out.push(FrameBench { backend: backend.into(), width: size, height: size, samples: samples.clone(), seconds, psnr_vs_burn_db });
-        }
-    }
-    Ok(out)
+    let model = NerfModel { coarse: NerfMlp::from_plain(&coarse, &device)?, fine: Some(NerfMlp::from_plain(&fine, &device)?) };
+    Ok((config, coarse, fine, model))
+}
+
+/// One frame of `model` rendered by burn (dense: no grid), timed under a progress bar.
+pub fn burn_frame(model: &NerfModel, config: &TrainConfig, camera: &Intrinsics, pose: &Pose, progress: bool) -> (RenderedImage, f64) {
+    let mut field = BurnField { model, device: crate::backend::cpu() };
+    let label = format!("burn {}×{}", camera.width, camera.height);
+    let options = config.render_options();
+    let (Ok(image), seconds) = timed_frame(progress, &label, camera.num_pixels(), |p| render_image(&mut field, None, camera, pose, &options, p));
+    (image, seconds)
 }
 
 /// `render(progress)` under a progress bar labelled `what` over `pixels`, and its seconds.
-fn timed_frame<R>(show: bool, what: &str, pixels: usize, render: impl FnOnce(&mut dyn FnMut(usize, usize)) -> R) -> (R, f64) {
+pub fn timed_frame<R>(show: bool, what: &str, pixels: usize, render: impl FnOnce(&mut dyn FnMut(usize, usize)) -> R) -> (R, f64) {
     let bar = nerf_core::frames::frame_bar(show, what);
     bar.set_length(pixels as u64);
     let start = Instant::now();
@@ -247,68 +238,6 @@ fn timed_frame<R>(show: bool, what: &str, pixels: usize, render: impl FnOnce(&mu
     let seconds = start.elapsed().as_secs_f64();
     bar.finish_and_clear();
     (out, seconds)
-}
-
-/// Rendering lego val views through onnxruntime (as `nerf-render` does) with the dense path and
-/// with empty-space skipping + early termination, both with `n_coarse + n_fine` samples.
-#[derive(Debug, Clone, serde::Serialize)]
-pub struct SkipBench {
-    /// Views rendered (val r_0, r_1, …).
-    pub views: usize,
-    /// Image size.
-    pub width: u32,
-    /// Image size.
-    pub height: u32,
-    /// Samples per ray, as "coarse + fine".
-    pub samples: String,
-    /// Mean seconds per frame, dense.
-    pub dense_s: f64,
-    /// Mean seconds per frame, skipping empty space and terminating early.
-    pub skip_s: f64,
-    /// Mean PSNR against the images, dense.
-    pub dense_psnr_db: f32,
-    /// Mean PSNR against the images, skipping.
-    pub skip_psnr_db: f32,
-    /// Network evaluations per ray (coarse + fine), dense.
-    pub dense_points_per_ray: f64,
-    /// Network evaluations per ray (coarse + fine), skipping.
-    pub skip_points_per_ray: f64,
-}
-
-/// Render the first `views` val views of `data` at `1/downscale` through the bundle at `bundle`,
-/// dense and skipping, with `n_coarse + n_fine` samples per ray.
-pub fn bench_skipping(bundle: &Path, data: &Path, downscale: u32, views: usize, samples: (usize, usize), march: (usize, Option<f32>), progress: bool) -> Result<SkipBench, String> {
-    let mut val = load_split(data, Split::Val, downscale, true).map_err(|e| e.to_string())?;
-    val.views.truncate(views.max(1));
-    let measure = |skip: bool| -> Result<(f64, f32, f64), String> {
-        let options = OpenOptions { threads: None, chunk: nerf_runtime::scene::DEFAULT_CHUNK, skip_empty_space: skip };
-        let mut scene = OrtScene::open(bundle, &options).map_err(|e| e.to_string())?;
-        if skip && scene.occupancy.is_none() {
-            return Err(format!("{}: the bundle has no occupancy grid to skip with", bundle.display()));
-        }
-        (scene.options.sampling.n_coarse, scene.options.sampling.n_fine) = samples;
-        scene.options.march_steps = march.0;
-        if let Some(threshold) = march.1 {
-            scene.occupancy = scene.occupancy.take().map(|g| g.with_threshold(threshold));
-        }
-        let (mut seconds, mut db) = (0.0, 0.0);
-        for view in &val.views {
-            let label = format!("{} {}", if skip { "skip" } else { "dense" }, view.name);
-            let (image, s) = timed_frame(progress, &label, val.intrinsics.num_pixels(), |p| scene.render(&val.intrinsics, &view.pose, p));
-            let image = image.map_err(|e| e.to_string())?;
-            seconds += s;
-            db += psnr(&image.rays.rgb, view.image.as_ref().expect("loaded with images"));
-        }
-        let n = val.views.len();
-        let f = &scene.field;
-        let points = f.coarse.evaluated + f.fine.as_ref().map_or(0, |n| n.evaluated);
-        Ok((seconds / n as f64, db / n as f32, points as f64 / (n * val.intrinsics.num_pixels()) as f64))
-    };
-    let (dense_s, dense_psnr_db, dense_points_per_ray) = measure(false)?;
-    let (skip_s, skip_psnr_db, skip_points_per_ray) = measure(true)?;
-    let k = val.intrinsics;
-    let samples = format!("{} + {}", samples.0, samples.1);
-    Ok(SkipBench { views: val.views.len(), width: k.width, height: k.height, samples, dense_s, skip_s, dense_psnr_db, skip_psnr_db, dense_points_per_ray, skip_points_per_ray })
 }
 
 /// Peak resident memory of this process so far, in MB (`getrusage`).

@@ -1,22 +1,18 @@
 //! `nerf eval` and `nerf render`: test-time rendering of a trained run through the shared
 //! renderer and frame writer (`nerf_core::frames`), the same ones `nerf-render` uses.
 
+use crate::error::{Error, Result};
 use crate::field::NerfModel;
 use crate::inference::BurnField;
-use crate::train::{TrainConfig, load_model};
+use crate::run_dir::RunDir;
+use crate::train::TrainConfig;
 use nerf_core::camera::{Intrinsics, Pose};
 use nerf_core::dataset::{Split, load_split};
 use nerf_core::frames::{FrameOutput, FrameSpec, FramesReport, render_frames};
 use nerf_core::metrics::EvalReport;
-use nerf_core::occupancy::{OccupancyGrid, render_image_with};
-use nerf_core::render::RenderedImage;
-use std::convert::Infallible;
+use nerf_core::occupancy::OccupancyGrid;
+use nerf_core::render::{RenderedImage, render_image};
 use std::path::{Path, PathBuf};
-
-/// `<run>/camera.json`: the training camera, so orbits render at the training resolution.
-pub fn camera_path(run: &Path) -> PathBuf {
-    run.join("camera.json")
-}
 
 /// A trained run loaded for rendering.
 pub struct LoadedRun {
@@ -34,53 +30,54 @@ pub struct LoadedRun {
 
 impl LoadedRun {
     /// Load the latest checkpoint of `run`.
-    pub fn open(run: &Path) -> Result<Self, String> {
-        let device = crate::backend::cpu();
-        let (config, model, state, occupancy) = load_model(run, &device)?;
-        let path = camera_path(run);
-        let text = std::fs::read_to_string(&path).map_err(|e| format!("{}: {e}", path.display()))?;
-        let camera = serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
-        Ok(LoadedRun { config, model, camera, step: state.step, occupancy })
+    pub fn open(run: &Path) -> Result<Self> {
+        let run = RunDir::open(run)?;
+        let latest = run.load_latest(&crate::backend::cpu())?;
+        let camera = run.read_camera()?;
+        Ok(LoadedRun { config: latest.config, model: latest.model, camera, step: latest.state.step, occupancy: latest.occupancy })
     }
 
     /// Render one view deterministically (test-time sampling, skipping empty space when the
     /// run has a grid), reporting `progress(done, total)` pixels.
     pub fn render(&self, intrinsics: &Intrinsics, pose: &Pose, progress: &mut dyn FnMut(usize, usize)) -> RenderedImage {
-        let field = BurnField { model: &self.model, device: crate::backend::cpu() };
-        let options = crate::train::render_options(&self.config);
-        let Ok(image) = render_image_with(field, self.occupancy.as_ref(), intrinsics, pose, &options, progress);
+        let mut field = BurnField { model: &self.model, device: crate::backend::cpu() };
+        let options = self.config.render_options();
+        let Ok(image) = render_image(&mut field, self.occupancy.as_ref(), intrinsics, pose, &options, progress);
         image
     }
 
     /// Render `frames` into `out` (PNG + depth map each, `.npy` with `raw`; metrics when they
     /// have ground truth).
-    pub fn render_frames(&self, frames: Vec<FrameSpec>, out: &Path, gif: bool, raw: bool, progress: bool) -> Result<FramesReport, String> {
+    pub fn render_frames(&self, frames: Vec<FrameSpec>, out: &Path, gif: bool, raw: bool, progress: bool) -> Result<FramesReport> {
         let s = &self.config.sampling;
         let output = FrameOutput { dir: out.to_path_buf(), depth_range: (s.near, s.far), gif, raw, progress };
-        render_frames(frames, &output, |f, p| Ok::<_, Infallible>(self.render(&f.intrinsics, &f.pose, p)))
+        render_frames(frames, &output, |f, p| Ok::<_, Error>(self.render(&f.intrinsics, &f.pose, p)))
     }
 }
 
 /// Render a split's views, compare with its images, write PNGs and `<out>/metrics.json`.
-pub fn eval(run: &Path, data: &Path, split: Split, downscale: u32, limit: Option<usize>, out: &Path, progress: bool) -> Result<EvalReport, String> {
+pub fn eval(run: &Path, data: &Path, split: Split, downscale: u32, limit: Option<usize>, out: &Path, progress: bool) -> Result<EvalReport> {
     let loaded = LoadedRun::open(run)?;
-    let mut scene = load_split(data, split, downscale, true).map_err(|e| e.to_string())?;
+    let mut scene = load_split(data, split, downscale, true)?;
     scene.views.truncate(limit.unwrap_or(usize::MAX));
     let report = loaded.render_frames(FrameSpec::from_split(scene), out, false, false, progress)?;
-    report.metrics.ok_or_else(|| format!("{}: the split has no views", data.display()))
+    report.metrics.ok_or_else(|| Error::invalid(data, format!("the {} split has no views", split.name())))
 }
 
 /// Render a split's poses (no ground truth needed) to PNGs and depth maps (and `.npy` with `raw`).
-pub fn render_split(run: &Path, data: &Path, split: Split, downscale: u32, out: &Path, raw: bool, progress: bool) -> Result<usize, String> {
+pub fn render_split(run: &Path, data: &Path, split: Split, downscale: u32, out: &Path, raw: bool, progress: bool) -> Result<usize> {
     let loaded = LoadedRun::open(run)?;
-    let scene = load_split(data, split, downscale, false).map_err(|e| e.to_string())?;
+    let scene = load_split(data, split, downscale, false)?;
     Ok(loaded.render_frames(FrameSpec::from_split(scene), out, false, raw, progress)?.frames)
 }
 
 /// Render the reference 360° orbit: `frame_NNN.png`, depth maps (`.npy` with `raw`) and `orbit.gif`.
-pub fn render_orbit(run: &Path, frames: usize, out: &Path, raw: bool, progress: bool) -> Result<PathBuf, String> {
+pub fn render_orbit(run: &Path, frames: usize, out: &Path, raw: bool, progress: bool) -> Result<PathBuf> {
+    if frames == 0 {
+        return Err(Error::Config("an orbit needs at least one frame".into()));
+    }
     let loaded = LoadedRun::open(run)?;
     let specs = FrameSpec::orbit(&loaded.camera, &Pose::orbit(frames));
     let report = loaded.render_frames(specs, out, true, raw, progress)?;
-    report.gif.ok_or_else(|| "an orbit needs at least one frame".to_string())
+    report.gif.ok_or_else(|| Error::Config("an orbit needs at least one frame".into()))
 }

@@ -1,38 +1,24 @@
 //! `nerf export`: a trained run → a scene bundle through the burn-free compiler
 //! ([`nerf_export`]).
 
+use crate::error::Result;
 use crate::evaluate::LoadedRun;
 use crate::field::NerfModel;
+use crate::run_dir::RunDir;
 use crate::train::TrainConfig;
 use nerf_core::camera::{Intrinsics, Pose};
-use nerf_core::occupancy::OccupancyGrid;
 use nerf_core::dataset::{Split, load_split};
+use nerf_core::occupancy::OccupancyGrid;
 use nerf_export::bundle::{NamedPose, WrittenFile, pose_matrix};
 use nerf_export::{Bundle, SceneDescription, write_bundle};
-use serde::{Deserialize, Serialize};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// Frames of the orbit stored in `scene.json`.
 pub const ORBIT_FRAMES: usize = 40;
 
-/// `<run>/source.json`: the dataset a run was trained on.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct RunSource {
-    /// Scene directory.
-    pub data: PathBuf,
-    /// Downscale factor used.
-    pub downscale: u32,
-}
-
-/// Where a run records its dataset.
-pub fn source_path(run: &Path) -> PathBuf {
-    run.join("source.json")
-}
-
 /// The test poses of the run's dataset, when it is recorded and still there.
-fn test_poses(run: &Path) -> Vec<NamedPose> {
-    let Ok(text) = std::fs::read_to_string(source_path(run)) else { return vec![] };
-    let Ok(source) = serde_json::from_str::<RunSource>(&text) else { return vec![] };
+fn test_poses(run: &RunDir) -> Vec<NamedPose> {
+    let Some(source) = run.read_source() else { return vec![] };
     match load_split(&source.data, Split::Test, source.downscale, false) {
         Ok(test) => test.views.iter().map(|v| NamedPose { name: v.name.clone(), transform_matrix: pose_matrix(&v.pose) }).collect(),
         Err(_) => vec![],
@@ -50,9 +36,9 @@ pub fn model_bundle(model: &NerfModel, config: &TrainConfig, camera: &Intrinsics
 }
 
 /// Compile the latest checkpoint of `run` into a bundle at `out`.
-pub fn export_run(run: &Path, out: &Path, opset: i64) -> Result<Vec<WrittenFile>, String> {
+pub fn export_run(run: &Path, out: &Path, opset: i64) -> Result<Vec<WrittenFile>> {
     let loaded = LoadedRun::open(run)?;
     let mut bundle = model_bundle(&loaded.model, &loaded.config, &loaded.camera, loaded.occupancy);
-    bundle.scene.poses.test = test_poses(run);
-    write_bundle(out, &bundle, opset).map_err(|e| e.to_string())
+    bundle.scene.poses.test = test_poses(&RunDir::open(run)?);
+    Ok(write_bundle(out, &bundle, opset)?)
 }

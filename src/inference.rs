@@ -33,7 +33,7 @@ impl BurnField<'_> {
     fn network(&self, stage: Stage) -> &NerfMlp {
         match stage {
             Stage::Coarse => &self.model.coarse,
-            Stage::Fine => self.model.fine.as_ref().unwrap_or(&self.model.coarse),
+            Stage::Fine => self.model.last(),
         }
     }
 }
@@ -49,6 +49,6 @@ impl Field for BurnField<'_> {
             encoded_tensor(&spec.direction_encoding, viewdirs, &self.device),
             1,
         );
-        Ok(FieldOutput { rgb: tensor_vec3(rgb), raw_sigma: sigma.into_data().try_to_vec::<f32>().expect("f32 tensor") })
+        Ok(FieldOutput { rgb: tensor_vec3(rgb), sigma: sigma.into_data().try_to_vec::<f32>().expect("f32 tensor") })
     }
 }

@@ -7,9 +7,13 @@ pub use nerf_core as core;
 
 pub mod backend;
 pub mod bench;
+pub mod error;
 pub mod evaluate;
 pub mod export;
 pub mod field;
 pub mod inference;
+pub mod run_dir;
 pub mod train;
 pub mod volume;
+
+pub use error::{Error, Result};

@@ -4,7 +4,8 @@
 mod common;
 
 use common::{nerf, s, small_scene, tiny_config, trained_run};
-use nerf::train::{TrainOptions, load_model, train};
+use nerf::run_dir::RunDir;
+use nerf::train::{TrainOptions, train};
 use std::path::Path;
 use std::process::Command;
 
@@ -43,7 +44,7 @@ fn export_writes_a_bundle_that_onnx_and_onnxruntime_accept() {
     assert_eq!(scene.position_encoding.output_dim, 63);
 
     // The graphs carry exactly the trained weights.
-    let (_, model, _, _) = load_model(&run, &nerf::backend::cpu()).unwrap();
+    let model = RunDir::open(&run).unwrap().load_latest(&nerf::backend::cpu()).unwrap().model;
     let coarse = nerf_export::read_bundle_network(&bundle, "coarse.onnx").unwrap();
     let fine = nerf_export::read_bundle_network(&bundle, "fine.onnx").unwrap();
     assert_eq!(coarse, model.coarse.to_plain());
@@ -89,8 +90,8 @@ fn export_failures_leave_no_bundle() {
     config.iters = 1;
     let scene = small_scene(&dir.path().join("s2"));
     train(&TrainOptions { data: scene, run: other.clone(), config, downscale: 1, time_budget_min: None, iters: None, progress: false }).unwrap();
-    let latest = nerf::train::latest_checkpoint(&run).unwrap().unwrap().dir;
-    let other_latest = nerf::train::latest_checkpoint(&other).unwrap().unwrap().dir;
+    let latest = RunDir::open(&run).unwrap().latest_checkpoint().unwrap().unwrap().dir;
+    let other_latest = RunDir::open(&other).unwrap().latest_checkpoint().unwrap().unwrap().dir;
     let model = latest.join("model.bpk");
     let original = std::fs::read(&model).unwrap();
     std::fs::copy(other_latest.join("model.bpk"), &model).unwrap();

@@ -29,7 +29,7 @@ fn network_difference(net: &NerfMlp, dir: &Path) -> (f32, f32, f32) {
     let burn_rgb = tensor_vec3(rgb);
     let burn_sigma: Vec<f32> = sigma.into_data().try_to_vec::<f32>().unwrap().iter().map(|s| s.max(0.0)).collect();
     let d_rgb = burn_rgb.iter().flatten().zip(ort_out.rgb.iter().flatten()).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
-    let d_sigma = burn_sigma.iter().zip(&ort_out.raw_sigma).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
+    let d_sigma = burn_sigma.iter().zip(&ort_out.sigma).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
     (d_rgb, d_sigma, burn_sigma.iter().copied().fold(0.0, f32::max))
 }
 
@@ -50,7 +50,7 @@ fn networks_agree_paper_size_and_small() {
     assert!(max_sigma > 1.0, "σ stays below 1 ({max_sigma}): the comparison would be lenient");
     // A small network after some training (larger densities).
     let (_, run) = trained_run(dir.path());
-    let (_, model, _, _) = nerf::train::load_model(&run, &device).unwrap();
+    let model = nerf::run_dir::RunDir::open(&run).unwrap().load_latest(&device).unwrap().model;
     let (d_rgb, d_sigma, max_sigma) = network_difference(model.fine.as_ref().unwrap(), dir.path());
     println!("small network: max |Δrgb| {d_rgb:.2e}, max |Δσ| {d_sigma:.2e} (σ up to {max_sigma:.3})");
     assert!(d_rgb <= 1e-5 && d_sigma <= 1e-5, "small network: max |Δrgb| {d_rgb:e}, |Δσ| {d_sigma:e}");

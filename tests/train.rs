@@ -123,7 +123,8 @@ fn resume_continues_exactly_and_runs_are_deterministic() {
     assert_eq!(resumed.steps, 6);
 
     let load = |run: &str| {
-        let (_, model, state, grid) = nerf::train::load_model(&dir.path().join(run), &nerf::backend::cpu()).unwrap();
+        let nerf::run_dir::RunCheckpoint { model, state, occupancy: grid, .. } =
+            nerf::run_dir::RunDir::open(&dir.path().join(run)).unwrap().load_latest(&nerf::backend::cpu()).unwrap();
         (model_weights(&model), state, grid.expect("the run skips empty space"))
     };
     let (a, sa, grid_a) = load("a");

@@ -139,6 +139,19 @@ impl Pose {
     }
 }
 
+/// The point `o + t·d` on a ray.
+///
+/// Example: o = (1, 0, 0), d = (0, 2, 0), t = 1.5 → (1, 3, 0).
+pub fn point_at(origin: [f32; 3], direction: [f32; 3], t: f32) -> [f32; 3] {
+    [origin[0] + t * direction[0], origin[1] + t * direction[1], origin[2] + t * direction[2]]
+}
+
+/// The Euclidean length ‖d‖ of a (direction) vector: distances along an unnormalised ray are
+/// `t · ‖d‖`. Example: (3, 0, 4) → 5.
+pub fn length(d: [f32; 3]) -> f32 {
+    (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
+}
+
 /// A batch of rays. Directions are unnormalised (see the module docs).
 ///
 /// # Shapes
@@ -208,6 +221,12 @@ mod tests {
 
     fn assert_close(a: Vec3, b: Vec3) {
         assert!((a - b).abs().max_element() < 1e-5, "{a:?} != {b:?}");
+    }
+
+    #[test]
+    fn point_at_and_length() {
+        assert_eq!(point_at([1.0, 0.0, 0.0], [0.0, 2.0, 0.0], 1.5), [1.0, 3.0, 0.0]);
+        assert_eq!(length([3.0, 0.0, 4.0]), 5.0);
     }
 
     #[test]

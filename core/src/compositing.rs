@@ -4,6 +4,7 @@
 //! reference `raw2outputs` maths; the burn trainer has a differentiable twin that is tested
 //! against these.
 
+use crate::camera::length;
 use crate::sampling::DenseSamples;
 use rayon::prelude::*;
 
@@ -29,16 +30,60 @@ pub fn alpha_from_density(sigma: f32, delta: f32) -> f32 {
     1.0 - (-sigma.max(0.0) * delta).exp()
 }
 
-/// Weights from opacities: wₖ = αₖ·Tₖ with the exclusive product Tₖ = Πⱼ₍ⱼ<ₖ₎ (1 − αⱼ + 1e-10).
+/// Front-to-back compositing of one ray, one sample at a time: the single home of the
+/// transmittance product. Each sample of opacity αₖ gets the weight wₖ = αₖ·Tₖ, with the
+/// exclusive product Tₖ = Πⱼ₍ⱼ<ₖ₎ (1 − αⱼ + 1e-10) as in the reference, and adds wₖ·colour,
+/// wₖ·t and wₖ to the ray's colour, depth and opacity. The dense renderer, the marching
+/// renderers and [`composite`] all composite through it.
+///
+/// Example: α = [0.1, 0.3, 0.5, 0.2] → weights [0.1, 0.27, 0.315, 0.063], acc 0.748.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RayAccumulator {
+    out: RayOutput,
+    transmittance: f32,
+}
+
+impl Default for RayAccumulator {
+    fn default() -> Self {
+        RayAccumulator { out: RayOutput::default(), transmittance: 1.0 }
+    }
+}
+
+impl RayAccumulator {
+    /// Add the next sample (opacity `alpha`, colour `rgb`, distance `t`); returns its weight.
+    pub fn add(&mut self, alpha: f32, rgb: [f32; 3], t: f32) -> f32 {
+        let w = alpha * self.transmittance;
+        for ch in 0..3 {
+            self.out.rgb[ch] += w * rgb[ch];
+        }
+        self.out.depth += w * t;
+        self.out.acc += w;
+        self.transmittance *= 1.0 - alpha + TRANSMITTANCE_EPS;
+        w
+    }
+
+    /// The light left for the samples still to come (1 before the first).
+    pub fn transmittance(&self) -> f32 {
+        self.transmittance
+    }
+
+    /// The ray's colour, depth and opacity, over white when asked ([`over_white`]).
+    pub fn finish(self, white_background: bool) -> RayOutput {
+        let mut out = self.out;
+        if white_background {
+            out.rgb = over_white(out.rgb, out.acc);
+        }
+        out
+    }
+}
+
+/// Weights from opacities (the weights [`RayAccumulator`] gives).
 ///
 /// Example: α = [0.1, 0.3, 0.5, 0.2] → T = [1, 0.9, 0.63, 0.315] → w = [0.1, 0.27, 0.315, 0.063].
 pub fn weights_from_alpha(alphas: &[f32], out: &mut Vec<f32>) {
+    let mut ray = RayAccumulator::default();
     out.clear();
-    let mut transmittance = 1.0f32;
-    for &a in alphas {
-        out.push(a * transmittance);
-        transmittance *= 1.0 - a + TRANSMITTANCE_EPS;
-    }
+    out.extend(alphas.iter().map(|&a| ray.add(a, [0.0; 3], 0.0)));
 }
 
 /// The white-background rule: a pixel's colour plus the light that passed through, `rgb + (1 − acc)`.
@@ -69,22 +114,12 @@ pub fn composite_ray(
     weights: &mut Vec<f32>,
 ) -> RayOutput {
     deltas(t, direction_norm, scratch);
-    for (d, &s) in scratch.iter_mut().zip(sigma) {
-        *d = alpha_from_density(s, *d);
+    let mut ray = RayAccumulator::default();
+    weights.clear();
+    for (((&delta, &s), c), &tk) in scratch.iter().zip(sigma).zip(rgb).zip(t) {
+        weights.push(ray.add(alpha_from_density(s, delta), *c, tk));
     }
-    weights_from_alpha(scratch, weights);
-    let mut out = RayOutput::default();
-    for ((&w, c), &tk) in weights.iter().zip(rgb).zip(t) {
-        for ch in 0..3 {
-            out.rgb[ch] += w * c[ch];
-        }
-        out.depth += w * tk;
-        out.acc += w;
-    }
-    if white_background {
-        out.rgb = over_white(out.rgb, out.acc);
-    }
-    out
+    ray.finish(white_background)
 }
 
 /// A composited batch.
@@ -121,8 +156,7 @@ pub fn composite(
         .map_init(
             || (Vec::with_capacity(n), Vec::with_capacity(n)),
             |(scratch, w), (r, out_w)| {
-                let d = directions[r];
-                let norm = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                let norm = length(directions[r]);
                 let range = r * n..(r + 1) * n;
                 let out = composite_ray(
                     samples.ray(r),
@@ -152,6 +186,22 @@ mod tests {
         for (a, b) in w.iter().zip([0.1, 0.27, 0.315, 0.063]) {
             assert!((a - b).abs() < 1e-6, "{w:?}");
         }
+    }
+
+    #[test]
+    fn accumulator_composites_front_to_back() {
+        let mut ray = RayAccumulator::default();
+        let w: Vec<f32> = [(0.1, 2.0), (0.3, 3.0), (0.5, 4.0), (0.2, 5.0)].iter().map(|&(a, t)| ray.add(a, [1.0, 0.0, 0.5], t)).collect();
+        for (a, b) in w.iter().zip([0.1, 0.27, 0.315, 0.063]) {
+            assert!((a - b).abs() < 1e-6, "{w:?}");
+        }
+        assert!((ray.transmittance() - 0.252).abs() < 1e-6, "0.9 · 0.7 · 0.5 · 0.8");
+        let out = ray.finish(false);
+        assert!((out.acc - 0.748).abs() < 1e-6 && (out.rgb[0] - 0.748).abs() < 1e-6 && (out.rgb[2] - 0.374).abs() < 1e-6);
+        // depth = 0.2 + 0.81 + 1.26 + 0.315
+        assert!((out.depth - 2.585).abs() < 1e-5, "{out:?}");
+        let white = ray.finish(true);
+        assert!((white.rgb[1] - 0.252).abs() < 1e-6, "{white:?}");
     }
 
     #[test]

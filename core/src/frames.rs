@@ -5,12 +5,12 @@
 
 use crate::camera::{Intrinsics, Pose};
 use crate::dataset::SplitData;
-use crate::error::{Error, Result, write_atomic};
+use crate::atomic::write_atomic;
+use crate::error::{Error, Result};
 use crate::imageio::{depth_to_rgb, save_gif, save_png};
 use crate::metrics::{EvalReport, ImageMetrics, psnr, ssim};
 use crate::render::RenderedImage;
 use indicatif::{ProgressBar, ProgressStyle};
-use std::fmt::Display;
 use std::path::{Path, PathBuf};
 
 /// File name of the metrics written when the frames have ground truth.
@@ -89,12 +89,13 @@ pub fn frame_bar(show: bool, what: &str) -> ProgressBar {
 
 /// Render every frame with `render(frame, progress(done, total))` and write PNG + depth map
 /// per frame, then `metrics.json` (if all frames have targets) and `orbit.gif` (if asked).
-pub fn render_frames<E: Display>(
+/// Errors are the renderer's own type, which takes the core's file errors.
+pub fn render_frames<E: From<Error>>(
     frames: Vec<FrameSpec>,
     out: &FrameOutput,
     mut render: impl FnMut(&FrameSpec, &mut dyn FnMut(usize, usize)) -> std::result::Result<RenderedImage, E>,
-) -> std::result::Result<FramesReport, String> {
-    std::fs::create_dir_all(&out.dir).map_err(|e| Error::io(&out.dir, e).to_string())?;
+) -> std::result::Result<FramesReport, E> {
+    std::fs::create_dir_all(&out.dir).map_err(|e| Error::io(&out.dir, e))?;
     let with_metrics = !frames.is_empty() && frames.iter().all(|f| f.target.is_some());
     let total = frames.len();
     let mut per_image = Vec::new();
@@ -102,8 +103,8 @@ pub fn render_frames<E: Display>(
     for (k, frame) in frames.iter().enumerate() {
         let bar = frame_bar(out.progress, &format!("{} {}/{total}", frame.name, k + 1));
         bar.set_length(frame.intrinsics.num_pixels() as u64);
-        let image = render(frame, &mut |done, _| bar.set_position(done as u64)).map_err(|e| e.to_string())?;
-        save_frame(&image, &out.dir, &frame.name, out.depth_range, out.raw).map_err(|e| e.to_string())?;
+        let image = render(frame, &mut |done, _| bar.set_position(done as u64))?;
+        save_frame(&image, &out.dir, &frame.name, out.depth_range, out.raw)?;
         if let Some(target) = frame.target.as_ref().filter(|_| with_metrics) {
             let m = ImageMetrics {
                 name: frame.name.clone(),
@@ -121,7 +122,7 @@ pub fn render_frames<E: Display>(
     }
     let metrics = if with_metrics {
         let report = EvalReport::from_images(per_image);
-        report.write_json(&out.dir.join(METRICS_FILE)).map_err(|e| e.to_string())?;
+        report.write_json(&out.dir.join(METRICS_FILE))?;
         Some(report)
     } else {
         None
@@ -130,7 +131,7 @@ pub fn render_frames<E: Display>(
         (true, Some(first)) => {
             let path = out.dir.join(GIF_FILE);
             let k = first.intrinsics;
-            save_gif(&path, k.width, k.height, &gif_frames, GIF_DELAY_MS).map_err(|e| e.to_string())?;
+            save_gif(&path, k.width, k.height, &gif_frames, GIF_DELAY_MS)?;
             Some(path)
         }
         _ => None,
@@ -240,7 +241,7 @@ mod tests {
         let truth = image().rays.rgb;
         let out = FrameOutput { dir: dir.path().join("out"), depth_range: (2.0, 6.0), gif: true, raw: true, progress: false };
         // Without targets: no metrics.
-        let report = render_frames(frames.clone(), &out, |_, _| Ok::<_, String>(image())).unwrap();
+        let report = render_frames(frames.clone(), &out, |_, _| Ok::<_, Error>(image())).unwrap();
         assert_eq!((report.frames, report.metrics.is_none()), (2, true));
         assert!(report.gif.unwrap().exists());
         for name in ["frame_000.png", "frame_001_depth.png", "frame_001.npy"] {
@@ -249,12 +250,12 @@ mod tests {
         // With targets: one exact frame (infinite PSNR) and one off by 0.1 everywhere (20 dB).
         frames[0].target = Some(truth.clone());
         frames[1].target = Some(truth.iter().map(|c| c.map(|v| v - 0.1)).collect());
-        let report = render_frames(frames, &out, |_, _| Ok::<_, String>(image())).unwrap();
+        let report = render_frames(frames, &out, |_, _| Ok::<_, Error>(image())).unwrap();
         let m = report.metrics.unwrap();
         assert!((m.per_image[1].psnr - 20.0).abs() < 1e-3, "{}", m.per_image[1].psnr);
         assert_eq!(EvalReport::read_json(&out.dir.join(METRICS_FILE)).unwrap().per_image.len(), 2);
         // A renderer error stops the run with its message.
-        let err = render_frames(FrameSpec::orbit(&k, &[pose]), &out, |_, _| Err("network exploded")).unwrap_err();
-        assert_eq!(err, "network exploded");
+        let err = render_frames(FrameSpec::orbit(&k, &[pose]), &out, |_, _| Err(Error::Argument("network exploded".into()))).unwrap_err();
+        assert_eq!(err.to_string(), "network exploded");
     }
 }

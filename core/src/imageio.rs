@@ -9,7 +9,8 @@ use image::codecs::gif::{GifEncoder, Repeat};
 use image::codecs::png::PngEncoder;
 use image::{DynamicImage, ExtendedColorType, ImageEncoder, ImageReader};
 
-use crate::error::{Error, Result, write_atomic};
+use crate::atomic::write_atomic;
+use crate::error::{Error, Result};
 
 /// Quantises linear `[0, 1]` colours to 8 bits per channel: clamp to `[0, 1]`, ×255, round.
 /// The output is `3·n` bytes, RGBRGB…; a NaN becomes 0.

@@ -9,11 +9,15 @@
 //! - [`compositing`]: α from density, transmittance, weights, rgb/depth/acc, white background.
 //! - [`dataset`]: the Blender (`transforms_*.json`) parser, downscaling, a generated scene.
 //! - [`network`]: the NeRF MLP described as plain data (sizes, skips, encodings, weights).
-//! - [`occupancy`]: the occupancy grid for empty-space skipping.
+//! - [`occupancy`]: the occupancy grid for empty-space skipping and its file format.
+//! - [`render`]: the inference renderers (dense hierarchical, marching through the grid) over
+//!   one front-to-back accumulator; the field that evaluates the networks is a trait.
 //! - [`metrics`], [`imageio`]: PSNR/SSIM, PNG/GIF output and depth colouring.
+//! - [`atomic`]: files and directories written whole or not at all (crash-safe).
 //! - [`frames`]: rendering a list of views to PNGs, depth maps, `.npy`, metrics and a GIF.
 #![warn(missing_docs)]
 
+pub mod atomic;
 pub mod camera;
 pub mod compositing;
 pub mod dataset;

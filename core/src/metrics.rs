@@ -6,7 +6,8 @@ use std::path::Path;
 
 use serde::{Deserialize, Deserializer, Serialize};
 
-use crate::error::{Error, Result, write_atomic};
+use crate::atomic::write_atomic;
+use crate::error::{Error, Result};
 
 /// Mean squared error over all pixels and channels.
 ///

@@ -20,10 +20,6 @@
 
 use crate::error::{Error, Result};
 use crate::rng::Rng;
-use crate::camera::{Intrinsics, Pose};
-use crate::camera::Rays;
-use crate::compositing::{RayOutput, TRANSMITTANCE_EPS, alpha_from_density, over_white};
-use crate::render::{Field, MARCH_SEGMENT, RenderOptions, RenderedImage, Stage, render_image, render_image_by};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -201,103 +197,13 @@ impl OccupancyGrid {
 
     /// Write a grid file atomically.
     pub fn save(&self, path: &Path) -> Result<()> {
-        crate::error::write_atomic(path, &self.to_bytes())
-    }
-}
-
-/// Render `rays` by marching through the grid's occupied cells with the last stage's network
-/// (fine if there is one): `steps` equal intervals over [near, far], one sample at each
-/// interval's middle, only those in occupied cells evaluated (packed), front to back
-/// [`MARCH_SEGMENT`] at a time, each ray stopping once its transmittance is below
-/// `min_transmittance`. Unevaluated intervals are empty (σ = 0); evaluated ones get
-/// α = 1 − exp(−σ·δ) with δ = the interval length · ‖d‖. Compositing is the reference one
-/// (exclusive product of 1 − α + 1e-10, white background as rgb + 1 − acc).
-pub fn march_rays<F: Field>(
-    field: &mut F,
-    grid: &OccupancyGrid,
-    rays: &Rays,
-    options: &RenderOptions,
-) -> std::result::Result<Vec<RayOutput>, F::Error> {
-    let s = &options.sampling;
-    let steps = options.march_steps.max(1);
-    let stage = if s.n_fine > 0 { Stage::Fine } else { Stage::Coarse };
-    let min_transmittance = options.min_transmittance.unwrap_or(0.0);
-    let interval = (s.far - s.near) / steps as f32;
-    let viewdirs = rays.view_directions();
-    // Each sample's δ: the interval in world units along its (unnormalised) ray.
-    let deltas: Vec<f32> = rays.directions.iter().map(|d| interval * (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()).collect();
-    // Per ray: the occupied interval midpoints, front to back.
-    let occupied: Vec<Vec<f32>> = (0..rays.len())
-        .map(|r| {
-            let (o, d) = (rays.origins[r], rays.directions[r]);
-            (0..steps)
-                .map(|k| s.near + (k as f32 + 0.5) * interval)
-                .filter(|&t| grid.is_occupied([o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]]))
-                .collect()
-        })
-        .collect();
-    let mut out = vec![RayOutput::default(); rays.len()];
-    let mut transmittance = vec![1.0f32; rays.len()];
-    let mut next = vec![0usize; rays.len()];
-    let mut active: Vec<usize> = (0..rays.len()).filter(|&r| !occupied[r].is_empty()).collect();
-    let (mut points, mut dirs, mut owner) = (Vec::new(), Vec::new(), Vec::new());
-    while !active.is_empty() {
-        points.clear();
-        dirs.clear();
-        owner.clear();
-        for &r in &active {
-            let (o, d) = (rays.origins[r], rays.directions[r]);
-            let end = (next[r] + MARCH_SEGMENT).min(occupied[r].len());
-            for &t in &occupied[r][next[r]..end] {
-                points.push([o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]]);
-                dirs.push(viewdirs[r]);
-                owner.push((r, t));
-            }
-            next[r] = end;
-        }
-        let part = field.evaluate(stage, &points, &dirs)?;
-        for (j, &(r, t)) in owner.iter().enumerate() {
-            let alpha = alpha_from_density(part.raw_sigma[j], deltas[r]);
-            let w = alpha * transmittance[r];
-            let o = &mut out[r];
-            for c in 0..3 {
-                o.rgb[c] += w * part.rgb[j][c];
-            }
-            o.depth += w * t;
-            o.acc += w;
-            transmittance[r] *= 1.0 - alpha + TRANSMITTANCE_EPS;
-        }
-        active.retain(|&r| transmittance[r] >= min_transmittance && next[r] < occupied[r].len());
-    }
-    if options.white_background {
-        for o in &mut out {
-            o.rgb = over_white(o.rgb, o.acc);
-        }
-    }
-    Ok(out)
-}
-
-/// Render an image through `field`: marching through the occupied cells of `occupancy` when a
-/// grid is given ([`march_rays`]), else the dense hierarchical path ([`render_image`]).
-pub fn render_image_with<F: Field>(
-    mut field: F,
-    occupancy: Option<&OccupancyGrid>,
-    intrinsics: &Intrinsics,
-    pose: &Pose,
-    options: &RenderOptions,
-    progress: &mut dyn FnMut(usize, usize),
-) -> std::result::Result<RenderedImage, F::Error> {
-    match occupancy {
-        Some(grid) => render_image_by(intrinsics, pose, options.chunk, progress, |rays| march_rays(&mut field, grid, rays, options)),
-        None => render_image(&mut field, intrinsics, pose, options, progress),
+        crate::atomic::write_atomic(path, &self.to_bytes())
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::render::FieldOutput;
-    use crate::sampling::SamplingConfig;
 
     #[test]
     fn cells_cover_the_cube_in_documented_order() {
@@ -351,55 +257,5 @@ mod tests {
         assert!(err.contains("occupancy.bin") && err.contains("truncated"), "{err}");
         let err = OccupancyGrid::from_bytes(b"garbage garbage garbage", &path).unwrap_err().to_string();
         assert!(err.contains("NERFOCC1"), "{err}");
-    }
-
-    /// A ball of density 200 and radius 0.5 at the origin, coloured by position.
-    struct Ball(usize);
-
-    impl Field for Ball {
-        type Error = std::convert::Infallible;
-        fn evaluate(&mut self, _: Stage, points: &[[f32; 3]], _: &[[f32; 3]]) -> std::result::Result<FieldOutput, Self::Error> {
-            self.0 += points.len();
-            let inside = |p: &[f32; 3]| p[0] * p[0] + p[1] * p[1] + p[2] * p[2] < 0.25;
-            Ok(FieldOutput {
-                rgb: points.iter().map(|p| p.map(|v| 0.5 + v)).collect(),
-                raw_sigma: points.iter().map(|p| if inside(p) { 200.0 } else { 0.0 }).collect(),
-            })
-        }
-    }
-
-    #[test]
-    fn marching_through_the_grid_matches_the_dense_path_with_far_fewer_evaluations() {
-        // Occupied: the 16³ cells over ±1.5 that touch the ball (known empty space elsewhere).
-        let mut grid = OccupancyGrid::new(16, 1.5, 0.5);
-        let size = 3.0 / 16.0;
-        let touches = |c: usize| {
-            let (i, j, k) = (c / 256, (c / 16) % 16, c % 16);
-            let nearest = [i, j, k].map(|n| {
-                let lo = -1.5 + n as f32 * size;
-                0.0f32.clamp(lo, lo + size)
-            });
-            nearest.iter().map(|v| v * v).sum::<f32>() < 0.25
-        };
-        grid.update(&(0..grid.len()).map(|c| if touches(c) { 1.0 } else { 0.0 }).collect::<Vec<_>>(), 1.0);
-        assert!(grid.occupied_fraction() < 0.05);
-        let k = Intrinsics { width: 24, height: 24, focal: 30.0 };
-        let pose = Pose::spherical(30.0, -30.0, 4.0);
-        let options = RenderOptions {
-            sampling: SamplingConfig { n_coarse: 64, n_fine: 128, ..Default::default() },
-            white_background: true,
-            chunk: 100,
-            min_transmittance: Some(1e-4),
-            march_steps: crate::render::DEFAULT_MARCH_STEPS,
-        };
-        let mut field = Ball(0);
-        let dense = render_image(&mut field, &k, &pose, &RenderOptions { min_transmittance: None, ..options.clone() }, &mut |_, _| {}).unwrap();
-        let dense_points = std::mem::take(&mut field.0);
-        let skip = render_image_with(&mut field, Some(&grid), &k, &pose, &options, &mut |_, _| {}).unwrap();
-        let skip_points = field.0;
-        assert!(skip_points * 20 < dense_points, "{skip_points} points marched vs {dense_points} dense");
-        assert!(dense.rays.acc.iter().any(|a| *a > 0.99) && dense.rays.acc.iter().any(|a| *a < 0.01), "the ball is in view");
-        let db = crate::metrics::psnr(&skip.rays.rgb, &dense.rays.rgb);
-        assert!(db > 35.0, "marching vs dense: {db:.1} dB");
     }
 }

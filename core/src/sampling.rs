@@ -1,6 +1,7 @@
 //! Where along each ray the networks are evaluated: stratified samples between near and far,
 //! and inverse-CDF resampling from the coarse weights (the reference `sample_pdf`).
 
+use crate::camera::point_at;
 use crate::rng::Rng;
 use serde::{Deserialize, Serialize};
 
@@ -58,7 +59,7 @@ impl DenseSamples {
         for r in 0..self.n_rays {
             let (o, d) = (origins[r], directions[r]);
             for &t in self.ray(r) {
-                out.push([o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]]);
+                out.push(point_at(o, d, t));
             }
         }
         out

@@ -1,5 +1,6 @@
-//! Scene bundles: `coarse.onnx`, `fine.onnx` and `scene.json` in one directory, written into a
-//! temporary directory and renamed into place, so a failed export leaves no partial bundle.
+//! Scene bundles: `coarse.onnx`, `fine.onnx` and `scene.json` in one directory, written whole
+//! or not at all ([`nerf_core::atomic::write_dir_atomic`]): a failed or killed export leaves
+//! the previous bundle as it was.
 
 use crate::ExportError;
 use crate::graph::{compile, read_network};
@@ -172,10 +173,6 @@ pub struct WrittenFile {
     pub bytes: usize,
 }
 
-fn io(path: &Path) -> impl FnOnce(std::io::Error) -> ExportError + '_ {
-    move |source| ExportError::Io { path: path.to_path_buf(), source }
-}
-
 /// The contract metadata every graph of a scene carries.
 fn scene_metadata(scene: &SceneDescription, stage: &str) -> Vec<(String, String)> {
     let s = &scene.sampling;
@@ -216,36 +213,13 @@ pub fn write_bundle(dir: &Path, bundle: &Bundle, opset: i64) -> Result<Vec<Writt
     }
     files.push((SCENE_FILE.into(), serde_json::to_vec_pretty(scene).expect("a scene serialises")));
 
-    let parent = match dir.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    std::fs::create_dir_all(&parent).map_err(io(&parent))?;
-    let name = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "bundle".into());
-    let tmp = parent.join(format!(".{name}.tmp-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&tmp);
-    std::fs::create_dir_all(&tmp).map_err(io(&tmp))?;
-    let result = (|| {
+    nerf_core::atomic::write_dir_atomic(dir, |tmp| {
         for (file, bytes) in &files {
             let p = tmp.join(file);
-            std::fs::write(&p, bytes).map_err(io(&p))?;
-        }
-        // Swap in the new bundle; the old one is removed only after the rename succeeded.
-        let old = parent.join(format!(".{name}.old-{}", std::process::id()));
-        let had_old = dir.exists();
-        if had_old {
-            std::fs::rename(dir, &old).map_err(io(dir))?;
-        }
-        std::fs::rename(&tmp, dir).map_err(io(dir))?;
-        if had_old {
-            let _ = std::fs::remove_dir_all(&old);
+            std::fs::write(&p, bytes).map_err(|e| nerf_core::Error::io(&p, e))?;
         }
         Ok(())
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_dir_all(&tmp);
-    }
-    result?;
+    })?;
     Ok(files.into_iter().map(|(file, bytes)| WrittenFile { path: dir.join(file), bytes: bytes.len() }).collect())
 }
 

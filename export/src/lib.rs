@@ -21,13 +21,7 @@ pub enum ExportError {
     /// A requested option is not supported.
     #[error("{0}")]
     Unsupported(String),
-    /// Writing the bundle failed.
-    #[error("{path}: {source}")]
-    Io {
-        /// The file or directory.
-        path: std::path::PathBuf,
-        /// The I/O error.
-        #[source]
-        source: std::io::Error,
-    },
+    /// Writing the bundle failed (the error names the file).
+    #[error(transparent)]
+    Write(#[from] nerf_core::Error),
 }

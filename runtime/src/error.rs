@@ -24,7 +24,10 @@ pub enum RuntimeError {
         /// onnxruntime's message.
         message: String,
     },
-    /// Anything else (options, output files), already phrased for the user.
+    /// Reading or writing a file of the core's formats (frames, grids, datasets).
+    #[error(transparent)]
+    Core(#[from] nerf_core::Error),
+    /// Anything else (options), already phrased for the user.
     #[error("{0}")]
     Other(String),
 }

@@ -140,7 +140,7 @@ fn run(cli: Cli) -> Result<()> {
     let output = FrameOutput { dir: cli.out.clone(), depth_range: (s.near, s.far), gif: cli.orbit, raw: cli.npy, progress: std::io::stderr().is_terminal() };
     let (first, n) = (frames[0].intrinsics, frames.len());
     let start = Instant::now();
-    let report = render_frames(frames, &output, |f, progress| scene.render(&f.intrinsics, &f.pose, progress)).map_err(|e| anyhow!(e))?;
+    let report = render_frames(frames, &output, |f, progress| scene.render(&f.intrinsics, &f.pose, progress))?;
     let seconds = start.elapsed().as_secs_f64();
     println!(
         "{n} frames at {}×{} in {seconds:.1} s ({:.2} s per frame, {}) into {}",

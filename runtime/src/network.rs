@@ -63,7 +63,7 @@ impl OrtNetwork {
             Ok(data)
         };
         let rgb = column("rgb", 3)?.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-        let raw_sigma = column("sigma", 1)?.to_vec();
-        Ok(FieldOutput { rgb, raw_sigma })
+        let sigma = column("sigma", 1)?.to_vec();
+        Ok(FieldOutput { rgb, sigma })
     }
 }

@@ -1,12 +1,12 @@
 //! A scene bundle opened for rendering: `scene.json`, the graphs in onnxruntime and the
-//! occupancy grid, rendered through the shared core (`nerf_core::occupancy::render_image_with`).
+//! occupancy grid, rendered through the shared core (`nerf_core::render::render_image`).
 
 use crate::error::{Result, RuntimeError};
 use crate::field::OrtField;
 use crate::network::OrtNetwork;
 use nerf_core::camera::{Intrinsics, Pose};
-use nerf_core::occupancy::{OccupancyGrid, render_image_with};
-use nerf_core::render::{RenderOptions, RenderedImage};
+use nerf_core::occupancy::OccupancyGrid;
+use nerf_core::render::{RenderOptions, RenderedImage, render_image};
 use nerf_export::bundle::{SCENE_FILE, SceneDescription, read_occupancy, read_scene};
 use std::path::{Path, PathBuf};
 
@@ -63,13 +63,8 @@ impl OrtScene {
             None => None,
         };
         let occupancy = if options.skip_empty_space { read_occupancy(dir, &description).map_err(scene_error)? } else { None };
-        let render_options = RenderOptions {
-            sampling: description.sampling.clone(),
-            white_background: description.white_background,
-            chunk: options.chunk,
-            min_transmittance: options.skip_empty_space.then_some(nerf_core::render::DEFAULT_MIN_TRANSMITTANCE),
-            march_steps: nerf_core::render::DEFAULT_MARCH_STEPS,
-        };
+        let render_options =
+            RenderOptions::new(description.sampling.clone(), description.white_background, options.chunk, options.skip_empty_space);
         Ok(OrtScene { dir: dir.to_path_buf(), description, field: OrtField { coarse, fine }, occupancy, options: render_options })
     }
 
@@ -99,6 +94,6 @@ impl OrtScene {
 
     /// Render one view deterministically, reporting `progress(done, total)` pixels.
     pub fn render(&mut self, intrinsics: &Intrinsics, pose: &Pose, progress: &mut dyn FnMut(usize, usize)) -> Result<RenderedImage> {
-        render_image_with(&mut self.field, self.occupancy.as_ref(), intrinsics, pose, &self.options, progress)
+        render_image(&mut self.field, self.occupancy.as_ref(), intrinsics, pose, &self.options, progress)
     }
 }

@@ -22,15 +22,6 @@ pub struct NerfMlp {
     spec: NetworkSpec,
 }
 
-/// The coarse and fine networks trained together (one optimizer, one checkpoint).
-#[derive(Module, Debug)]
-pub struct NerfModel {
-    /// Evaluated on the stratified samples.
-    pub coarse: NerfMlp,
-    /// Evaluated on all samples; absent when no fine samples are drawn.
-    pub fine: Option<NerfMlp>,
-}
-
 impl NerfMlp {
     /// A freshly initialised network (PyTorch-style uniform ±1/√fan_in, burn's default).
     pub fn new(spec: &NetworkSpec, device: &Device) -> Self {
@@ -120,8 +111,7 @@ impl NerfMlp {
     ///
     /// The feature layer has no activation, so it folds into the view layer's weights:
     /// `feature·W_v,f = h·(W_f·W_v,f) + b_f·W_v,f`. The folded 256×128 product replaces the
-    /// 256×256 feature layer (11% of the paper network's work per sample) and the feature
-    /// activations are never stored. Gradients reach `W_f`, `b_f` and `W_v` through the fold, so
+    /// 256×256 feature layer and the feature activations are never stored. Gradients reach `W_f`, `b_f` and `W_v` through the fold, so
     /// the parameters and the function are the paper's.
     fn view_layer_on_trunk(&self, h: Tensor<2>, encoded_dirs: Tensor<2>, group: usize) -> Tensor<2> {
         let (feature, view) = (&self.heads[1], &self.heads[2]);
@@ -165,8 +155,8 @@ impl NerfMlp {
     }
 
     /// A network holding the given plain weights (validated first).
-    pub fn from_plain(plain: &PlainNetwork, device: &Device) -> Result<Self, String> {
-        plain.validate()?;
+    pub fn from_plain(plain: &PlainNetwork, device: &Device) -> crate::error::Result<Self> {
+        plain.validate().map_err(crate::error::Error::Network)?;
         let mut layers: Vec<Linear> = plain
             .layers
             .iter()

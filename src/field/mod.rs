@@ -2,6 +2,8 @@
 
 mod encoding;
 mod mlp;
+mod model;
 
 pub use encoding::encode;
-pub use mlp::{NerfMlp, NerfModel};
+pub use mlp::NerfMlp;
+pub use model::NerfModel;

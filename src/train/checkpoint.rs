@@ -1,20 +1,22 @@
 //! Checkpoints: `<run>/checkpoints/step-NNNNNNN/{model.bpk, optim.bpk, state.json[, occupancy.bin]}` plus a
-//! `latest` file naming the newest. Each checkpoint is written into a temporary directory and
-//! renamed into place, then `latest` is replaced atomically, so a crash never leaves a
+//! `latest` file naming the newest. Each checkpoint directory is written whole or not at all
+//! ([`write_dir_atomic`]) before `latest` is replaced atomically, so a crash never leaves a
 //! checkpoint that `latest` points to half-written.
 
-use super::TrainConfig;
-use crate::field::{NerfMlp, NerfModel};
+use crate::error::{Error, Result};
+use crate::field::NerfModel;
+use crate::run_dir::RunDir;
 use burn::optim::ModuleOptimizer;
 use burn::store::{BurnpackStore, ModuleSnapshot};
-use burn::tensor::{Bytes, Device};
+use burn::tensor::Bytes;
 use nerf_core::Rng;
-use nerf_core::error::write_atomic;
+use nerf_core::atomic::{write_atomic, write_dir_atomic};
 use nerf_core::occupancy::{self, OccupancyGrid};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
 const FORMAT: &str = "nerf-rs-checkpoint-1";
+const PREFIX: &str = "step-";
 
 /// Training progress saved with the weights.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -29,6 +31,13 @@ pub struct CheckpointState {
     pub elapsed_s: f64,
 }
 
+impl CheckpointState {
+    /// The state after `step` steps.
+    pub fn new(step: usize, rng: Rng, elapsed_s: f64) -> Self {
+        CheckpointState { format: FORMAT.into(), step, rng, elapsed_s }
+    }
+}
+
 /// A checkpoint directory.
 #[derive(Debug, Clone)]
 pub struct Checkpoint {
@@ -36,71 +45,49 @@ pub struct Checkpoint {
     pub dir: PathBuf,
 }
 
-/// `<run>/config.toml`.
-pub fn config_path(run: &Path) -> PathBuf {
-    run.join("config.toml")
-}
-
-/// The checkpoint `latest` names, or `None` for a run that has none yet.
-pub fn latest_checkpoint(run: &Path) -> Result<Option<Checkpoint>, String> {
-    let latest = run.join("checkpoints").join("latest");
-    match std::fs::read_to_string(&latest) {
-        Ok(name) => {
-            let dir = run.join("checkpoints").join(name.trim());
-            if !dir.is_dir() {
-                return Err(format!("{}: names {}, which does not exist", latest.display(), dir.display()));
-            }
-            Ok(Some(Checkpoint { dir }))
-        }
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-        Err(e) => Err(format!("{}: {e}", latest.display())),
-    }
-}
-
-fn read(path: &Path) -> Result<Vec<u8>, String> {
-    std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))
+fn read(path: &Path) -> Result<Vec<u8>> {
+    std::fs::read(path).map_err(|e| Error::io(path, e))
 }
 
 impl Checkpoint {
-    /// Write model, optimizer and state for `state.step`, then point `latest` at it.
+    /// Whether `name` is a checkpoint directory's name (`step-` and digits).
+    pub fn is_name(name: &str) -> bool {
+        name.strip_prefix(PREFIX).is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
+    }
+
+    /// Write model, optimizer and state for `state.step` (the directory whole or not at all),
+    /// then point `latest` at it and remove all but the previous checkpoint.
     pub fn save(
-        run: &Path,
+        run: &RunDir,
         model: &NerfModel,
         optim: &ModuleOptimizer,
         occupancy: Option<&OccupancyGrid>,
         state: &CheckpointState,
-    ) -> Result<Checkpoint, String> {
-        let root = run.join("checkpoints");
-        std::fs::create_dir_all(&root).map_err(|e| format!("{}: {e}", root.display()))?;
-        let name = format!("step-{:07}", state.step);
-        let dir = root.join(&name);
-        let tmp = root.join(format!(".{name}.tmp-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&tmp);
-        std::fs::create_dir_all(&tmp).map_err(|e| format!("{}: {e}", tmp.display()))?;
+    ) -> Result<Checkpoint> {
         let mut store = BurnpackStore::from_bytes(None);
-        model.save_into(&mut store).map_err(|e| format!("saving model: {e}"))?;
-        let model_bytes = store.get_bytes().map_err(|e| format!("saving model: {e}"))?;
-        let optim_bytes = optim.into_bytes().map_err(|e| format!("saving optimizer: {e}"))?;
-        let write = |file: &str, bytes: &[u8]| {
-            let p = tmp.join(file);
-            std::fs::write(&p, bytes).map_err(|e| format!("{}: {e}", p.display()))
-        };
-        write("model.bpk", &model_bytes)?;
-        write("optim.bpk", &optim_bytes)?;
-        if let Some(grid) = occupancy {
-            write(occupancy::FILE_NAME, &grid.to_bytes())?;
-        }
-        write("state.json", serde_json::to_string_pretty(state).expect("state serialises").as_bytes())?;
-        if dir.exists() {
-            std::fs::remove_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-        }
-        std::fs::rename(&tmp, &dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-        write_atomic(&root.join("latest"), name.as_bytes()).map_err(|e| e.to_string())?;
+        model.save_into(&mut store).map_err(|e| Error::Network(format!("saving the model: {e}")))?;
+        let model_bytes = store.get_bytes().map_err(|e| Error::Network(format!("saving the model: {e}")))?;
+        let optim_bytes = optim.into_bytes().map_err(|e| Error::Network(format!("saving the optimizer: {e}")))?;
+        let name = format!("{PREFIX}{:07}", state.step);
+        let dir = run.checkpoints_dir().join(&name);
+        write_dir_atomic(&dir, |tmp| {
+            let write = |file: &str, bytes: &[u8]| {
+                let p = tmp.join(file);
+                std::fs::write(&p, bytes).map_err(|e| nerf_core::Error::io(&p, e))
+            };
+            write("model.bpk", &model_bytes)?;
+            write("optim.bpk", &optim_bytes)?;
+            if let Some(grid) = occupancy {
+                write(occupancy::FILE_NAME, &grid.to_bytes())?;
+            }
+            write("state.json", serde_json::to_string_pretty(state).expect("state serialises").as_bytes())
+        })?;
+        write_atomic(&run.latest_path(), name.as_bytes())?;
         // Keep the newest two: the one just written and its predecessor.
-        if let Ok(entries) = std::fs::read_dir(&root) {
+        if let Ok(entries) = std::fs::read_dir(run.checkpoints_dir()) {
             let mut old: Vec<PathBuf> = entries
                 .filter_map(|e| e.ok().map(|e| e.path()))
-                .filter(|p| p.is_dir() && p.file_name().is_some_and(|n| n.to_string_lossy().starts_with("step-")))
+                .filter(|p| p.is_dir() && p.file_name().is_some_and(|n| Self::is_name(&n.to_string_lossy())))
                 .collect();
             old.sort();
             old.retain(|p| p != &dir);
@@ -112,79 +99,47 @@ impl Checkpoint {
     }
 
     /// The saved training state.
-    pub fn state(&self) -> Result<CheckpointState, String> {
+    pub fn state(&self) -> Result<CheckpointState> {
         let path = self.dir.join("state.json");
-        let state: CheckpointState = serde_json::from_slice(&read(&path)?)
-            .map_err(|e| format!("{}: not a checkpoint state ({e})", path.display()))?;
+        let state: CheckpointState =
+            serde_json::from_slice(&read(&path)?).map_err(|e| Error::invalid(&path, format!("not a checkpoint state ({e})")))?;
         if state.format != FORMAT {
-            return Err(format!("{}: format {:?}, expected {FORMAT:?}", path.display(), state.format));
+            return Err(Error::invalid(&path, format!("format {:?}, expected {FORMAT:?}", state.format)));
         }
         Ok(state)
     }
 
     /// Load the weights into `model` (which must have the checkpoint's shapes).
-    pub fn load_model(&self, model: &mut NerfModel) -> Result<(), String> {
+    pub fn load_model(&self, model: &mut NerfModel) -> Result<()> {
         let path = self.dir.join("model.bpk");
         let bytes = read(&path)?;
         let mut store = BurnpackStore::from_bytes(Some(Bytes::from_bytes_vec(bytes)));
         let result = model
             .load_from(&mut store)
-            .map_err(|e| format!("{}: cannot load weights (truncated or foreign file?): {e}", path.display()))?;
+            .map_err(|e| Error::invalid(&path, format!("cannot load weights (truncated or foreign file?): {e}")))?;
         if !result.errors.is_empty() || !result.missing.is_empty() {
-            return Err(format!(
-                "{}: weights do not match the network in config.toml: {} errors, missing {:?}",
-                path.display(),
-                result.errors.len(),
-                result.missing
-            ));
+            let problem = format!("weights do not match the network in config.toml: {} errors, missing {:?}", result.errors.len(), result.missing);
+            return Err(Error::invalid(&path, problem));
         }
         Ok(())
     }
 
     /// The occupancy grid saved with the weights, if the run skips empty space.
-    pub fn load_occupancy(&self) -> Result<Option<OccupancyGrid>, String> {
+    pub fn load_occupancy(&self) -> Result<Option<OccupancyGrid>> {
         let path = self.dir.join(occupancy::FILE_NAME);
         if !path.exists() {
             return Ok(None);
         }
-        OccupancyGrid::load(&path).map(Some).map_err(|e| e.to_string())
+        Ok(Some(OccupancyGrid::load(&path)?))
     }
 
     /// Load the optimizer state into `optim`.
-    pub fn load_optimizer(&self, optim: ModuleOptimizer) -> Result<ModuleOptimizer, String> {
+    pub fn load_optimizer(&self, optim: ModuleOptimizer) -> Result<ModuleOptimizer> {
         let path = self.dir.join("optim.bpk");
         let bytes = read(&path)?;
         // The record parser can panic on some malformed inputs; turn that into an error too.
         std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| optim.from_bytes(Bytes::from_bytes_vec(bytes))))
-            .map_err(|_| format!("{}: corrupt optimizer state", path.display()))?
-            .map_err(|e| format!("{}: cannot load optimizer state (truncated or foreign file?): {e}", path.display()))
-    }
-}
-
-/// A new state record for `step`.
-pub fn new_state(step: usize, rng: Rng, elapsed_s: f64) -> CheckpointState {
-    CheckpointState { format: FORMAT.into(), step, rng, elapsed_s }
-}
-
-/// Load a run's configuration and latest model onto `device` (for eval, render, export).
-pub fn load_model(run: &Path, device: &Device) -> Result<(TrainConfig, NerfModel, CheckpointState, Option<OccupancyGrid>), String> {
-    let config_file = config_path(run);
-    if !config_file.exists() {
-        return Err(format!("{}: no such file: is {} a training run directory?", config_file.display(), run.display()));
-    }
-    let config = TrainConfig::from_toml_file(&config_file, None)?;
-    let checkpoint = latest_checkpoint(run)?
-        .ok_or_else(|| format!("{}: the run has no checkpoint yet", run.join("checkpoints").display()))?;
-    let state = checkpoint.state()?;
-    let mut model = NerfModel::new(&config.network, config.sampling.n_fine > 0, device);
-    checkpoint.load_model(&mut model)?;
-    let occupancy = if config.skip_empty_space { checkpoint.load_occupancy()? } else { None };
-    Ok((config, model, state, occupancy))
-}
-
-impl NerfModel {
-    /// Fresh coarse (and, with `fine`, fine) networks of shape `spec`.
-    pub fn new(spec: &nerf_core::network::NetworkSpec, fine: bool, device: &Device) -> Self {
-        NerfModel { coarse: NerfMlp::new(spec, device), fine: fine.then(|| NerfMlp::new(spec, device)) }
+            .map_err(|_| Error::invalid(&path, "corrupt optimizer state"))?
+            .map_err(|e| Error::invalid(&path, format!("cannot load optimizer state (truncated or foreign file?): {e}")))
     }
 }

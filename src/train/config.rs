@@ -1,13 +1,16 @@
 //! Training configuration, presets, and TOML files that override a preset.
 
+use crate::error::{Error, Result};
+use nerf_core::SamplingConfig;
 use nerf_core::network::{EncodingSpec, NetworkSpec};
 use nerf_core::occupancy::OccupancyConfig;
-use nerf_core::SamplingConfig;
+use nerf_core::render::RenderOptions;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 /// Default [`TrainConfig::pass_points`]: the paper step (1024 rays × 192 samples) runs as
-/// four passes of 256 rays, two at a time, which keeps its peak memory under 3 GB.
+/// four passes of 256 rays, two at a time, so only two passes' activations are in memory
+/// (README, "Training speed and memory").
 pub const DEFAULT_PASS_POINTS: usize = 1 << 16;
 
 /// The named starting points for a configuration.
@@ -145,21 +148,24 @@ impl Default for TrainConfig {
 
 impl TrainConfig {
     /// A preset, overridden by the keys of a TOML file (which may itself name a `preset`).
-    pub fn from_toml_file(path: &Path, preset: Option<Preset>) -> Result<Self, String> {
-        let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-        Self::from_toml_str(&text, preset).map_err(|e| format!("{}: {e}", path.display()))
+    pub fn from_toml_file(path: &Path, preset: Option<Preset>) -> Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        Self::from_toml_str(&text, preset).map_err(|e| match e {
+            Error::Config(problem) => Error::invalid(path, problem),
+            other => other,
+        })
     }
 
     /// As [`from_toml_file`](Self::from_toml_file), from text.
-    pub fn from_toml_str(text: &str, preset: Option<Preset>) -> Result<Self, String> {
-        let overrides: toml::Table = toml::from_str(text).map_err(|e| e.to_string())?;
+    pub fn from_toml_str(text: &str, preset: Option<Preset>) -> Result<Self> {
+        let overrides: toml::Table = toml::from_str(text).map_err(|e| Error::Config(e.to_string()))?;
         let preset = match overrides.get("preset") {
-            Some(v) => Preset::deserialize(v.clone()).map_err(|e| format!("preset: {e}"))?,
+            Some(v) => Preset::deserialize(v.clone()).map_err(|e| Error::Config(format!("preset: {e}")))?,
             None => preset.unwrap_or(Preset::CpuFast),
         };
-        let mut base = toml::Table::try_from(preset.config()).map_err(|e| e.to_string())?;
+        let mut base = toml::Table::try_from(preset.config()).expect("a preset serialises");
         merge(&mut base, overrides);
-        let config: TrainConfig = toml::Value::Table(base).try_into().map_err(|e: toml::de::Error| e.to_string())?;
+        let config: TrainConfig = toml::Value::Table(base).try_into().map_err(|e: toml::de::Error| Error::Config(e.to_string()))?;
         config.validate()?;
         Ok(config)
     }
@@ -169,8 +175,17 @@ impl TrainConfig {
         toml::to_string_pretty(self).expect("a TrainConfig always serialises")
     }
 
+    /// How the run's networks are rendered at test time (`nerf eval`/`render`, validation views).
+    pub fn render_options(&self) -> RenderOptions {
+        RenderOptions::new(self.sampling.clone(), self.white_background, self.chunk, self.skip_empty_space)
+    }
+
     /// Rejects values the trainer cannot run with.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<()> {
+        self.check().map_err(Error::Config)
+    }
+
+    fn check(&self) -> std::result::Result<(), String> {
         self.network.validate()?;
         let s = &self.sampling;
         if !(s.near > 0.0 && s.far > s.near) {
@@ -220,9 +235,9 @@ mod tests {
         assert_eq!(c.sampling.n_coarse, 64);
         let again = TrainConfig::from_toml_str(&c.to_toml(), None).unwrap();
         assert_eq!(again, c);
-        let err = TrainConfig::from_toml_str("batch_rayz = 3", None).unwrap_err();
+        let err = TrainConfig::from_toml_str("batch_rayz = 3", None).unwrap_err().to_string();
         assert!(err.contains("batch_rayz"), "{err}");
-        let err = TrainConfig::from_toml_str("[sampling]\nnear = 7.0", None).unwrap_err();
+        let err = TrainConfig::from_toml_str("[sampling]\nnear = 7.0", None).unwrap_err().to_string();
         assert!(err.contains("near"), "{err}");
     }
 }

@@ -1,11 +1,14 @@
-//! Training: configuration and presets, the learning-rate schedule, checkpoints, the loop.
+//! Training: configuration and presets, the learning-rate schedule, checkpoints, one step
+//! ([`Trainer`]) and the run loop ([`train`]).
 
 mod checkpoint;
 mod config;
+mod run;
 mod schedule;
-mod trainer;
+mod step;
 
-pub use checkpoint::{Checkpoint, CheckpointState, latest_checkpoint, load_model};
+pub use checkpoint::{Checkpoint, CheckpointState};
 pub use config::{Preset, TrainConfig};
+pub use run::{TrainOptions, TrainSummary, train};
 pub use schedule::learning_rate;
-pub use trainer::{StepStats, StepTiming, TrainOptions, TrainSummary, Trainer, render_options, train};
+pub use step::{StepStats, StepTiming, Trainer};

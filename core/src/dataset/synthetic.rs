@@ -19,7 +19,8 @@ use serde::{Deserialize, Serialize};
 use super::Split;
 use super::blender::{Frame, Transforms, image_path, transforms_path};
 use crate::camera::{Intrinsics, Pose, Rays};
-use crate::error::{Error, Result, write_atomic};
+use crate::atomic::write_atomic;
+use crate::error::{Error, Result};
 use crate::imageio::save_png_rgba;
 use crate::rng::Rng;
 

@@ -1,5 +1,7 @@
 //! `nerf`: train, evaluate and render neural radiance fields on the CPU.
 
+mod bench;
+
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
 use nerf::evaluate::{eval, render_orbit, render_split};
@@ -176,10 +178,6 @@ enum BenchPart {
     Skip,
 }
 
-fn err(s: String) -> anyhow::Error {
-    anyhow::anyhow!(s)
-}
-
 fn main() -> Result<()> {
     nerf::backend::tune_allocator();
     let cli = Cli::parse();
@@ -187,14 +185,14 @@ fn main() -> Result<()> {
     match cli.command {
         Command::Train { data, config, preset, downscale, iters, time_budget_min, seed, out } => {
             let mut cfg = match &config {
-                Some(path) => TrainConfig::from_toml_file(path, preset).map_err(err)?,
+                Some(path) => TrainConfig::from_toml_file(path, preset)?,
                 None => preset.unwrap_or(Preset::CpuFast).config(),
             };
             if let Some(seed) = seed {
                 cfg.seed = seed;
             }
             let opts = TrainOptions { data, run: out.clone(), config: cfg, downscale, time_budget_min, iters, progress };
-            let s = train(&opts).map_err(err)?;
+            let s = train(&opts)?;
             println!(
                 "trained {} steps in {:.1} min: train PSNR {:.2} dB{}; run in {}",
                 s.steps,
@@ -205,131 +203,31 @@ fn main() -> Result<()> {
             );
         }
         Command::Eval { run, data, split, downscale, limit, out } => {
-            let r = eval(&run, &data, split, downscale, limit, &out, progress).map_err(err)?;
+            let r = eval(&run, &data, split, downscale, limit, &out, progress)?;
             println!("{} views: PSNR {:.2} dB, SSIM {:.4}; {}", r.per_image.len(), r.psnr_mean, r.ssim_mean, out.join("metrics.json").display());
         }
         Command::Render { run, orbit, frames, split, data, downscale, out, npy } => match (orbit, split, data) {
             (true, None, _) => {
-                let gif = render_orbit(&run, frames, &out, npy, progress).map_err(err)?;
+                let gif = render_orbit(&run, frames, &out, npy, progress)?;
                 println!("{frames} frames and depth maps in {}; {}", out.display(), gif.display());
             }
             (false, Some(split), Some(data)) => {
-                let n = render_split(&run, &data, split, downscale, &out, npy, progress).map_err(err)?;
+                let n = render_split(&run, &data, split, downscale, &out, npy, progress)?;
                 println!("{n} views and depth maps in {}", out.display());
             }
             (false, Some(_), None) => bail!("--split needs --data <scene dir>"),
             _ => bail!("say what to render: --orbit, or --split <val|test> --data <scene dir>"),
         },
         Command::Export { run, out, opset } => {
-            let files = nerf::export::export_run(&run, &out, opset).map_err(err)?;
+            let files = nerf::export::export_run(&run, &out, opset)?;
             for f in &files {
                 println!("{:>10} bytes  {}", f.bytes, f.path.display());
             }
         }
         Command::Bench { only, preset, data, downscale, steps, points, sizes, chunk, bundle, views, march_steps, skip_threshold, pytorch, json } => {
-            bench(&only, preset, data, downscale, steps, points, &sizes, chunk, (&bundle, views, march_steps, skip_threshold), pytorch, json, progress)?
+            bench::run(&only, preset, data, downscale, steps, points, &sizes, chunk, (&bundle, views, march_steps, skip_threshold), pytorch, json, progress)?
         }
         Command::Demo { out, minutes } => demo(out, minutes, progress)?,
-    }
-    Ok(())
-}
-
-#[allow(clippy::too_many_arguments)]
-fn bench(
-    only: &[BenchPart],
-    preset: Vec<Preset>,
-    data: Option<PathBuf>,
-    downscale: u32,
-    steps: usize,
-    points: usize,
-    sizes: &[u32],
-    chunk: usize,
-    (bundle, views, march_steps, skip_threshold): (&std::path::Path, usize, usize, Option<f32>),
-    pytorch: Option<PathBuf>,
-    json: Option<PathBuf>,
-    progress: bool,
-) -> Result<()> {
-    let wanted = |p: BenchPart| only.is_empty() || only.contains(&p);
-    let lego = PathBuf::from("../shared/data/nerf_synthetic/lego");
-    let data = data.or_else(|| lego.join("transforms_val.json").is_file().then_some(lego));
-    match &data {
-        Some(d) => println!("scene: {}", d.display()),
-        None => println!("scene: generated (no --data, no ../shared/data/nerf_synthetic/lego)"),
-    }
-    let mut report = serde_json::Map::new();
-    if wanted(BenchPart::Train) {
-        let presets = if preset.is_empty() { vec![Preset::CpuFast, Preset::Paper] } else { preset };
-        let mut results = Vec::new();
-        println!("\ntraining step (1/{downscale} resolution rays, mean of {steps} after 2 warm-up)");
-        println!("{:<10} {:>6} {:>9} {:>9} {:>9} {:>9}", "preset", "rays", "step s", "forward", "backward", "update");
-        for p in presets {
-            let b = nerf::bench::bench_train_step(p, data.as_deref(), downscale, 2, steps).map_err(err)?;
-            println!("{:<10} {:>6} {:>9.3} {:>9.3} {:>9.3} {:>9.3}", b.preset, b.batch_rays, b.step_s, b.forward_s, b.backward_s, b.update_s);
-            if b.preset == Preset::Paper.name() {
-                report.insert("train_step_paper_s".into(), b.step_s.into());
-            }
-            results.push(b);
-        }
-        // Training runs first, so the process peak so far is the training peak.
-        let rss = nerf::bench::peak_rss_mb();
-        println!("peak RSS so far: {rss:.0} MB");
-        report.insert("train_peak_rss_mb".into(), rss.into());
-        if let Some(python) = &pytorch {
-            let torch = nerf::bench::bench_pytorch_step(python, steps).map_err(err)?;
-            let ours = results.iter().find(|b| b.preset == Preset::Paper.name());
-            println!(
-                "{:<10} {:>6} {:>9.3} {:>9.3} {:>9.3} {:>9.3}   peak RSS {:.0} MB{}",
-                "pytorch", 1024, torch.step_s, torch.forward_s, torch.backward_s, torch.update_s, torch.peak_rss_mb,
-                ours.map(|b| format!("; ours / pytorch = {:.2}", b.step_s / torch.step_s)).unwrap_or_default()
-            );
-            report.insert("train_step_pytorch_s".into(), torch.step_s.into());
-            report.insert("train_peak_rss_pytorch_mb".into(), torch.peak_rss_mb.into());
-            if let Some(b) = ours {
-                report.insert("train_step_ratio_vs_pytorch".into(), (b.step_s / torch.step_s).into());
-            }
-            report.insert("pytorch".into(), serde_json::to_value(torch)?);
-        }
-        report.insert("train_steps".into(), serde_json::to_value(results)?);
-    }
-    if wanted(BenchPart::Mlp) {
-        println!("\npaper MLP forward on {points} points (best of 3, encoding included)");
-        let results = nerf::bench::bench_mlp(points, 3).map_err(err)?;
-        for b in &results {
-            println!("{:<12} {:>8.3} s {:>8.1} GFLOP/s", b.backend, b.seconds, b.gflops);
-            report.insert(if b.backend == "burn" { "mlp_gflops_burn" } else { "mlp_gflops_ort" }.into(), b.gflops.into());
-        }
-        report.insert("mlp".into(), serde_json::to_value(results)?);
-    }
-    if wanted(BenchPart::Render) {
-        println!("\nframe time, paper network, dense 64 + 128 samples, {chunk} rays per call");
-        let results = nerf::bench::bench_frames(data.as_deref(), sizes, chunk, progress).map_err(err)?;
-        println!("{:<12} {:>9} {:>9} {:>14}", "backend", "size", "seconds", "PSNR vs burn");
-        for b in &results {
-            println!("{:<12} {:>9} {:>9.2} {:>11.1} dB", b.backend, format!("{}×{}", b.width, b.height), b.seconds, b.psnr_vs_burn_db);
-        }
-        report.insert("frames".into(), serde_json::to_value(results)?);
-    }
-    if wanted(BenchPart::Skip) {
-        match &data {
-            Some(d) => {
-                println!("\nskipping vs dense through onnxruntime: {}, lego val at 1/{downscale}, 64 + 128 samples dense, {march_steps} marching steps", bundle.display());
-                let b = nerf::bench::bench_skipping(bundle, d, downscale, views, (64, 128), (march_steps, skip_threshold), progress).map_err(err)?;
-                println!("{:<8} {:>12} {:>10} {:>14}", "path", "s / frame", "PSNR", "points / ray");
-                println!("{:<8} {:>12.3} {:>7.2} dB {:>14.1}", "dense", b.dense_s, b.dense_psnr_db, b.dense_points_per_ray);
-                println!("{:<8} {:>12.3} {:>7.2} dB {:>14.1}", "skip", b.skip_s, b.skip_psnr_db, b.skip_points_per_ray);
-                println!("{:.1}× faster, PSNR loss {:.2} dB ({} views at {}×{})", b.dense_s / b.skip_s, b.dense_psnr_db - b.skip_psnr_db, b.views, b.width, b.height);
-                report.insert("render_dense_s".into(), b.dense_s.into());
-                report.insert("render_skip_s".into(), b.skip_s.into());
-                report.insert("render_skip_psnr_loss_db".into(), (b.dense_psnr_db - b.skip_psnr_db).into());
-                report.insert("skip".into(), serde_json::to_value(b)?);
-            }
-            None => println!("\nskipping: needs the lego data (--data) for ground truth; not measured"),
-        }
-    }
-    if let Some(path) = json {
-        let text = serde_json::to_string_pretty(&serde_json::Value::Object(report))?;
-        nerf_core::error::write_atomic(&path, text.as_bytes()).map_err(|e| err(e.to_string()))?;
-        println!("\nJSON: {}", path.display());
     }
     Ok(())
 }
@@ -347,12 +245,12 @@ fn demo(out: PathBuf, minutes: f64, progress: bool) -> Result<()> {
     config.lr_decay_ksteps = 2.0;
     println!("training for {minutes} min (preset cpu-fast) into {}", run.display());
     let opts = TrainOptions { data: scene.clone(), run: run.clone(), config, downscale: 1, time_budget_min: Some(minutes), iters: None, progress };
-    let s = train(&opts).map_err(err)?;
+    let s = train(&opts)?;
     println!("trained {} steps, train PSNR {:.2} dB", s.steps, s.train_psnr);
     let eval_dir = out.join("eval");
-    let r = eval(&run, &scene, Split::Val, 1, None, &eval_dir, progress).map_err(err)?;
+    let r = eval(&run, &scene, Split::Val, 1, None, &eval_dir, progress)?;
     let orbit_dir = out.join("orbit");
-    let gif = render_orbit(&run, 40, &orbit_dir, false, progress).map_err(err)?;
+    let gif = render_orbit(&run, 40, &orbit_dir, false, progress)?;
     println!("\ndemo done in {:.1} min", start.elapsed().as_secs_f64() / 60.0);
     println!("  val PSNR {:.2} dB, SSIM {:.4} over {} views: {}", r.psnr_mean, r.ssim_mean, r.per_image.len(), eval_dir.join("metrics.json").display());
     println!("  renders and depth maps: {}", eval_dir.display());

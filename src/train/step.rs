@@ -1,57 +1,24 @@
-//! The training loop: one random image per step, rays through random pixels (centre crop
-//! first), coarse + fine networks, MSE on both, Adam with exponential decay, checkpoints.
+//! One training step: a random image, rays through random pixels (centre crop first), coarse
+//! + fine networks rendered differentiably, MSE on both, one Adam update.
 
-use super::checkpoint::{Checkpoint, config_path, latest_checkpoint, new_state};
+use super::checkpoint::{Checkpoint, CheckpointState};
 use super::{TrainConfig, learning_rate};
+use crate::error::Result;
 use crate::field::{NerfMlp, NerfModel};
 use crate::inference::{BurnField, encoded_tensor, vec3_tensor};
+use crate::run_dir::RunDir;
 use crate::volume::{VolumeOutput, composite, deltas_tensor};
+use burn::grad_clipping::GradientClippingConfig;
 use burn::module::{Module, ModuleMapper, Param};
 use burn::optim::{AdamConfig, GradientsAccumulator, GradientsParams, ModuleOptimizer};
-use burn::grad_clipping::GradientClippingConfig;
 use burn::tensor::{Device, IndexingUpdateOp, Int, Tensor, TensorData};
-use nerf_core::occupancy::{OccupancyGrid, render_image_with};
-use indicatif::{ProgressBar, ProgressStyle};
-use nerf_core::dataset::{RayBatcher, Split, SplitData, load_split};
+use nerf_core::dataset::{RayBatcher, SplitData};
 use nerf_core::metrics::psnr_from_mse;
-use nerf_core::render::RenderOptions;
+use nerf_core::occupancy::OccupancyGrid;
+use nerf_core::render::render_image;
 use nerf_core::sampling::{DenseSamples, importance, stratified};
 use nerf_core::{Rays, Rng};
-use std::io::Write;
-use std::path::{Path, PathBuf};
 use std::time::Instant;
-
-/// What `nerf train` was asked to do.
-#[derive(Debug, Clone)]
-pub struct TrainOptions {
-    /// Blender scene directory.
-    pub data: PathBuf,
-    /// Run directory (config, checkpoints, curve).
-    pub run: PathBuf,
-    /// The configuration for a new run (a resumed run keeps its saved one).
-    pub config: TrainConfig,
-    /// Image downscale factor.
-    pub downscale: u32,
-    /// Stop after this many minutes of training in total (across resumes).
-    pub time_budget_min: Option<f64>,
-    /// Override the configured number of steps.
-    pub iters: Option<usize>,
-    /// Show a progress bar.
-    pub progress: bool,
-}
-
-/// What a training run reached.
-#[derive(Debug, Clone)]
-pub struct TrainSummary {
-    /// Steps completed (including resumed ones).
-    pub steps: usize,
-    /// Mean fine PSNR over the last steps' batches.
-    pub train_psnr: f32,
-    /// Last quick validation PSNR (one val view), if one was measured.
-    pub val_psnr: Option<f32>,
-    /// Minutes spent training in total.
-    pub minutes: f64,
-}
 
 /// Loss and PSNR of one step.
 #[derive(Debug, Clone, Copy)]
@@ -95,7 +62,7 @@ pub struct Trainer {
 
 impl Trainer {
     /// A fresh trainer on `train` data.
-    pub fn new(config: TrainConfig, train: SplitData, device: Device) -> Result<Self, String> {
+    pub fn new(config: TrainConfig, train: SplitData, device: Device) -> Result<Self> {
         config.validate()?;
         device.seed(config.seed);
         let model = NerfModel::new(&config.network, config.sampling.n_fine > 0, &device);
@@ -106,13 +73,13 @@ impl Trainer {
         if let Some(norm) = config.grad_clip_norm {
             adam = adam.with_grad_clipping(Some(GradientClippingConfig::Norm(norm)));
         }
-        let batcher = RayBatcher::new(train).map_err(|e| e.to_string())?;
+        let batcher = RayBatcher::new(train)?;
         let occupancy = config.skip_empty_space.then(|| OccupancyGrid::from_config(&config.occupancy));
         Ok(Trainer { rng: Rng::new(config.seed), optim: adam.init(), model: Some(model), config, step: 0, device, batcher, occupancy })
     }
 
     /// Restore model, optimizer, step and RNG from a checkpoint.
-    pub fn resume(&mut self, checkpoint: &Checkpoint) -> Result<f64, String> {
+    pub fn resume(&mut self, checkpoint: &Checkpoint) -> Result<f64> {
         let state = checkpoint.state()?;
         checkpoint.load_model(self.model.as_mut().expect("model present"))?;
         self.optim = checkpoint.load_optimizer(self.optim.clone())?;
@@ -125,8 +92,8 @@ impl Trainer {
     }
 
     /// Save a checkpoint of the current state into `run`.
-    pub fn save(&self, run: &Path, elapsed_s: f64) -> Result<Checkpoint, String> {
-        let state = new_state(self.step, self.rng.clone(), elapsed_s);
+    pub fn save(&self, run: &RunDir, elapsed_s: f64) -> Result<Checkpoint> {
+        let state = CheckpointState::new(self.step, self.rng.clone(), elapsed_s);
         Checkpoint::save(run, self.model(), &self.optim, self.occupancy.as_ref(), &state)
     }
 
@@ -140,7 +107,7 @@ impl Trainer {
         let Some(mut grid) = self.occupancy.take() else { return };
         let points = grid.random_cell_points(&mut self.rng);
         let snapshot = self.model().valid();
-        let net = snapshot.fine.as_ref().unwrap_or(&snapshot.coarse);
+        let net = snapshot.last();
         let device = snapshot.coarse_device();
         let mut sigma = Vec::with_capacity(points.len());
         for chunk in points.chunks(1 << 16) {
@@ -237,9 +204,9 @@ impl Trainer {
         let view = &data.views[index];
         let Some(target) = &view.image else { return f32::NAN };
         let snapshot = self.model().valid();
-        let field = BurnField { model: &snapshot, device: snapshot.coarse_device() };
-        let options = render_options(&self.config);
-        let Ok(image) = render_image_with(field, self.occupancy.as_ref(), &data.intrinsics, &view.pose, &options, &mut |_, _| {});
+        let mut field = BurnField { model: &snapshot, device: snapshot.coarse_device() };
+        let options = self.config.render_options();
+        let Ok(image) = render_image(&mut field, self.occupancy.as_ref(), &data.intrinsics, &view.pose, &options, &mut |_, _| {});
         nerf_core::metrics::psnr(&image.rays.rgb, target)
     }
 }
@@ -370,127 +337,4 @@ impl ModuleMapper for FreshLeaves {
 fn run_concurrently<T: Send, R: Send>(items: Vec<T>, f: impl Fn(T) -> R + Sync + Send) -> Vec<R> {
     use rayon::prelude::*;
     items.into_par_iter().with_max_len(1).map(f).collect()
-}
-
-/// How a run's networks are rendered at test time.
-pub fn render_options(config: &TrainConfig) -> RenderOptions {
-    RenderOptions {
-        sampling: config.sampling.clone(),
-        white_background: config.white_background,
-        chunk: config.chunk,
-        // Runs that skip empty space also stop marching behind opaque surfaces.
-        min_transmittance: config.skip_empty_space.then_some(nerf_core::render::DEFAULT_MIN_TRANSMITTANCE),
-        march_steps: nerf_core::render::DEFAULT_MARCH_STEPS,
-    }
-}
-
-impl NerfModel {
-    /// The device the coarse network's weights live on.
-    pub fn coarse_device(&self) -> Device {
-        self.coarse.devices().into_iter().next().unwrap_or_else(crate::backend::cpu)
-    }
-}
-
-/// Train (or resume) a run as `options` say.
-pub fn train(options: &TrainOptions) -> Result<TrainSummary, String> {
-    std::fs::create_dir_all(&options.run).map_err(|e| format!("{}: {e}", options.run.display()))?;
-    let checkpoint = latest_checkpoint(&options.run)?;
-    let mut config = match &checkpoint {
-        // A resumed run keeps the configuration it started with.
-        Some(_) => TrainConfig::from_toml_file(&config_path(&options.run), None)?,
-        None => options.config.clone(),
-    };
-    if let Some(iters) = options.iters {
-        config.iters = iters;
-    }
-    nerf_core::error::write_atomic(&config_path(&options.run), config.to_toml().as_bytes()).map_err(|e| e.to_string())?;
-
-    let train_data = load_split(&options.data, Split::Train, options.downscale, true).map_err(|e| e.to_string())?;
-    let camera = serde_json::to_string_pretty(&train_data.intrinsics).expect("intrinsics serialise");
-    let camera_file = crate::evaluate::camera_path(&options.run);
-    nerf_core::error::write_atomic(&camera_file, camera.as_bytes()).map_err(|e| e.to_string())?;
-    // Where the data came from, so `nerf export` can include the test poses.
-    let source = crate::export::RunSource { data: std::path::absolute(&options.data).unwrap_or(options.data.clone()), downscale: options.downscale };
-    nerf_core::error::write_atomic(&crate::export::source_path(&options.run), serde_json::to_string_pretty(&source).expect("serialises").as_bytes())
-        .map_err(|e| e.to_string())?;
-    // The validation curve is optional: a scene without val views still trains.
-    let val_data = match load_split(&options.data, Split::Val, options.downscale, true) {
-        Ok(v) if !v.views.is_empty() => Some(v),
-        Ok(_) => None,
-        Err(e) => {
-            eprintln!("note: no validation curve ({e})");
-            None
-        }
-    };
-    let mut trainer = Trainer::new(config.clone(), train_data, crate::backend::cpu_autodiff())?;
-    let mut elapsed_before = 0.0;
-    if let Some(c) = &checkpoint {
-        elapsed_before = trainer.resume(c)?;
-        eprintln!("resuming {} at step {}", options.run.display(), trainer.step);
-    }
-
-    let budget_s = options.time_budget_min.map(|m| m * 60.0);
-    let bar = if options.progress { ProgressBar::new(config.iters as u64) } else { ProgressBar::hidden() };
-    bar.set_style(
-        ProgressStyle::with_template("{spinner} [{elapsed_precise}<{eta_precise}] {wide_bar} {pos}/{len} {per_sec} {msg}")
-            .expect("valid template"),
-    );
-    bar.set_position(trainer.step as u64);
-    bar.reset_eta();
-
-    let curve_path = options.run.join("curve.csv");
-    let mut curve = std::fs::OpenOptions::new()
-        .create(true)
-        .append(true)
-        .open(&curve_path)
-        .map_err(|e| format!("{}: {e}", curve_path.display()))?;
-    if curve.metadata().map(|m| m.len() == 0).unwrap_or(false) {
-        let _ = writeln!(curve, "step,minutes,train_psnr,val_psnr");
-    }
-
-    let start = Instant::now();
-    let elapsed = || elapsed_before + start.elapsed().as_secs_f64();
-    let mut recent: Vec<f32> = Vec::new();
-    let mut next_eval_s = if config.eval_every_min > 0.0 { elapsed() + config.eval_every_min * 60.0 } else { f64::INFINITY };
-    let mut val_psnr = None;
-    while trainer.step < config.iters {
-        if budget_s.is_some_and(|b| elapsed() >= b) {
-            break;
-        }
-        let stats = trainer.step();
-        if !stats.loss.is_finite() {
-            trainer.save(&options.run, elapsed())?;
-            return Err(format!("the loss became {} at step {}: lower lr or enable grad_clip_norm", stats.loss, trainer.step));
-        }
-        recent.push(stats.psnr);
-        if recent.len() > 50 {
-            recent.remove(0);
-        }
-        let mean_psnr = recent.iter().sum::<f32>() / recent.len() as f32;
-        bar.set_position(trainer.step as u64);
-        let budget = budget_s.map(|b| format!(" | {:.1}/{:.0} min", elapsed() / 60.0, b / 60.0)).unwrap_or_default();
-        bar.set_message(format!("loss {:.4} psnr {:.2}{budget}", stats.loss, mean_psnr));
-        if trainer.step % config.checkpoint_every == 0 {
-            trainer.save(&options.run, elapsed())?;
-        }
-        if elapsed() >= next_eval_s {
-            if let Some(val) = &val_data {
-                let p = trainer.view_psnr(val, 0);
-                val_psnr = Some(p);
-                let occupied = trainer.occupancy().map(|g| format!(", {:.1}% of the grid occupied", 100.0 * g.occupied_fraction())).unwrap_or_default();
-                bar.println(format!("step {}: val {} PSNR {p:.2} dB{occupied}", trainer.step, val.views[0].name));
-            }
-            let _ = writeln!(curve, "{},{:.2},{:.3},{}", trainer.step, elapsed() / 60.0, mean_psnr, val_psnr.map(|p| format!("{p:.3}")).unwrap_or_default());
-            next_eval_s += config.eval_every_min * 60.0;
-        }
-    }
-    trainer.save(&options.run, elapsed())?;
-    bar.finish();
-    let train_psnr = recent.iter().sum::<f32>() / recent.len().max(1) as f32;
-    if let Some(val) = &val_data {
-        let p = trainer.view_psnr(val, 0);
-        val_psnr = Some(p);
-    }
-    let _ = writeln!(curve, "{},{:.2},{:.3},{}", trainer.step, elapsed() / 60.0, train_psnr, val_psnr.map(|p| format!("{p:.3}")).unwrap_or_default());
-    Ok(TrainSummary { steps: trainer.step, train_psnr, val_psnr, minutes: elapsed() / 60.0 })
 }

@@ -1,0 +1,217 @@
+//! `nerf bench`: the burn measurements of `nerf::bench` and their onnxruntime counterparts,
+//! in one run. The onnxruntime side lives here, in the binary, so that the training library
+//! does not depend on the runtime.
+
+use super::BenchPart;
+use anyhow::{Result, bail};
+use nerf::bench::{FrameBench, MlpBench, best_of, bench_view, burn_frame, paper_model, paper_network, random_points, timed_frame};
+use nerf::export::model_bundle;
+use nerf::train::Preset;
+use nerf_core::dataset::{Split, load_split};
+use nerf_core::metrics::psnr;
+use nerf_export::write_bundle;
+use nerf_runtime::{OpenOptions, OrtNetwork, OrtScene};
+use std::path::{Path, PathBuf};
+
+/// `nerf bench`: everything measured in one run, printed as tables (and JSON with `json`).
+#[allow(clippy::too_many_arguments)]
+pub fn run(
+    only: &[BenchPart],
+    preset: Vec<Preset>,
+    data: Option<PathBuf>,
+    downscale: u32,
+    steps: usize,
+    points: usize,
+    sizes: &[u32],
+    chunk: usize,
+    (bundle, views, march_steps, skip_threshold): (&Path, usize, usize, Option<f32>),
+    pytorch: Option<PathBuf>,
+    json: Option<PathBuf>,
+    progress: bool,
+) -> Result<()> {
+    let wanted = |p: BenchPart| only.is_empty() || only.contains(&p);
+    let lego = PathBuf::from("../shared/data/nerf_synthetic/lego");
+    let data = data.or_else(|| lego.join("transforms_val.json").is_file().then_some(lego));
+    match &data {
+        Some(d) => println!("scene: {}", d.display()),
+        None => println!("scene: generated (no --data, no ../shared/data/nerf_synthetic/lego)"),
+    }
+    let mut report = serde_json::Map::new();
+    if wanted(BenchPart::Train) {
+        let presets = if preset.is_empty() { vec![Preset::CpuFast, Preset::Paper] } else { preset };
+        let mut results = Vec::new();
+        println!("\ntraining step (1/{downscale} resolution rays, mean of {steps} after 2 warm-up)");
+        println!("{:<10} {:>6} {:>9} {:>9} {:>9} {:>9}", "preset", "rays", "step s", "forward", "backward", "update");
+        for p in presets {
+            let b = nerf::bench::bench_train_step(p, data.as_deref(), downscale, 2, steps)?;
+            println!("{:<10} {:>6} {:>9.3} {:>9.3} {:>9.3} {:>9.3}", b.preset, b.batch_rays, b.step_s, b.forward_s, b.backward_s, b.update_s);
+            if b.preset == Preset::Paper.name() {
+                report.insert("train_step_paper_s".into(), b.step_s.into());
+            }
+            results.push(b);
+        }
+        // Training runs first, so the process peak so far is the training peak.
+        let rss = nerf::bench::peak_rss_mb();
+        println!("peak RSS so far: {rss:.0} MB");
+        report.insert("train_peak_rss_mb".into(), rss.into());
+        if let Some(python) = &pytorch {
+            let torch = nerf::bench::bench_pytorch_step(python, steps)?;
+            let ours = results.iter().find(|b| b.preset == Preset::Paper.name());
+            println!(
+                "{:<10} {:>6} {:>9.3} {:>9.3} {:>9.3} {:>9.3}   peak RSS {:.0} MB{}",
+                "pytorch", 1024, torch.step_s, torch.forward_s, torch.backward_s, torch.update_s, torch.peak_rss_mb,
+                ours.map(|b| format!("; ours / pytorch = {:.2}", b.step_s / torch.step_s)).unwrap_or_default()
+            );
+            report.insert("train_step_pytorch_s".into(), torch.step_s.into());
+            report.insert("train_peak_rss_pytorch_mb".into(), torch.peak_rss_mb.into());
+            if let Some(b) = ours {
+                report.insert("train_step_ratio_vs_pytorch".into(), (b.step_s / torch.step_s).into());
+            }
+            report.insert("pytorch".into(), serde_json::to_value(torch)?);
+        }
+        report.insert("train_steps".into(), serde_json::to_value(results)?);
+    }
+    if wanted(BenchPart::Mlp) {
+        println!("\npaper MLP forward on {points} points (best of 3, encoding included)");
+        let results = bench_mlp(points, 3)?;
+        for b in &results {
+            println!("{:<12} {:>8.3} s {:>8.1} GFLOP/s", b.backend, b.seconds, b.gflops);
+            report.insert(if b.backend == "burn" { "mlp_gflops_burn" } else { "mlp_gflops_ort" }.into(), b.gflops.into());
+        }
+        report.insert("mlp".into(), serde_json::to_value(results)?);
+    }
+    if wanted(BenchPart::Render) {
+        println!("\nframe time, paper network, dense 64 + 128 samples, {chunk} rays per call");
+        let results = bench_frames(data.as_deref(), sizes, chunk, progress)?;
+        println!("{:<12} {:>9} {:>9} {:>14}", "backend", "size", "seconds", "PSNR vs burn");
+        for b in &results {
+            println!("{:<12} {:>9} {:>9.2} {:>11.1} dB", b.backend, format!("{}×{}", b.width, b.height), b.seconds, b.psnr_vs_burn_db);
+        }
+        report.insert("frames".into(), serde_json::to_value(results)?);
+    }
+    if wanted(BenchPart::Skip) {
+        match &data {
+            Some(d) => {
+                println!("\nskipping vs dense through onnxruntime: {}, lego val at 1/{downscale}, 64 + 128 samples dense, {march_steps} marching steps", bundle.display());
+                let b = bench_skipping(bundle, d, downscale, views, (64, 128), (march_steps, skip_threshold), progress)?;
+                println!("{:<8} {:>12} {:>10} {:>14}", "path", "s / frame", "PSNR", "points / ray");
+                println!("{:<8} {:>12.3} {:>7.2} dB {:>14.1}", "dense", b.dense_s, b.dense_psnr_db, b.dense_points_per_ray);
+                println!("{:<8} {:>12.3} {:>7.2} dB {:>14.1}", "skip", b.skip_s, b.skip_psnr_db, b.skip_points_per_ray);
+                println!("{:.1}× faster, PSNR loss {:.2} dB ({} views at {}×{})", b.dense_s / b.skip_s, b.dense_psnr_db - b.skip_psnr_db, b.views, b.width, b.height);
+                report.insert("render_dense_s".into(), b.dense_s.into());
+                report.insert("render_skip_s".into(), b.skip_s.into());
+                report.insert("render_skip_psnr_loss_db".into(), (b.dense_psnr_db - b.skip_psnr_db).into());
+                report.insert("skip".into(), serde_json::to_value(b)?);
+            }
+            None => println!("\nskipping: needs the lego data (--data) for ground truth; not measured"),
+        }
+    }
+    if let Some(path) = json {
+        let text = serde_json::to_string_pretty(&serde_json::Value::Object(report))?;
+        nerf_core::atomic::write_atomic(&path, text.as_bytes())?;
+        println!("\nJSON: {}", path.display());
+    }
+    Ok(())
+}
+
+/// The paper network (seeded weights) in burn and through onnxruntime on the same `points`
+/// random inputs: best of `repeats` forward passes each.
+fn bench_mlp(points: usize, repeats: usize) -> Result<Vec<MlpBench>> {
+    let (plain, net) = paper_network(1)?;
+    let (p, d) = random_points(points, 2);
+    let burn = nerf::bench::bench_mlp_burn(&net, &p, &d, repeats)?;
+    let dir = tempfile::tempdir()?;
+    let path = dir.path().join("paper.onnx");
+    let model = nerf_export::compile(&plain, "coarse", nerf_export::DEFAULT_OPSET, &[])?;
+    nerf_core::atomic::write_atomic(&path, &prost::Message::encode_to_vec(&model))?;
+    let mut ort = OrtNetwork::load(&path, None)?;
+    let ort_s = best_of(repeats, || ort.run(&p, &d).map(|_| ()))?;
+    Ok(vec![burn, MlpBench::new("onnxruntime", points, ort_s, plain.spec.macs_per_point())])
+}
+
+/// Render one frame per size with the paper network (seeded weights; 64 + 128 samples, dense)
+/// through burn and through onnxruntime (the exported graphs, as `nerf-render` runs them).
+fn bench_frames(data: Option<&Path>, sizes: &[u32], chunk: usize, progress: bool) -> Result<Vec<FrameBench>> {
+    let (camera, pose) = bench_view(data)?;
+    let (config, _, _, model) = paper_model(chunk)?;
+    let dir = tempfile::tempdir()?;
+    let bundle = dir.path().join("bundle");
+    write_bundle(&bundle, &model_bundle(&model, &config, &camera, None), nerf_export::DEFAULT_OPSET)?;
+    let options = OpenOptions { threads: None, chunk, skip_empty_space: false };
+    let mut scene = OrtScene::open(&bundle, &options)?;
+    let samples = format!("{} + {}", config.sampling.n_coarse, config.sampling.n_fine);
+    let mut out = Vec::new();
+    for &size in sizes {
+        let k = camera.resized(size, size);
+        let (burn, burn_s) = burn_frame(&model, &config, &k, &pose, progress);
+        let (ort, ort_s) = timed_frame(progress, &format!("onnxruntime {size}×{size}"), k.num_pixels(), |p| scene.render(&k, &pose, p));
+        let ort = ort?;
+        for (backend, seconds, psnr_vs_burn_db) in [("burn", burn_s, f32::INFINITY), ("onnxruntime", ort_s, psnr(&ort.rays.rgb, &burn.rays.rgb))] {
+            out.push(FrameBench { backend: backend.into(), width: size, height: size, samples: samples.clone(), seconds, psnr_vs_burn_db });
+        }
+    }
+    Ok(out)
+}
+
+/// Rendering lego val views through onnxruntime (as `nerf-render` does) with the dense path and
+/// with empty-space skipping + early termination, both with `n_coarse + n_fine` samples.
+#[derive(Debug, Clone, serde::Serialize)]
+struct SkipBench {
+    /// Views rendered (val r_0, r_1, …).
+    pub views: usize,
+    /// Image size.
+    pub width: u32,
+    /// Image size.
+    pub height: u32,
+    /// Samples per ray, as "coarse + fine".
+    pub samples: String,
+    /// Mean seconds per frame, dense.
+    pub dense_s: f64,
+    /// Mean seconds per frame, skipping empty space and terminating early.
+    pub skip_s: f64,
+    /// Mean PSNR against the images, dense.
+    pub dense_psnr_db: f32,
+    /// Mean PSNR against the images, skipping.
+    pub skip_psnr_db: f32,
+    /// Network evaluations per ray (coarse + fine), dense.
+    pub dense_points_per_ray: f64,
+    /// Network evaluations per ray (coarse + fine), skipping.
+    pub skip_points_per_ray: f64,
+}
+
+/// Render the first `views` val views of `data` at `1/downscale` through the bundle at `bundle`,
+/// dense and skipping, with `n_coarse + n_fine` samples per ray.
+fn bench_skipping(bundle: &Path, data: &Path, downscale: u32, views: usize, samples: (usize, usize), march: (usize, Option<f32>), progress: bool) -> Result<SkipBench> {
+    let mut val = load_split(data, Split::Val, downscale, true)?;
+    val.views.truncate(views.max(1));
+    let measure = |skip: bool| -> Result<(f64, f32, f64)> {
+        let options = OpenOptions { threads: None, chunk: nerf_runtime::scene::DEFAULT_CHUNK, skip_empty_space: skip };
+        let mut scene = OrtScene::open(bundle, &options)?;
+        if skip && scene.occupancy.is_none() {
+            bail!("{}: the bundle has no occupancy grid to skip with", bundle.display());
+        }
+        (scene.options.sampling.n_coarse, scene.options.sampling.n_fine) = samples;
+        scene.options.march_steps = march.0;
+        if let Some(threshold) = march.1 {
+            scene.occupancy = scene.occupancy.take().map(|g| g.with_threshold(threshold));
+        }
+        let (mut seconds, mut db) = (0.0, 0.0);
+        for view in &val.views {
+            let label = format!("{} {}", if skip { "skip" } else { "dense" }, view.name);
+            let (image, s) = timed_frame(progress, &label, val.intrinsics.num_pixels(), |p| scene.render(&val.intrinsics, &view.pose, p));
+            let image = image?;
+            seconds += s;
+            db += psnr(&image.rays.rgb, view.image.as_ref().expect("loaded with images"));
+        }
+        let n = val.views.len();
+        let f = &scene.field;
+        let points = f.coarse.evaluated + f.fine.as_ref().map_or(0, |n| n.evaluated);
+        Ok((seconds / n as f64, db / n as f32, points as f64 / (n * val.intrinsics.num_pixels()) as f64))
+    };
+    let (dense_s, dense_psnr_db, dense_points_per_ray) = measure(false)?;
+    let (skip_s, skip_psnr_db, skip_points_per_ray) = measure(true)?;
+    let k = val.intrinsics;
+    let samples = format!("{} + {}", samples.0, samples.1);
+    Ok(SkipBench { views: val.views.len(), width: k.width, height: k.height, samples, dense_s, skip_s, dense_psnr_db, skip_psnr_db, dense_points_per_ray, skip_points_per_ray })
+}
+

@@ -1,0 +1,193 @@
+//! A training run's directory: the one place that knows its layout and reads or writes its
+//! files (each written whole or not at all, [`nerf_core::atomic`]).
+//!
+//! | path | written | content |
+//! |---|---|---|
+//! | `config.toml` | at the start | the resolved [`TrainConfig`] (a resumed run keeps it) |
+//! | `camera.json` | at the start | the training camera ([`Intrinsics`]) |
+//! | `source.json` | at the start | the dataset and downscale ([`RunSource`]) |
+//! | `curve.csv` | while training | step, minutes, train PSNR, val PSNR ([`Curve`]) |
+//! | `checkpoints/step-NNNNNNN/` | every `checkpoint_every` steps | weights, optimizer, state, grid ([`Checkpoint`]) |
+//! | `checkpoints/latest` | after each checkpoint | the name of the newest complete checkpoint |
+
+use crate::error::{Error, Result};
+use crate::field::NerfModel;
+use crate::train::{Checkpoint, CheckpointState, TrainConfig};
+use burn::tensor::Device;
+use nerf_core::atomic::write_atomic;
+use nerf_core::camera::Intrinsics;
+use nerf_core::occupancy::OccupancyGrid;
+use serde::{Deserialize, Serialize};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+/// `source.json`: the dataset a run was trained on.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct RunSource {
+    /// Scene directory (absolute when it could be made so).
+    pub data: PathBuf,
+    /// Downscale factor used.
+    pub downscale: u32,
+}
+
+/// A run directory.
+#[derive(Debug, Clone)]
+pub struct RunDir {
+    root: PathBuf,
+}
+
+/// The latest checkpoint of a run, loaded.
+pub struct RunCheckpoint {
+    /// The run's configuration.
+    pub config: TrainConfig,
+    /// Its networks.
+    pub model: NerfModel,
+    /// Step, RNG and elapsed time.
+    pub state: CheckpointState,
+    /// The occupancy grid, for runs that skip empty space.
+    pub occupancy: Option<OccupancyGrid>,
+}
+
+impl RunDir {
+    /// The run at `root`, creating the directory (for `nerf train`).
+    pub fn create(root: &Path) -> Result<Self> {
+        std::fs::create_dir_all(root).map_err(|e| Error::io(root, e))?;
+        Ok(RunDir { root: root.to_path_buf() })
+    }
+
+    /// An existing run (for eval, render, export): `config.toml` must be there.
+    pub fn open(root: &Path) -> Result<Self> {
+        let run = RunDir { root: root.to_path_buf() };
+        if !run.config_path().is_file() {
+            let problem = format!("no such file: is {} a training run directory (written by `nerf train`)?", root.display());
+            return Err(Error::invalid(&run.config_path(), problem));
+        }
+        Ok(run)
+    }
+
+    /// The directory.
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
+    /// `config.toml`.
+    pub fn config_path(&self) -> PathBuf {
+        self.root.join("config.toml")
+    }
+
+    /// `camera.json`.
+    pub fn camera_path(&self) -> PathBuf {
+        self.root.join("camera.json")
+    }
+
+    /// `source.json`.
+    pub fn source_path(&self) -> PathBuf {
+        self.root.join("source.json")
+    }
+
+    /// `curve.csv`.
+    pub fn curve_path(&self) -> PathBuf {
+        self.root.join("curve.csv")
+    }
+
+    /// `checkpoints/`.
+    pub fn checkpoints_dir(&self) -> PathBuf {
+        self.root.join("checkpoints")
+    }
+
+    /// `checkpoints/latest`.
+    pub fn latest_path(&self) -> PathBuf {
+        self.checkpoints_dir().join("latest")
+    }
+
+    /// The run's configuration.
+    pub fn read_config(&self) -> Result<TrainConfig> {
+        TrainConfig::from_toml_file(&self.config_path(), None)
+    }
+
+    /// Record the configuration in force.
+    pub fn write_config(&self, config: &TrainConfig) -> Result<()> {
+        Ok(write_atomic(&self.config_path(), config.to_toml().as_bytes())?)
+    }
+
+    /// The training camera.
+    pub fn read_camera(&self) -> Result<Intrinsics> {
+        let path = self.camera_path();
+        let text = std::fs::read_to_string(&path).map_err(|e| Error::io(&path, e))?;
+        serde_json::from_str(&text).map_err(|e| nerf_core::Error::Json { path, source: e }.into())
+    }
+
+    /// Record the training camera (orbits render at its resolution).
+    pub fn write_camera(&self, camera: &Intrinsics) -> Result<()> {
+        Ok(write_atomic(&self.camera_path(), serde_json::to_string_pretty(camera).expect("intrinsics serialise").as_bytes())?)
+    }
+
+    /// Where the run's data came from, if recorded and readable (it is informational: export
+    /// uses it for the test poses when the data is still there).
+    pub fn read_source(&self) -> Option<RunSource> {
+        let text = std::fs::read_to_string(self.source_path()).ok()?;
+        serde_json::from_str(&text).ok()
+    }
+
+    /// Record where the data came from.
+    pub fn write_source(&self, source: &RunSource) -> Result<()> {
+        Ok(write_atomic(&self.source_path(), serde_json::to_string_pretty(source).expect("a source serialises").as_bytes())?)
+    }
+
+    /// The checkpoint `latest` names, or `None` for a run that has none yet.
+    pub fn latest_checkpoint(&self) -> Result<Option<Checkpoint>> {
+        let latest = self.latest_path();
+        match std::fs::read_to_string(&latest) {
+            Ok(name) => {
+                let name = name.trim();
+                if !Checkpoint::is_name(name) {
+                    return Err(Error::invalid(&latest, format!("names {name:?}, not a checkpoint (step-NNNNNNN)")));
+                }
+                let dir = self.checkpoints_dir().join(name);
+                if !dir.is_dir() {
+                    return Err(Error::invalid(&latest, format!("names {}, which does not exist", dir.display())));
+                }
+                Ok(Some(Checkpoint { dir }))
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+            Err(e) => Err(Error::io(&latest, e)),
+        }
+    }
+
+    /// The configuration and the latest checkpoint's networks (and grid) on `device`.
+    pub fn load_latest(&self, device: &Device) -> Result<RunCheckpoint> {
+        let config = self.read_config()?;
+        let checkpoint = self
+            .latest_checkpoint()?
+            .ok_or_else(|| Error::invalid(&self.checkpoints_dir(), "the run has no checkpoint yet"))?;
+        let state = checkpoint.state()?;
+        let mut model = NerfModel::new(&config.network, config.sampling.n_fine > 0, device);
+        checkpoint.load_model(&mut model)?;
+        let occupancy = if config.skip_empty_space { checkpoint.load_occupancy()? } else { None };
+        Ok(RunCheckpoint { config, model, state, occupancy })
+    }
+
+    /// `curve.csv`, opened for appending (with its header if new).
+    pub fn open_curve(&self) -> Result<Curve> {
+        let path = self.curve_path();
+        let mut file = std::fs::OpenOptions::new().create(true).append(true).open(&path).map_err(|e| Error::io(&path, e))?;
+        if file.metadata().map(|m| m.len() == 0).unwrap_or(false) {
+            writeln!(file, "step,minutes,train_psnr,val_psnr").map_err(|e| Error::io(&path, e))?;
+        }
+        Ok(Curve { file, path })
+    }
+}
+
+/// The PSNR curve of a run (`curve.csv`), appended to as training goes.
+pub struct Curve {
+    file: std::fs::File,
+    path: PathBuf,
+}
+
+impl Curve {
+    /// Append a row: `step,minutes,train_psnr,val_psnr` (val empty when not measured).
+    pub fn record(&mut self, step: usize, minutes: f64, train_psnr: f32, val_psnr: Option<f32>) -> Result<()> {
+        let val = val_psnr.map(|p| format!("{p:.3}")).unwrap_or_default();
+        writeln!(self.file, "{step},{minutes:.2},{train_psnr:.3},{val}").map_err(|e| Error::io(&self.path, e))
+    }
+}

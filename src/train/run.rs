@@ -1,0 +1,176 @@
+//! The run loop: start or resume a run directory, then step until the iteration count or the
+//! time budget is reached, with checkpoints, the PSNR curve and a progress bar.
+
+use super::{TrainConfig, Trainer};
+use crate::error::{Error, Result};
+use crate::run_dir::{RunDir, RunSource};
+use indicatif::{ProgressBar, ProgressStyle};
+use nerf_core::dataset::{Split, SplitData, load_split};
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// What `nerf train` was asked to do.
+#[derive(Debug, Clone)]
+pub struct TrainOptions {
+    /// Blender scene directory.
+    pub data: PathBuf,
+    /// Run directory (config, checkpoints, curve).
+    pub run: PathBuf,
+    /// The configuration for a new run (a resumed run keeps its saved one).
+    pub config: TrainConfig,
+    /// Image downscale factor.
+    pub downscale: u32,
+    /// Stop after this many minutes of training in total (across resumes).
+    pub time_budget_min: Option<f64>,
+    /// Override the configured number of steps.
+    pub iters: Option<usize>,
+    /// Show a progress bar.
+    pub progress: bool,
+}
+
+/// What a training run reached.
+#[derive(Debug, Clone)]
+pub struct TrainSummary {
+    /// Steps completed (including resumed ones).
+    pub steps: usize,
+    /// Mean fine PSNR over the last steps' batches.
+    pub train_psnr: f32,
+    /// Last quick validation PSNR (one val view), if one was measured.
+    pub val_psnr: Option<f32>,
+    /// Minutes spent training in total.
+    pub minutes: f64,
+}
+
+/// Batches whose PSNR the progress bar and the curve average.
+const RECENT_STEPS: usize = 50;
+
+/// Train (or resume) a run as `options` say.
+pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
+    let run = RunDir::create(&options.run)?;
+    let (mut trainer, val_data, elapsed_before) = start_or_resume(&run, options)?;
+    let config = trainer.config.clone();
+    let clock = Clock { before_s: elapsed_before, start: Instant::now() };
+    let budget_s = options.time_budget_min.map(|m| m * 60.0);
+    let bar = progress_bar(options.progress, config.iters, trainer.step);
+    let mut curve = run.open_curve()?;
+    let mut recent = RecentPsnr::default();
+    let mut next_eval_s = if config.eval_every_min > 0.0 { clock.seconds() + config.eval_every_min * 60.0 } else { f64::INFINITY };
+    let mut val_psnr = None;
+    while trainer.step < config.iters && !budget_s.is_some_and(|b| clock.seconds() >= b) {
+        let stats = trainer.step();
+        if !stats.loss.is_finite() {
+            trainer.save(&run, clock.seconds())?;
+            return Err(Error::Diverged { step: trainer.step, loss: stats.loss });
+        }
+        recent.push(stats.psnr);
+        bar.set_position(trainer.step as u64);
+        let budget = budget_s.map(|b| format!(" | {:.1}/{:.0} min", clock.seconds() / 60.0, b / 60.0)).unwrap_or_default();
+        bar.set_message(format!("loss {:.4} psnr {:.2}{budget}", stats.loss, recent.mean()));
+        if trainer.step % config.checkpoint_every == 0 {
+            trainer.save(&run, clock.seconds())?;
+        }
+        if clock.seconds() >= next_eval_s {
+            if let Some(val) = &val_data {
+                val_psnr = Some(validate(&trainer, val, &bar));
+            }
+            curve.record(trainer.step, clock.minutes(), recent.mean(), val_psnr)?;
+            next_eval_s += config.eval_every_min * 60.0;
+        }
+    }
+    trainer.save(&run, clock.seconds())?;
+    bar.finish();
+    if let Some(val) = &val_data {
+        val_psnr = Some(trainer.view_psnr(val, 0));
+    }
+    curve.record(trainer.step, clock.minutes(), recent.mean(), val_psnr)?;
+    Ok(TrainSummary { steps: trainer.step, train_psnr: recent.mean(), val_psnr, minutes: clock.minutes() })
+}
+
+/// Set up `run` (configuration, camera, data source) and a trainer on its training split,
+/// restored from the latest checkpoint if there is one; also the validation split, if any,
+/// and the minutes already trained.
+fn start_or_resume(run: &RunDir, options: &TrainOptions) -> Result<(Trainer, Option<SplitData>, f64)> {
+    let checkpoint = run.latest_checkpoint()?;
+    let mut config = match &checkpoint {
+        // A resumed run keeps the configuration it started with.
+        Some(_) => run.read_config()?,
+        None => options.config.clone(),
+    };
+    if let Some(iters) = options.iters {
+        config.iters = iters;
+    }
+    run.write_config(&config)?;
+    let train_data = load_split(&options.data, Split::Train, options.downscale, true)?;
+    run.write_camera(&train_data.intrinsics)?;
+    // Where the data came from, so `nerf export` can include the test poses.
+    let data = std::path::absolute(&options.data).unwrap_or(options.data.clone());
+    run.write_source(&RunSource { data, downscale: options.downscale })?;
+    // The validation curve is optional: a scene without val views still trains.
+    let val_data = match load_split(&options.data, Split::Val, options.downscale, true) {
+        Ok(v) if !v.views.is_empty() => Some(v),
+        Ok(_) => None,
+        Err(e) => {
+            eprintln!("note: no validation curve ({e})");
+            None
+        }
+    };
+    let mut trainer = Trainer::new(config, train_data, crate::backend::cpu_autodiff())?;
+    let mut elapsed_before = 0.0;
+    if let Some(c) = &checkpoint {
+        elapsed_before = trainer.resume(c)?;
+        eprintln!("resuming {} at step {}", run.root().display(), trainer.step);
+    }
+    Ok((trainer, val_data, elapsed_before))
+}
+
+/// PSNR of the first validation view, printed above the progress bar.
+fn validate(trainer: &Trainer, val: &SplitData, bar: &ProgressBar) -> f32 {
+    let p = trainer.view_psnr(val, 0);
+    let occupied = trainer.occupancy().map(|g| format!(", {:.1}% of the grid occupied", 100.0 * g.occupied_fraction())).unwrap_or_default();
+    bar.println(format!("step {}: val {} PSNR {p:.2} dB{occupied}", trainer.step, val.views[0].name));
+    p
+}
+
+/// Training time across resumes.
+struct Clock {
+    before_s: f64,
+    start: Instant,
+}
+
+impl Clock {
+    fn seconds(&self) -> f64 {
+        self.before_s + self.start.elapsed().as_secs_f64()
+    }
+
+    fn minutes(&self) -> f64 {
+        self.seconds() / 60.0
+    }
+}
+
+/// The PSNR of the last [`RECENT_STEPS`] batches.
+#[derive(Default)]
+struct RecentPsnr(Vec<f32>);
+
+impl RecentPsnr {
+    fn push(&mut self, psnr: f32) {
+        self.0.push(psnr);
+        if self.0.len() > RECENT_STEPS {
+            self.0.remove(0);
+        }
+    }
+
+    fn mean(&self) -> f32 {
+        self.0.iter().sum::<f32>() / self.0.len().max(1) as f32
+    }
+}
+
+fn progress_bar(show: bool, iters: usize, step: usize) -> ProgressBar {
+    let bar = if show { ProgressBar::new(iters as u64) } else { ProgressBar::hidden() };
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} [{elapsed_precise}<{eta_precise}] {wide_bar} {pos}/{len} {per_sec} {msg}")
+            .expect("valid template"),
+    );
+    bar.set_position(step as u64);
+    bar.reset_eta();
+    bar
+}
