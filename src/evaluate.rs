@@ -38,8 +38,9 @@ impl LoadedRun {
         let device = crate::backend::cpu();
         let (config, model, state, occupancy) = load_model(run, &device)?;
         let path = camera_path(run);
-        let text = std::fs::read_to_string(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+        let text = nerf_core::limits::read_json_text(&path).map_err(|e| e.to_string())?;
         let camera = serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
+        nerf_core::limits::check_intrinsics(&camera, nerf_core::limits::Origin::Field(&path, "camera")).map_err(|e| e.to_string())?;
         Ok(LoadedRun { config, model, camera, step: state.step, occupancy })
     }
 
@@ -79,6 +80,7 @@ pub fn render_split(run: &Path, data: &Path, split: Split, downscale: u32, out: 
 
 /// Render the reference 360° orbit: `frame_NNN.png`, depth maps (`.npy` with `raw`) and `orbit.gif`.
 pub fn render_orbit(run: &Path, frames: usize, out: &Path, raw: bool, progress: bool) -> Result<PathBuf, String> {
+    nerf_core::limits::check_count(frames, nerf_core::limits::MAX_FRAMES, "frames", nerf_core::limits::Origin::Option("--frames")).map_err(|e| e.to_string())?;
     let loaded = LoadedRun::open(run)?;
     let specs = FrameSpec::orbit(&loaded.camera, &Pose::orbit(frames));
     let report = loaded.render_frames(specs, out, true, raw, progress)?;

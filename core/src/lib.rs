@@ -11,6 +11,7 @@
 //! - [`network`]: the NeRF MLP described as plain data (sizes, skips, encodings, weights).
 //! - [`occupancy`]: the occupancy grid for empty-space skipping.
 //! - [`metrics`], [`imageio`]: PSNR/SSIM, PNG/GIF output and depth colouring.
+//! - [`limits`]: bounds on sizes read from files and options, file names inside a directory.
 //! - [`frames`]: rendering a list of views to PNGs, depth maps, `.npy`, metrics and a GIF.
 #![warn(missing_docs)]
 
@@ -20,6 +21,7 @@ pub mod dataset;
 pub mod error;
 pub mod frames;
 pub mod imageio;
+pub mod limits;
 pub mod metrics;
 pub mod network;
 pub mod occupancy;

@@ -21,6 +21,9 @@ pub enum ExportError {
     /// A requested option is not supported.
     #[error("{0}")]
     Unsupported(String),
+    /// Writing a bundle file failed (the core's error names it).
+    #[error(transparent)]
+    File(#[from] nerf_core::Error),
     /// Writing the bundle failed.
     #[error("{path}: {source}")]
     Io {

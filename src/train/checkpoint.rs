@@ -9,7 +9,7 @@ use burn::optim::ModuleOptimizer;
 use burn::store::{BurnpackStore, ModuleSnapshot};
 use burn::tensor::{Bytes, Device};
 use nerf_core::Rng;
-use nerf_core::error::write_atomic;
+use nerf_core::error::{sync_dir, write_atomic, write_synced};
 use nerf_core::occupancy::{self, OccupancyGrid};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -46,6 +46,7 @@ pub fn latest_checkpoint(run: &Path) -> Result<Option<Checkpoint>, String> {
     let latest = run.join("checkpoints").join("latest");
     match std::fs::read_to_string(&latest) {
         Ok(name) => {
+            nerf_core::limits::check_plain_file_name(name.trim(), nerf_core::limits::Origin::Field(&latest, "checkpoint name")).map_err(|e| e.to_string())?;
             let dir = run.join("checkpoints").join(name.trim());
             if !dir.is_dir() {
                 return Err(format!("{}: names {}, which does not exist", latest.display(), dir.display()));
@@ -74,36 +75,47 @@ impl Checkpoint {
         std::fs::create_dir_all(&root).map_err(|e| format!("{}: {e}", root.display()))?;
         let name = format!("step-{:07}", state.step);
         let dir = root.join(&name);
-        let tmp = root.join(format!(".{name}.tmp-{}", std::process::id()));
+        let tmp_name = format!(".{name}.tmp-{}", std::process::id());
+        let tmp = root.join(&tmp_name);
         let _ = std::fs::remove_dir_all(&tmp);
         std::fs::create_dir_all(&tmp).map_err(|e| format!("{}: {e}", tmp.display()))?;
         let mut store = BurnpackStore::from_bytes(None);
         model.save_into(&mut store).map_err(|e| format!("saving model: {e}"))?;
         let model_bytes = store.get_bytes().map_err(|e| format!("saving model: {e}"))?;
         let optim_bytes = optim.into_bytes().map_err(|e| format!("saving optimizer: {e}"))?;
-        let write = |file: &str, bytes: &[u8]| {
-            let p = tmp.join(file);
-            std::fs::write(&p, bytes).map_err(|e| format!("{}: {e}", p.display()))
-        };
+        let write = |file: &str, bytes: &[u8]| write_synced(&tmp.join(file), bytes).map_err(|e| e.to_string());
         write("model.bpk", &model_bytes)?;
         write("optim.bpk", &optim_bytes)?;
         if let Some(grid) = occupancy {
             write(occupancy::FILE_NAME, &grid.to_bytes())?;
         }
         write("state.json", serde_json::to_string_pretty(state).expect("state serialises").as_bytes())?;
+        sync_dir(&tmp);
+        let latest = root.join("latest");
         if dir.exists() {
+            // Replacing the checkpoint `latest` may name (the same step saved again): point
+            // `latest` at the complete new copy first, so it never names a missing directory.
+            if std::fs::read_to_string(&latest).is_ok_and(|l| l.trim() == name) {
+                write_atomic(&latest, tmp_name.as_bytes()).map_err(|e| e.to_string())?;
+            }
             std::fs::remove_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
         }
         std::fs::rename(&tmp, &dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-        write_atomic(&root.join("latest"), name.as_bytes()).map_err(|e| e.to_string())?;
-        // Keep the newest two: the one just written and its predecessor.
+        sync_dir(&root);
+        write_atomic(&latest, name.as_bytes()).map_err(|e| e.to_string())?;
+        // Keep the newest two (the one just written and its predecessor); remove what killed
+        // saves left behind (`.step-*.tmp-*` directories, `.latest.tmp-*` files).
         if let Ok(entries) = std::fs::read_dir(&root) {
-            let mut old: Vec<PathBuf> = entries
-                .filter_map(|e| e.ok().map(|e| e.path()))
-                .filter(|p| p.is_dir() && p.file_name().is_some_and(|n| n.to_string_lossy().starts_with("step-")))
-                .collect();
+            let mut old = Vec::new();
+            for path in entries.filter_map(|e| e.ok().map(|e| e.path())) {
+                let file = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+                if file.starts_with(".step-") || file.starts_with(".latest.tmp-") {
+                    let _ = if path.is_dir() { std::fs::remove_dir_all(&path) } else { std::fs::remove_file(&path) };
+                } else if path.is_dir() && file.starts_with("step-") && path != dir {
+                    old.push(path);
+                }
+            }
             old.sort();
-            old.retain(|p| p != &dir);
             for p in old.iter().rev().skip(1) {
                 let _ = std::fs::remove_dir_all(p);
             }
@@ -114,7 +126,8 @@ impl Checkpoint {
     /// The saved training state.
     pub fn state(&self) -> Result<CheckpointState, String> {
         let path = self.dir.join("state.json");
-        let state: CheckpointState = serde_json::from_slice(&read(&path)?)
+        let bytes = nerf_core::limits::read_bounded(&path, nerf_core::limits::MAX_JSON_BYTES).map_err(|e| e.to_string())?;
+        let state: CheckpointState = serde_json::from_slice(&bytes)
             .map_err(|e| format!("{}: not a checkpoint state ({e})", path.display()))?;
         if state.format != FORMAT {
             return Err(format!("{}: format {:?}, expected {FORMAT:?}", path.display(), state.format));
