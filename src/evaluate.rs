@@ -73,9 +73,7 @@ pub fn render_split(run: &Path, data: &Path, split: Split, downscale: u32, out: 
 
 /// Render the reference 360° orbit: `frame_NNN.png`, depth maps (`.npy` with `raw`) and `orbit.gif`.
 pub fn render_orbit(run: &Path, frames: usize, out: &Path, raw: bool, progress: bool) -> Result<PathBuf> {
-    if frames == 0 {
-        return Err(Error::Config("an orbit needs at least one frame".into()));
-    }
+    nerf_core::limits::check_count(frames, nerf_core::limits::MAX_FRAMES, "frames", nerf_core::limits::Origin::Option("--frames"))?;
     let loaded = LoadedRun::open(run)?;
     let specs = FrameSpec::orbit(&loaded.camera, &Pose::orbit(frames));
     let report = loaded.render_frames(specs, out, true, raw, progress)?;

@@ -16,6 +16,7 @@ use crate::train::{Checkpoint, CheckpointState, TrainConfig};
 use burn::tensor::Device;
 use nerf_core::atomic::write_atomic;
 use nerf_core::camera::Intrinsics;
+use nerf_core::limits;
 use nerf_core::occupancy::OccupancyGrid;
 use serde::{Deserialize, Serialize};
 use std::io::Write;
@@ -113,8 +114,10 @@ impl RunDir {
     /// The training camera.
     pub fn read_camera(&self) -> Result<Intrinsics> {
         let path = self.camera_path();
-        let text = std::fs::read_to_string(&path).map_err(|e| Error::io(&path, e))?;
-        serde_json::from_str(&text).map_err(|e| nerf_core::Error::Json { path, source: e }.into())
+        let text = limits::read_json_text(&path)?;
+        let camera = serde_json::from_str(&text).map_err(|e| nerf_core::Error::Json { path: path.clone(), source: e })?;
+        limits::check_intrinsics(&camera, limits::Origin::Field(&path, "camera"))?;
+        Ok(camera)
     }
 
     /// Record the training camera (orbits render at its resolution).

@@ -94,3 +94,74 @@ fn copy_dir(from: &Path, to: &Path) {
         }
     }
 }
+
+/// `nerf` with `args` fails within 20 s, its message contains every needle, and `out` is not
+/// created.
+fn refused(args: &[&str], out: &Path, needles: &[&str]) {
+    let start = std::time::Instant::now();
+    let (ok, text) = nerf(args);
+    let seconds = start.elapsed().as_secs_f64();
+    assert!(!ok, "nerf {args:?} should fail:\n{text}");
+    for n in needles {
+        assert!(text.contains(n), "error for {args:?} should mention {n:?}:\n{text}");
+    }
+    assert!(seconds < 20.0, "nerf {args:?} took {seconds:.1} s to refuse");
+    assert!(!out.exists(), "nerf {args:?} wrote {}", out.display());
+}
+
+/// Run directories made by someone else: `camera.json`, `config.toml`, `checkpoints/latest` and
+/// the grid's header with values that would allocate without bound, render forever or read
+/// outside the run. `nerf eval` / `nerf render` refuse each, naming the file and the field
+/// (README.md, "Bad input").
+#[test]
+fn untrusted_run_directories_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let (scene, run) = trained_run(dir.path());
+    let out = dir.path().join("out");
+    let variant = |name: &str, edit: &dyn Fn(&Path)| {
+        let copy = dir.path().join(name);
+        copy_dir(&run, &copy);
+        edit(&copy);
+        copy
+    };
+    let orbit = |run: &Path| ["render", "--run", s(run), "--orbit", "--frames", "1", "--out", s(&out)].map(str::to_string);
+    let eval = |run: &Path| ["eval", "--run", s(run), "--data", s(&scene), "--limit", "1", "--out", s(&out)].map(str::to_string);
+    let check = |args: &[String], needles: &[&str]| refused(&args.iter().map(String::as_str).collect::<Vec<_>>(), &out, needles);
+
+    let huge = variant("huge-camera", &|r| std::fs::write(r.join("camera.json"), r#"{"width": 100000000, "height": 100000000, "focal": 50.0}"#).unwrap());
+    check(&orbit(&huge), &["camera.json: camera: 100000000×100000000 pixels", "16384"]);
+    let focal = variant("bad-focal", &|r| std::fs::write(r.join("camera.json"), r#"{"width": 32, "height": 32, "focal": -1.0}"#).unwrap());
+    check(&orbit(&focal), &["camera.json: camera.focal: -1"]);
+
+    let config = |name: &str, section: &str, key: &str, value: &str| {
+        variant(name, &|r| {
+            let text = std::fs::read_to_string(r.join("config.toml")).unwrap();
+            let mut table: toml::Table = toml::from_str(&text).unwrap();
+            let target = if section.is_empty() { &mut table } else { table.get_mut(section).unwrap().as_table_mut().unwrap() };
+            target.insert(key.into(), toml::from_str::<toml::Table>(&format!("v = {value}")).unwrap()["v"].clone());
+            std::fs::write(r.join("config.toml"), toml::to_string(&table).unwrap()).unwrap();
+        })
+    };
+    let r = config("samples", "sampling", "n_fine", "1000000");
+    check(&eval(&r), &["config.toml", "sampling: n_coarse + n_fine = 1000016 samples per ray", "4096"]);
+    let r = config("chunk", "", "chunk", "1000000000");
+    check(&eval(&r), &["config.toml", "chunk: 1000000000 rays is more than the limit"]);
+    let r = config("grid", "occupancy", "resolution", "100000");
+    check(&orbit(&r), &["config.toml", "occupancy.resolution: 100000 cells per axis", "512"]);
+    let r = config("width", "network", "width", "10000000");
+    check(&orbit(&r), &["config.toml", "width 10000000", "4096"]);
+
+    let latest = variant("latest", &|r| std::fs::write(r.join("checkpoints/latest"), "../../../etc").unwrap());
+    check(&orbit(&latest), &["latest: checkpoint name: \"../../../etc\" is not a plain file name"]);
+    let header = variant("grid-header", &|r| {
+        let name = std::fs::read_to_string(r.join("checkpoints/latest")).unwrap();
+        let grid = r.join("checkpoints").join(name.trim()).join("occupancy.bin");
+        let mut bytes = std::fs::read(&grid).unwrap();
+        bytes[8..12].copy_from_slice(&u32::MAX.to_le_bytes());
+        std::fs::write(&grid, bytes).unwrap();
+    });
+    check(&orbit(&header), &["occupancy.bin: header resolution: 4294967295 cells per axis"]);
+
+    let args = ["render", "--run", s(&run), "--orbit", "--frames", "100000000", "--out", s(&out)];
+    refused(&args, &out, &["--frames: 100000000 frames is more than the limit of 10000"]);
+}

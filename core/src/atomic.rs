@@ -69,29 +69,51 @@ fn parent_of(path: &Path) -> PathBuf {
     }
 }
 
-/// Clean up after writers of `dir` that died: remove their temporary directories and, if one
-/// died between the fallback's two renames (`dir` missing, `.name.old-<pid>` present), put
-/// the old directory back.
+/// The writer process a temporary sibling `.name.<kind>-<pid>` belongs to, if `file_name` is
+/// one: `(name, kind, pid)`.
+fn temporary_owner(file_name: &str) -> Option<(&str, &str, u32)> {
+    let rest = file_name.strip_prefix('.')?;
+    let (stem, pid) = rest.rsplit_once('-')?;
+    let (name, kind) = stem.rsplit_once('.')?;
+    let pid = pid.parse().ok()?;
+    matches!(kind, "tmp" | "old").then_some((name, kind, pid))
+}
+
+/// Whether process `pid` is gone (so what it was writing will never be finished).
+fn writer_is_gone(pid: u32) -> bool {
+    pid != std::process::id() && !Path::new(&format!("/proc/{pid}")).exists()
+}
+
+/// Remove every temporary sibling in `dir` (`.name.tmp-<pid>`, `.name.old-<pid>`, files or
+/// directories) whose writer process is gone: what writers that were killed left behind.
+pub fn remove_stale_temporaries(dir: &Path) {
+    let Ok(entries) = std::fs::read_dir(dir) else { return };
+    for entry in entries.flatten() {
+        let file_name = entry.file_name().to_string_lossy().into_owned();
+        if temporary_owner(&file_name).is_some_and(|(_, _, pid)| writer_is_gone(pid)) {
+            let path = entry.path();
+            let _ = if path.is_dir() { std::fs::remove_dir_all(&path) } else { std::fs::remove_file(&path) };
+        }
+    }
+}
+
+/// Clean up after writers of `dir` that died: if one died between the fallback's two renames
+/// (`dir` missing, `.name.old-<pid>` present), put the old directory back; then remove the
+/// stale temporaries.
 fn recover_dir(dir: &Path) -> Result<()> {
     let parent = parent_of(dir);
     let name = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let Ok(entries) = std::fs::read_dir(&parent) else { return Ok(()) };
-    for entry in entries.flatten() {
-        let file_name = entry.file_name().to_string_lossy().into_owned();
-        let Some(rest) = file_name.strip_prefix(&format!(".{name}.")) else { continue };
-        let Some((kind, pid)) = rest.split_once('-') else { continue };
-        let Ok(pid) = pid.parse::<u32>() else { continue };
-        if pid == std::process::id() || Path::new(&format!("/proc/{pid}")).exists() {
-            continue; // ours, or a writer that is still running
-        }
-        match kind {
-            "old" if !dir.exists() => std::fs::rename(entry.path(), dir).map_err(|e| Error::io(dir, e))?,
-            "tmp" | "old" => {
-                let _ = std::fs::remove_dir_all(entry.path());
+    if !dir.exists() {
+        let entries = std::fs::read_dir(&parent).map_err(|e| Error::io(&parent, e))?;
+        for entry in entries.flatten() {
+            let file_name = entry.file_name().to_string_lossy().into_owned();
+            if temporary_owner(&file_name).is_some_and(|(n, kind, pid)| n == name && kind == "old" && writer_is_gone(pid)) {
+                std::fs::rename(entry.path(), dir).map_err(|e| Error::io(dir, e))?;
+                break;
             }
-            _ => {}
         }
     }
+    remove_stale_temporaries(&parent);
     Ok(())
 }
 
@@ -184,6 +206,22 @@ mod tests {
         recover_dir(&dir).unwrap();
         assert_eq!(std::fs::read(dir.join("x")).unwrap(), b"kept");
         assert!(!root.path().join(".run.tmp-0").exists());
+    }
+
+    #[test]
+    fn temporary_names_and_their_writers() {
+        assert_eq!(temporary_owner(".step-0000010.tmp-4242"), Some(("step-0000010", "tmp", 4242)));
+        assert_eq!(temporary_owner(".latest.tmp-7"), Some(("latest", "tmp", 7)));
+        assert_eq!(temporary_owner(".lego.old-12"), Some(("lego", "old", 12)));
+        assert_eq!(temporary_owner("step-0000010"), None);
+        assert_eq!(temporary_owner(".hidden.txt"), None);
+        assert!(!writer_is_gone(std::process::id()), "this process is alive");
+        let root = tempfile::tempdir().unwrap();
+        std::fs::write(root.path().join(".latest.tmp-0"), b"step-0000001").unwrap();
+        std::fs::write(root.path().join(format!(".mine.tmp-{}", std::process::id())), b"").unwrap();
+        remove_stale_temporaries(root.path());
+        let left: Vec<_> = std::fs::read_dir(root.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert_eq!(left.len(), 1, "only the live writer's file stays: {left:?}");
     }
 
     #[test]

@@ -14,6 +14,7 @@
 //!   one front-to-back accumulator; the field that evaluates the networks is a trait.
 //! - [`metrics`], [`imageio`]: PSNR/SSIM, PNG/GIF output and depth colouring.
 //! - [`atomic`]: files and directories written whole or not at all (crash-safe).
+//! - [`limits`]: bounds on sizes read from files and options, file names inside a directory.
 //! - [`frames`]: rendering a list of views to PNGs, depth maps, `.npy`, metrics and a GIF.
 #![warn(missing_docs)]
 
@@ -24,6 +25,7 @@ pub mod dataset;
 pub mod error;
 pub mod frames;
 pub mod imageio;
+pub mod limits;
 pub mod metrics;
 pub mod network;
 pub mod occupancy;

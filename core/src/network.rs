@@ -120,8 +120,20 @@ impl NetworkSpec {
 
     /// Checks sizes that would make a network that cannot be built.
     pub fn validate(&self) -> Result<(), String> {
+        use crate::limits::{MAX_FREQUENCIES, MAX_NETWORK_DEPTH, MAX_NETWORK_WIDTH};
         if self.depth == 0 || self.width < 2 {
             return Err(format!("network depth {} and width {} must be ≥ 1 and ≥ 2", self.depth, self.width));
+        }
+        if self.depth > MAX_NETWORK_DEPTH || self.width > MAX_NETWORK_WIDTH {
+            return Err(format!(
+                "network depth {} and width {}: the limits are {MAX_NETWORK_DEPTH} layers of {MAX_NETWORK_WIDTH}",
+                self.depth, self.width
+            ));
+        }
+        for (name, e) in [("position_encoding", &self.position_encoding), ("direction_encoding", &self.direction_encoding)] {
+            if e.n_frequencies > MAX_FREQUENCIES {
+                return Err(format!("network {name}: {} frequencies is more than the limit of {MAX_FREQUENCIES}", e.n_frequencies));
+            }
         }
         if let Some(s) = self.skips.iter().find(|&&s| s + 1 >= self.depth) {
             return Err(format!("skip after layer {s} needs a later layer (depth {})", self.depth));
@@ -295,6 +307,11 @@ mod tests {
         assert_eq!(shapes[10], ("view".into(), 256 + 27, 128));
         // ≈ 2.4 MB of f32 weights: 593,408 multiply-adds per point.
         assert_eq!(spec.macs_per_point(), 593_408);
-        assert!(NetworkSpec { skips: vec![7], ..spec }.validate().is_err());
+        assert!(NetworkSpec { skips: vec![7], ..spec.clone() }.validate().is_err());
+        // Sizes read from files stop at the limits (before any weight is allocated).
+        let err = NetworkSpec { width: 1 << 20, ..spec.clone() }.validate().unwrap_err();
+        assert!(err.contains("width 1048576") && err.contains("4096"), "{err}");
+        let err = NetworkSpec { position_encoding: EncodingSpec { n_frequencies: 65, include_input: true }, ..spec }.validate().unwrap_err();
+        assert!(err.contains("position_encoding: 65 frequencies"), "{err}");
     }
 }

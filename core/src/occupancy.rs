@@ -170,6 +170,19 @@ impl OccupancyGrid {
 
     /// Parse the documented format; `path` only names the source in errors.
     pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Self> {
+        let (resolution, bound, threshold) = Self::parse_header(bytes, path)?;
+        let want = Self::file_bytes(resolution);
+        if bytes.len() as u64 != want {
+            return Err(Error::invalid(path, format!("{} bytes, expected {want} for a {resolution}³ grid (truncated?)", bytes.len())));
+        }
+        let density = bytes[HEADER_BYTES..].chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+        Ok(OccupancyGrid { resolution, bound, threshold, density })
+    }
+
+    /// Resolution, bound and threshold from the first [`HEADER_BYTES`] bytes, checked (the
+    /// resolution against [`MAX_GRID_RESOLUTION`](crate::limits::MAX_GRID_RESOLUTION)) before
+    /// anything the size of the grid is allocated.
+    fn parse_header(bytes: &[u8], path: &Path) -> Result<(usize, f32, f32)> {
         let bad = |problem: String| Error::invalid(path, problem);
         if bytes.len() < HEADER_BYTES || &bytes[..8] != MAGIC {
             return Err(bad("not an occupancy grid (missing NERFOCC1 header)".into()));
@@ -178,20 +191,38 @@ impl OccupancyGrid {
         let resolution = u32::from_le_bytes(word(8)) as usize;
         let bound = f32::from_le_bytes(word(12));
         let threshold = f32::from_le_bytes(word(16));
-        if resolution == 0 || resolution > 1024 || !(bound > 0.0 && bound.is_finite()) || !threshold.is_finite() {
+        crate::limits::check_grid_resolution(resolution, crate::limits::Origin::Field(path, "header resolution"))?;
+        if !(bound > 0.0 && bound.is_finite()) || !threshold.is_finite() {
             return Err(bad(format!("bad header: resolution {resolution}, bound {bound}, threshold {threshold}")));
         }
-        let want = HEADER_BYTES + 4 * resolution.pow(3);
-        if bytes.len() != want {
-            return Err(bad(format!("{} bytes, expected {want} for a {resolution}³ grid (truncated?)", bytes.len())));
-        }
-        let density = bytes[HEADER_BYTES..].chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
-        Ok(OccupancyGrid { resolution, bound, threshold, density })
+        Ok((resolution, bound, threshold))
     }
 
-    /// Read a grid file.
+    /// The size of a grid file with `resolution` cells per axis.
+    fn file_bytes(resolution: usize) -> u64 {
+        HEADER_BYTES as u64 + 4 * (resolution as u64).pow(3)
+    }
+
+    /// Read a grid file: the header first, then (once its resolution is within the limit and
+    /// the file's size matches it) the cells.
     pub fn load(path: &Path) -> Result<Self> {
-        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        use std::io::Read;
+        let mut file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+        let meta = file.metadata().map_err(|e| Error::io(path, e))?;
+        if !meta.is_file() {
+            return Err(Error::invalid(path, "not a regular file"));
+        }
+        let mut header = Vec::with_capacity(HEADER_BYTES);
+        (&mut file).take(HEADER_BYTES as u64).read_to_end(&mut header).map_err(|e| Error::io(path, e))?;
+        let (resolution, ..) = Self::parse_header(&header, path)?;
+        let want = Self::file_bytes(resolution);
+        if meta.len() != want {
+            return Err(Error::invalid(path, format!("{} bytes, expected {want} for a {resolution}³ grid (truncated?)", meta.len())));
+        }
+        let mut bytes = header;
+        bytes.reserve_exact(want as usize - HEADER_BYTES);
+        // One byte more than expected, so a file that grew since is reported, not read on.
+        file.take(want - HEADER_BYTES as u64 + 1).read_to_end(&mut bytes).map_err(|e| Error::io(path, e))?;
         Self::from_bytes(&bytes, path)
     }
 
@@ -257,5 +288,17 @@ mod tests {
         assert!(err.contains("occupancy.bin") && err.contains("truncated"), "{err}");
         let err = OccupancyGrid::from_bytes(b"garbage garbage garbage", &path).unwrap_err().to_string();
         assert!(err.contains("NERFOCC1"), "{err}");
+        // A header claiming 2³¹ cells per axis is refused from its 20 bytes, before any
+        // allocation; a file longer than its header says is refused before it is read.
+        let mut huge = bytes[..HEADER_BYTES].to_vec();
+        huge[8..12].copy_from_slice(&(1u32 << 31).to_le_bytes());
+        std::fs::write(&path, &huge).unwrap();
+        let err = OccupancyGrid::load(&path).unwrap_err().to_string();
+        assert!(err.contains("occupancy.bin: header resolution: 2147483648 cells per axis is more than the limit of 512"), "{err}");
+        let mut long = bytes.clone();
+        long.extend_from_slice(&[0; 8]);
+        std::fs::write(&path, &long).unwrap();
+        let err = OccupancyGrid::load(&path).unwrap_err().to_string();
+        assert!(err.contains(&format!("{} bytes, expected {}", long.len(), bytes.len())), "{err}");
     }
 }

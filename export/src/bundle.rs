@@ -6,6 +6,7 @@ use crate::ExportError;
 use crate::graph::{compile, read_network};
 use crate::proto::ModelProto;
 use nerf_core::camera::{Intrinsics, Pose};
+use nerf_core::limits::{self, MAX_FRAMES, Origin};
 use nerf_core::network::{EncodingSpec, PlainNetwork};
 use nerf_core::occupancy::{self, OccupancyGrid};
 use nerf_core::sampling::SamplingConfig;
@@ -223,43 +224,79 @@ pub fn write_bundle(dir: &Path, bundle: &Bundle, opset: i64) -> Result<Vec<Writt
     Ok(files.into_iter().map(|(file, bytes)| WrittenFile { path: dir.join(file), bytes: bytes.len() }).collect())
 }
 
-/// Decode an ONNX file.
+/// Largest graph file read: protobuf messages stop at 2 GiB.
+pub const MAX_GRAPH_BYTES: u64 = 2 << 30;
+
+/// Decode an ONNX file (a regular file of at most [`MAX_GRAPH_BYTES`]).
 pub fn read_model(path: &Path) -> Result<ModelProto, String> {
-    let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let bytes = limits::read_bounded(path, MAX_GRAPH_BYTES).map_err(|e| e.to_string())?;
     ModelProto::decode(bytes.as_slice()).map_err(|e| format!("{}: not a valid ONNX file (truncated?): {e}", path.display()))
+}
+
+/// The path of the bundle file `name` that `scene.json`'s `field` names: a plain file name
+/// inside `dir` (no absolute path, no `..`, no separator; a symbolic link must stay inside).
+pub fn bundle_file(dir: &Path, name: &str, field: &str) -> Result<PathBuf, String> {
+    let scene = dir.join(SCENE_FILE);
+    limits::file_in_dir(dir, name, Origin::Field(&scene, field)).map_err(|e| e.to_string())
 }
 
 /// The plain network stored in a bundle's graph file `file` (`coarse.onnx`, `fine.onnx`).
 pub fn read_bundle_network(dir: &Path, file: &str) -> Result<PlainNetwork, String> {
-    let path = dir.join(file);
+    let path = bundle_file(dir, file, "networks")?;
     read_network(&read_model(&path)?).map_err(|e| format!("{}: {e}", path.display()))
 }
 
-/// Read and check a bundle's `scene.json`.
+/// Read and check a bundle's `scene.json` (see [`SceneDescription::check`]).
 pub fn read_scene(dir: &Path) -> Result<SceneDescription, String> {
     let path = dir.join(SCENE_FILE);
-    let text = std::fs::read_to_string(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let text = limits::read_json_text(&path).map_err(|e| e.to_string())?;
     let scene: SceneDescription = serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
-    if scene.format != SCENE_FORMAT {
-        return Err(format!("{}: format {:?}, expected {SCENE_FORMAT:?}", path.display(), scene.format));
-    }
-    let s = &scene.sampling;
-    if !(s.near > 0.0 && s.far > s.near) || s.n_coarse == 0 {
-        return Err(format!("{}: sampling: need 0 < near < far and n_coarse > 0", path.display()));
-    }
-    if scene.camera.width == 0 || scene.camera.height == 0 || !(scene.camera.focal > 0.0) {
-        return Err(format!("{}: camera: width, height and focal must be positive", path.display()));
-    }
-    if (s.n_fine > 0) != scene.networks.fine.is_some() {
-        return Err(format!("{}: networks.fine must be given exactly when sampling.n_fine > 0", path.display()));
-    }
+    scene.check(&path).map_err(|e| e.to_string())?;
     Ok(scene)
+}
+
+impl SceneDescription {
+    /// Everything a renderer relies on, checked before it allocates or opens anything:
+    /// the format, the camera and sampling within [`nerf_core::limits`], file names that are
+    /// plain names inside the bundle, at most [`MAX_FRAMES`] poses, pose names that are plain
+    /// file names (they name output files), a grid resolution within the limit.
+    pub fn check(&self, path: &Path) -> nerf_core::Result<()> {
+        let at = |field| Origin::Field(path, field);
+        if self.format != SCENE_FORMAT {
+            return Err(at("format").error(format!("{:?}, expected {SCENE_FORMAT:?}", self.format)));
+        }
+        limits::check_intrinsics(&self.intrinsics(), at("camera"))?;
+        limits::check_sampling(&self.sampling, at("sampling"))?;
+        if (self.sampling.n_fine > 0) != self.networks.fine.is_some() {
+            return Err(at("networks.fine").error("must be given exactly when sampling.n_fine > 0"));
+        }
+        limits::check_plain_file_name(&self.networks.coarse, at("networks.coarse"))?;
+        if let Some(fine) = &self.networks.fine {
+            limits::check_plain_file_name(fine, at("networks.fine"))?;
+        }
+        for (field, n) in [("poses.test", self.poses.test.len()), ("poses.orbit", self.poses.orbit.len())] {
+            if n > MAX_FRAMES {
+                return Err(at(field).error(format!("{n} poses is more than the limit of {MAX_FRAMES}")));
+            }
+        }
+        for (k, pose) in self.poses.test.iter().enumerate() {
+            limits::check_plain_file_name(&pose.name, Origin::Field(path, &format!("poses.test[{k}].name")))?;
+        }
+        if let Some(o) = &self.occupancy {
+            limits::check_plain_file_name(&o.file, at("occupancy.file"))?;
+            limits::check_grid_resolution(o.resolution, at("occupancy.resolution"))?;
+            if !(o.bound.is_finite() && o.bound > 0.0) {
+                return Err(at("occupancy.bound").error(format!("{} is not a positive finite bound", o.bound)));
+            }
+        }
+        Ok(())
+    }
 }
 
 /// The bundle's occupancy grid, if `scene.json` names one.
 pub fn read_occupancy(dir: &Path, scene: &SceneDescription) -> Result<Option<OccupancyGrid>, String> {
     let Some(o) = &scene.occupancy else { return Ok(None) };
-    let grid = OccupancyGrid::load(&dir.join(&o.file)).map_err(|e| e.to_string())?;
+    let grid = OccupancyGrid::load(&bundle_file(dir, &o.file, "occupancy.file")?).map_err(|e| e.to_string())?;
     if grid.resolution() != o.resolution || grid.bound() != o.bound {
         return Err(format!("{}: occupancy: the grid file is {}³ over ±{}, scene.json says {}³ over ±{}", dir.join(SCENE_FILE).display(), grid.resolution(), grid.bound(), o.resolution, o.bound));
     }

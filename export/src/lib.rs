@@ -21,7 +21,7 @@ pub enum ExportError {
     /// A requested option is not supported.
     #[error("{0}")]
     Unsupported(String),
-    /// Writing the bundle failed (the error names the file).
+    /// Reading or writing a bundle file failed (the core's error names the file).
     #[error(transparent)]
-    Write(#[from] nerf_core::Error),
+    File(#[from] nerf_core::Error),
 }

@@ -5,6 +5,7 @@ use clap::Parser;
 use nerf_core::camera::{Intrinsics, Pose};
 use nerf_core::dataset::{Split, load_split};
 use nerf_core::frames::{FrameOutput, FrameSpec, render_frames};
+use nerf_core::limits::{self, Origin};
 use nerf_runtime::{OpenOptions, OrtScene, scene::DEFAULT_CHUNK};
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -74,24 +75,23 @@ fn main() {
 
 fn resize(k: Intrinsics, width: Option<u32>, height: Option<u32>) -> Result<Intrinsics> {
     let Some(w) = width else { return Ok(k) };
-    let h = height.unwrap_or(((w as u64 * k.height as u64 + k.width as u64 / 2) / k.width as u64) as u32);
-    if w == 0 || h == 0 {
-        bail!("--width/--height must be positive");
-    }
-    Ok(k.resized(w, h))
+    let h = height.map_or((w as u64 * k.height as u64 + k.width as u64 / 2) / k.width as u64, u64::from);
+    limits::check_image_size(w as u64, h, Origin::Option("--width/--height"))?;
+    Ok(k.resized(w, h as u32))
 }
 
 fn run(cli: Cli) -> Result<()> {
     if let Some(n) = cli.threads {
-        if n == 0 {
-            bail!("--threads must be at least 1");
-        }
+        limits::check_count(n, limits::MAX_THREADS, "threads", Origin::Option("--threads"))?;
         rayon::ThreadPoolBuilder::new().num_threads(n).build_global()?;
     }
     let options = OpenOptions { threads: cli.threads, chunk: cli.chunk, skip_empty_space: !cli.dense };
     let mut scene = OrtScene::open(&cli.bundle, &options)?;
     let mut frames = match (cli.orbit, cli.split, &cli.data) {
         (true, _, _) => {
+            if let Some(n) = cli.frames {
+                limits::check_count(n, limits::MAX_FRAMES, "frames", Origin::Option("--frames"))?;
+            }
             let poses = match cli.frames {
                 Some(n) if n != scene.description.poses.orbit.len() => Pose::orbit(n),
                 _ => scene.orbit_poses()?,

@@ -5,9 +5,10 @@ use crate::error::{Result, RuntimeError};
 use crate::field::OrtField;
 use crate::network::OrtNetwork;
 use nerf_core::camera::{Intrinsics, Pose};
+use nerf_core::limits::{self, Origin};
 use nerf_core::occupancy::OccupancyGrid;
 use nerf_core::render::{RenderOptions, RenderedImage, render_image};
-use nerf_export::bundle::{SCENE_FILE, SceneDescription, read_occupancy, read_scene};
+use nerf_export::bundle::{SCENE_FILE, SceneDescription, bundle_file, read_occupancy, read_scene};
 use std::path::{Path, PathBuf};
 
 /// Default rays per onnxruntime call: 1024 rays × 192 samples ≈ 200k points per fine call,
@@ -52,14 +53,17 @@ impl OrtScene {
         if !dir.is_dir() {
             return Err(RuntimeError::bundle(dir, "no such bundle directory (write one with `nerf export --run <run> --out <dir>`)"));
         }
-        if options.chunk == 0 {
-            return Err(RuntimeError::Other("--chunk must be at least 1 ray".into()));
-        }
         let scene_error = |e: String| RuntimeError::Other(e);
         let description = read_scene(dir).map_err(scene_error)?;
-        let coarse = OrtNetwork::load(&dir.join(&description.networks.coarse), options.threads)?;
+        let s = &description.sampling;
+        let samples_per_ray = (s.n_coarse + s.n_fine).max(nerf_core::render::DEFAULT_MARCH_STEPS);
+        limits::check_chunk(options.chunk, samples_per_ray, Origin::Option("--chunk")).map_err(|e| RuntimeError::Other(e.to_string()))?;
+        if let Some(n) = options.threads {
+            limits::check_count(n, limits::MAX_THREADS, "threads", Origin::Option("--threads")).map_err(|e| RuntimeError::Other(e.to_string()))?;
+        }
+        let coarse = OrtNetwork::load(&bundle_file(dir, &description.networks.coarse, "networks.coarse").map_err(scene_error)?, options.threads)?;
         let fine = match &description.networks.fine {
-            Some(file) => Some(OrtNetwork::load(&dir.join(file), options.threads)?),
+            Some(file) => Some(OrtNetwork::load(&bundle_file(dir, file, "networks.fine").map_err(scene_error)?, options.threads)?),
             None => None,
         };
         let occupancy = if options.skip_empty_space { read_occupancy(dir, &description).map_err(scene_error)? } else { None };

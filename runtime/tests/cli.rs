@@ -151,3 +151,151 @@ fn broken_bundles_give_clear_errors() {
     expect_error(&args.iter().map(String::as_str).collect::<Vec<_>>(), &[("ORT_DYLIB_PATH", "/nonexistent/libonnxruntime.so")], &["ORT_DYLIB_PATH", "scripts/setup.sh"]);
     assert!(!out.exists(), "no output is written for a bundle that cannot be opened");
 }
+
+/// A copy of the shipped bundle whose `scene.json` went through `edit`.
+fn edited_bundle(to: &Path, edit: impl FnOnce(&mut serde_json::Value)) -> PathBuf {
+    let dir = copy_bundle(to);
+    let mut scene: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("scene.json")).unwrap()).unwrap();
+    edit(&mut scene);
+    std::fs::write(dir.join("scene.json"), scene.to_string()).unwrap();
+    dir
+}
+
+/// `nerf-render` with `args` fails within `seconds`, its message contains every needle, and
+/// `out` is not created.
+fn refused(args: &[&str], out: &Path, needles: &[&str]) {
+    let start = std::time::Instant::now();
+    expect_error(args, &[], needles);
+    let seconds = start.elapsed().as_secs_f64();
+    assert!(seconds < 20.0, "nerf-render {args:?} took {seconds:.1} s to refuse");
+    assert!(!out.exists(), "nerf-render {args:?} wrote {}", out.display());
+}
+
+/// Bundles made by someone else: file names that leave the bundle, sizes that would allocate
+/// without bound or render forever. Each is refused at once, naming the file and the field,
+/// before anything is written (the table in README.md, "Bad input", lists these).
+#[test]
+fn untrusted_bundles_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let orbit = |bundle: &Path| vec!["--bundle".to_string(), s(bundle).into(), "--orbit".into(), "--frames".into(), "1".into(), "--out".into(), s(&out).into()];
+    let check = |bundle: &Path, needles: &[&str]| {
+        let args = orbit(bundle);
+        refused(&args.iter().map(String::as_str).collect::<Vec<_>>(), &out, needles);
+    };
+    let at = |name: &str| dir.path().join(name);
+
+    // File names outside the bundle: absolute, "..", a sub-directory.
+    let b = edited_bundle(&at("absolute"), |j| j["networks"]["coarse"] = "/etc/hostname".into());
+    check(&b, &["scene.json: networks.coarse: \"/etc/hostname\" is not a plain file name"]);
+    std::fs::copy(shipped_bundle().join("fine.onnx"), dir.path().join("fine.onnx")).unwrap();
+    let b = edited_bundle(&at("dotdot"), |j| j["networks"]["fine"] = "../fine.onnx".into());
+    check(&b, &["scene.json: networks.fine: \"../fine.onnx\" is not a plain file name"]);
+    let b = edited_bundle(&at("subdir"), |j| j["networks"]["coarse"] = "nets/coarse.onnx".into());
+    check(&b, &["networks.coarse", "not a plain file name"]);
+    let b = edited_bundle(&at("grid-path"), |j| j["occupancy"]["file"] = "../../occupancy.bin".into());
+    check(&b, &["scene.json: occupancy.file", "not a plain file name"]);
+    // A symbolic link that leaves the bundle; a FIFO that would block the reader forever.
+    let b = copy_bundle(&at("link"));
+    std::fs::remove_file(b.join("coarse.onnx")).unwrap();
+    std::os::unix::fs::symlink(dir.path().join("fine.onnx"), b.join("coarse.onnx")).unwrap();
+    check(&b, &["networks.coarse", "symbolic link", "outside"]);
+    let b = copy_bundle(&at("fifo"));
+    std::fs::remove_file(b.join("coarse.onnx")).unwrap();
+    assert!(Command::new("mkfifo").arg(b.join("coarse.onnx")).status().unwrap().success());
+    check(&b, &["networks.coarse", "not a regular file"]);
+
+    // Sizes: a 10⁸ × 10⁸ camera, samples per ray, grid resolution (scene.json and the grid's own
+    // header), pose counts, a pose name that would write outside --out, a huge scene.json.
+    let b = edited_bundle(&at("huge-camera"), |j| {
+        j["camera"]["width"] = 100_000_000.into();
+        j["camera"]["height"] = 100_000_000.into();
+    });
+    check(&b, &["scene.json: camera: 100000000×100000000 pixels", "limit of 16384"]);
+    let b = edited_bundle(&at("samples"), |j| j["sampling"]["n_fine"] = 1_000_000.into());
+    check(&b, &["scene.json: sampling: n_coarse + n_fine = 1000032 samples per ray", "4096"]);
+    let b = edited_bundle(&at("grid-res"), |j| j["occupancy"]["resolution"] = 100_000.into());
+    check(&b, &["scene.json: occupancy.resolution: 100000 cells per axis", "512"]);
+    let b = copy_bundle(&at("grid-header"));
+    let mut grid = std::fs::read(b.join("occupancy.bin")).unwrap();
+    grid[8..12].copy_from_slice(&u32::MAX.to_le_bytes());
+    std::fs::write(b.join("occupancy.bin"), &grid).unwrap();
+    check(&b, &["occupancy.bin: header resolution: 4294967295 cells per axis", "512"]);
+    let b = edited_bundle(&at("poses"), |j| {
+        let pose = j["poses"]["orbit"][0].clone();
+        j["poses"]["orbit"] = serde_json::Value::Array(vec![pose; 10_001]);
+    });
+    check(&b, &["scene.json: poses.orbit: 10001 poses", "10000"]);
+    let b = edited_bundle(&at("pose-name"), |j| j["poses"]["test"][0]["name"] = "../../escaped".into());
+    let args = ["--bundle", s(&b), "--split", "test", "--out", s(&out)];
+    refused(&args, &out, &["scene.json: poses.test[0].name", "not a plain file name"]);
+    assert!(!dir.path().join("escaped.png").exists() && !at("escaped.png").exists());
+    let b = copy_bundle(&at("big-json"));
+    std::fs::File::options().write(true).open(b.join("scene.json")).unwrap().set_len((64 << 20) + 1).unwrap();
+    check(&b, &["scene.json: 67108865 bytes is more than the limit of 67108864"]);
+
+    // Options that size allocations.
+    let bundle = shipped_bundle();
+    for (option, value, needle) in [
+        ("--width", "100000000", "--width/--height: 100000000×100000000 pixels"),
+        ("--frames", "100000000", "--frames: 100000000 frames is more than the limit of 10000"),
+        ("--chunk", "1000000000", "--chunk: 1000000000 rays is more than the limit"),
+        ("--chunk", "100000", "--chunk: 100000 rays × 256 samples"),
+        ("--threads", "100000", "--threads: 100000 threads is more than the limit of 1024"),
+        ("--threads", "0", "--threads: must be at least 1"),
+    ] {
+        let args = ["--bundle", s(&bundle), "--orbit", option, value, "--out", s(&out)];
+        refused(&args, &out, &[needle]);
+    }
+}
+
+/// The Python consumer applies the same rules to the same bad bundles.
+#[test]
+fn python_consumer_refuses_untrusted_bundles() {
+    let dir = tempfile::tempdir().unwrap();
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/python/render_rays.py");
+    let cases: Vec<(PathBuf, &str)> = vec![
+        (edited_bundle(&dir.path().join("absolute"), |j| j["networks"]["coarse"] = "/etc/hostname".into()), "networks.coarse: '/etc/hostname' is not a plain file name"),
+        (edited_bundle(&dir.path().join("dotdot"), |j| j["occupancy"]["file"] = "../occupancy.bin".into()), "occupancy.file: '../occupancy.bin' is not a plain file name"),
+        (
+            edited_bundle(&dir.path().join("huge"), |j| {
+                j["camera"]["width"] = 100_000_000.into();
+                j["camera"]["height"] = 100_000_000.into();
+            }),
+            "camera: 100000000×100000000 pixels",
+        ),
+        (edited_bundle(&dir.path().join("samples"), |j| j["sampling"]["n_fine"] = 1_000_000.into()), "1000032 samples per ray"),
+    ];
+    let header = copy_bundle(&dir.path().join("header"));
+    let mut grid = std::fs::read(header.join("occupancy.bin")).unwrap();
+    grid[8..12].copy_from_slice(&u32::MAX.to_le_bytes());
+    std::fs::write(header.join("occupancy.bin"), &grid).unwrap();
+    let link = copy_bundle(&dir.path().join("link"));
+    std::fs::remove_file(link.join("coarse.onnx")).unwrap();
+    std::os::unix::fs::symlink(shipped_bundle().join("coarse.onnx").canonicalize().unwrap(), link.join("coarse.onnx")).unwrap();
+    let cases = cases.into_iter().chain([(header, "header resolution: 4294967295 cells per axis"), (link, "is a symbolic link to")]);
+    for (bundle, needle) in cases {
+        let result = Command::new(python()).arg(&script).arg(&bundle).args(["--npy", "unused.npy", "--orbit-pose", "0"]).output().unwrap();
+        let text = String::from_utf8_lossy(&result.stderr);
+        assert_eq!(result.status.code(), Some(2), "{}: {text}", bundle.display());
+        assert!(text.starts_with("error: ") && text.contains(needle), "{} should say {needle:?}:\n{text}", bundle.display());
+    }
+}
+
+/// render_rays.py states the limits of nerf_core::limits; they must not drift apart.
+#[test]
+fn python_limits_match_the_core() {
+    use nerf_core::limits::*;
+    let script = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/python/render_rays.py")).unwrap();
+    let value = |name: &str| -> u64 {
+        let line = script.lines().find(|l| l.starts_with(&format!("{name} = "))).unwrap_or_else(|| panic!("render_rays.py has no {name}"));
+        line[name.len() + 3..].replace('_', "").trim().parse().unwrap_or_else(|e| panic!("{line}: {e}"))
+    };
+    assert_eq!(value("MAX_IMAGE_SIDE"), MAX_IMAGE_SIDE as u64);
+    assert_eq!(value("MAX_FRAME_PIXELS"), MAX_FRAME_PIXELS);
+    assert_eq!(value("MAX_FRAMES"), MAX_FRAMES as u64);
+    assert_eq!(value("MAX_SAMPLES_PER_RAY"), MAX_SAMPLES_PER_RAY as u64);
+    assert_eq!(value("MAX_GRID_RESOLUTION"), MAX_GRID_RESOLUTION as u64);
+    assert_eq!(value("MAX_JSON_BYTES"), MAX_JSON_BYTES);
+    assert_eq!(value("MAX_GRAPH_BYTES"), nerf_export::bundle::MAX_GRAPH_BYTES);
+}

@@ -10,7 +10,7 @@ use burn::optim::ModuleOptimizer;
 use burn::store::{BurnpackStore, ModuleSnapshot};
 use burn::tensor::Bytes;
 use nerf_core::Rng;
-use nerf_core::atomic::{write_atomic, write_dir_atomic};
+use nerf_core::atomic::{remove_stale_temporaries, write_atomic, write_dir_atomic};
 use nerf_core::occupancy::{self, OccupancyGrid};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -83,7 +83,9 @@ impl Checkpoint {
             write("state.json", serde_json::to_string_pretty(state).expect("state serialises").as_bytes())
         })?;
         write_atomic(&run.latest_path(), name.as_bytes())?;
-        // Keep the newest two: the one just written and its predecessor.
+        // Keep the newest two (the one just written and its predecessor), and remove what saves
+        // that were killed left behind.
+        remove_stale_temporaries(&run.checkpoints_dir());
         if let Ok(entries) = std::fs::read_dir(run.checkpoints_dir()) {
             let mut old: Vec<PathBuf> = entries
                 .filter_map(|e| e.ok().map(|e| e.path()))
@@ -101,8 +103,9 @@ impl Checkpoint {
     /// The saved training state.
     pub fn state(&self) -> Result<CheckpointState> {
         let path = self.dir.join("state.json");
+        let bytes = nerf_core::limits::read_bounded(&path, nerf_core::limits::MAX_JSON_BYTES)?;
         let state: CheckpointState =
-            serde_json::from_slice(&read(&path)?).map_err(|e| Error::invalid(&path, format!("not a checkpoint state ({e})")))?;
+            serde_json::from_slice(&bytes).map_err(|e| Error::invalid(&path, format!("not a checkpoint state ({e})")))?;
         if state.format != FORMAT {
             return Err(Error::invalid(&path, format!("format {:?}, expected {FORMAT:?}", state.format)));
         }

@@ -4,6 +4,7 @@ use crate::error::{Error, Result};
 use nerf_core::SamplingConfig;
 use nerf_core::network::{EncodingSpec, NetworkSpec};
 use nerf_core::occupancy::OccupancyConfig;
+use nerf_core::limits::{self, Origin};
 use nerf_core::render::RenderOptions;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -188,9 +189,9 @@ impl TrainConfig {
     fn check(&self) -> std::result::Result<(), String> {
         self.network.validate()?;
         let s = &self.sampling;
-        if !(s.near > 0.0 && s.far > s.near) {
-            return Err(format!("sampling: need 0 < near < far, got near {} far {}", s.near, s.far));
-        }
+        limits::check_sampling(s, Origin::Key("sampling")).map_err(|e| e.to_string())?;
+        limits::check_chunk(self.chunk, s.n_coarse + s.n_fine, Origin::Key("chunk")).map_err(|e| e.to_string())?;
+        limits::check_grid_resolution(self.occupancy.resolution, Origin::Key("occupancy.resolution")).map_err(|e| e.to_string())?;
         if s.n_coarse < 3 && s.n_fine > 0 {
             return Err("sampling: hierarchical sampling needs n_coarse ≥ 3".into());
         }
@@ -201,8 +202,8 @@ impl TrainConfig {
             return Err("lr and lr_decay_ksteps must be positive".into());
         }
         let o = &self.occupancy;
-        if o.resolution == 0 || o.resolution > 1024 || !(o.bound > 0.0) || !(o.threshold >= 0.0) || !(o.decay > 0.0 && o.decay <= 1.0) || o.update_every == 0 {
-            return Err("occupancy: need 1 ≤ resolution ≤ 1024, bound > 0, threshold ≥ 0, 0 < decay ≤ 1, update_every ≥ 1".into());
+        if !(o.bound > 0.0) || !(o.threshold >= 0.0) || !(o.decay > 0.0 && o.decay <= 1.0) || o.update_every == 0 {
+            return Err("occupancy: need bound > 0, threshold ≥ 0, 0 < decay ≤ 1, update_every ≥ 1".into());
         }
         if !(self.precrop_fraction > 0.0 && self.precrop_fraction <= 1.0) {
             return Err("precrop_fraction must be in (0, 1]".into());

@@ -30,25 +30,103 @@ import onnxruntime as ort
 
 F32 = np.float32
 
+# A bundle comes from someone else: the limits of core/src/limits.rs (a test checks they agree).
+MAX_IMAGE_SIDE = 16_384
+MAX_FRAME_PIXELS = 16_777_216
+MAX_FRAMES = 10_000
+MAX_SAMPLES_PER_RAY = 4_096
+MAX_GRID_RESOLUTION = 512
+MAX_JSON_BYTES = 67_108_864
+MAX_GRAPH_BYTES = 2_147_483_648
+
+
+class BundleError(Exception):
+    """A bundle file breaks the contract or a limit; the message names the file and the field."""
+
+
+def bounded_file(path, max_bytes):
+    """A regular file of at most max_bytes (checked before reading)."""
+    if not os.path.isfile(path):
+        raise BundleError(f"{path}: missing or not a regular file")
+    size = os.path.getsize(path)
+    if size > max_bytes:
+        raise BundleError(f"{path}: {size} bytes is more than the limit of {max_bytes} for this file")
+    return path
+
+
+def bundle_file(path, name, field):
+    """path/name for a file name read from scene.json: a plain name inside the bundle (not
+    absolute, no "..", no separator); a symbolic link must resolve inside the bundle."""
+    where = os.path.join(path, "scene.json")
+    if not isinstance(name, str) or name in ("", ".", "..") or any(c in name for c in "/\\\0"):
+        raise BundleError(f'{where}: {field}: {name!r} is not a plain file name inside the directory (no paths, no "..")')
+    full = os.path.join(path, name)
+    root, real = os.path.realpath(path), os.path.realpath(full)
+    if os.path.commonpath([root, real]) != root:
+        raise BundleError(f"{where}: {field}: {name!r} is a symbolic link to {real}, outside {path}")
+    return full
+
+
+def check_scene(scene, where):
+    """The limits nerf-render applies (SceneDescription::check), before anything is allocated."""
+    cam, s = scene["camera"], scene["sampling"]
+    w, h, focal = cam["width"], cam["height"], cam["focal"]
+    if not (0 < w <= MAX_IMAGE_SIDE and 0 < h <= MAX_IMAGE_SIDE and w * h <= MAX_FRAME_PIXELS):
+        raise BundleError(f"{where}: camera: {w}×{h} pixels is outside the limits ({MAX_IMAGE_SIDE} per side, {MAX_FRAME_PIXELS} per frame)")
+    if not (np.isfinite(focal) and focal > 0):
+        raise BundleError(f"{where}: camera.focal: {focal} is not a positive finite focal length")
+    if not (np.isfinite(s["near"]) and np.isfinite(s["far"]) and 0 < s["near"] < s["far"]):
+        raise BundleError(f"{where}: sampling: need finite 0 < near < far, got near {s['near']} far {s['far']}")
+    if not (1 <= s["n_coarse"] and 0 <= s["n_fine"] and s["n_coarse"] + s["n_fine"] <= MAX_SAMPLES_PER_RAY):
+        raise BundleError(f"{where}: sampling: n_coarse + n_fine = {s['n_coarse'] + s['n_fine']} samples per ray is outside 1..{MAX_SAMPLES_PER_RAY}")
+    for key in ("test", "orbit"):
+        if len(scene["poses"][key]) > MAX_FRAMES:
+            raise BundleError(f"{where}: poses.{key}: {len(scene['poses'][key])} poses is more than the limit of {MAX_FRAMES}")
+    occ = scene.get("occupancy")
+    if occ and not 1 <= occ["resolution"] <= MAX_GRID_RESOLUTION:
+        raise BundleError(f"{where}: occupancy.resolution: {occ['resolution']} cells per axis is outside 1..{MAX_GRID_RESOLUTION}")
+
+
+def read_grid(path):
+    """occupancy.bin: the header (resolution checked against the limit) before the cells."""
+    with open(path, "rb") as f:
+        header = f.read(20)
+        if len(header) < 20 or header[:8] != b"NERFOCC1":
+            raise BundleError(f"{path}: not an occupancy grid (missing NERFOCC1 header)")
+        res, = np.frombuffer(header[8:12], "<u4")
+        bound, threshold = np.frombuffer(header[12:20], "<f4")
+        if not 1 <= res <= MAX_GRID_RESOLUTION:
+            raise BundleError(f"{path}: header resolution: {res} cells per axis is outside 1..{MAX_GRID_RESOLUTION}")
+        want = 20 + 4 * int(res) ** 3
+        if os.path.getsize(path) != want:
+            raise BundleError(f"{path}: {os.path.getsize(path)} bytes, expected {want} for a {res}³ grid (truncated?)")
+        density = np.frombuffer(f.read(want - 20), "<f4").reshape(res, res, res)
+    return density, bound, threshold
+
 
 class Bundle:
     def __init__(self, path, dense=False):
-        with open(os.path.join(path, "scene.json")) as f:
-            self.scene = json.load(f)
+        where = bounded_file(os.path.join(path, "scene.json"), MAX_JSON_BYTES)
+        try:
+            with open(where) as f:
+                self.scene = json.load(f)
+            check_scene(self.scene, where)
+        except (KeyError, TypeError, ValueError) as e:
+            raise BundleError(f"{where}: missing or malformed field: {e!r}") from e
         nets = self.scene["networks"]
         opts = ort.SessionOptions()
-        self.coarse = ort.InferenceSession(os.path.join(path, nets["coarse"]), opts, providers=["CPUExecutionProvider"])
-        self.fine = None
-        if nets.get("fine"):
-            self.fine = ort.InferenceSession(os.path.join(path, nets["fine"]), opts, providers=["CPUExecutionProvider"])
+
+        def session(field, name):
+            graph = bounded_file(bundle_file(path, name, field), MAX_GRAPH_BYTES)
+            return ort.InferenceSession(graph, opts, providers=["CPUExecutionProvider"])
+
+        self.coarse = session("networks.coarse", nets["coarse"])
+        self.fine = session("networks.fine", nets["fine"]) if nets.get("fine") else None
         self.occupied = None
         occ = self.scene.get("occupancy")
         if occ and not dense:
-            raw = np.fromfile(os.path.join(path, occ["file"]), dtype="<u1")
-            assert raw[:8].tobytes() == b"NERFOCC1", "not an occupancy grid"
-            res, = np.frombuffer(raw[8:12].tobytes(), "<u4")
-            bound, threshold = np.frombuffer(raw[12:20].tobytes(), "<f4")
-            density = np.frombuffer(raw[20:].tobytes(), "<f4").reshape(res, res, res)
+            grid = bundle_file(path, occ["file"], "occupancy.file")
+            density, bound, threshold = read_grid(bounded_file(grid, MAX_GRAPH_BYTES))
             self.occupied, self.bound = density > threshold, F32(bound)
 
     def is_occupied(self, points):
@@ -178,7 +256,11 @@ def main():
     p.add_argument("--dense", action="store_true", help="ignore occupancy.bin (as nerf-render --dense)")
     p.add_argument("--tolerance", type=float, default=1e-4)
     a = p.parse_args()
-    bundle = Bundle(a.bundle, a.dense)
+    try:
+        bundle = Bundle(a.bundle, a.dense)
+    except BundleError as e:
+        print(f"error: {e}", file=sys.stderr)
+        sys.exit(2)
     poses = bundle.scene["poses"]
     if a.test_pose is not None:
         c2w = np.array(poses["test"][a.test_pose]["transform_matrix"], F32)
