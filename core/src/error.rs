@@ -59,6 +59,16 @@ impl Error {
     }
 }
 
+/// Reads a whole file that must be a regular file: a name pointing at a device (`/dev/zero`,
+/// a read that never ends) or a directory is an error naming it.
+pub fn read_regular_file(path: &std::path::Path) -> Result<Vec<u8>> {
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if !meta.is_file() {
+        return Err(Error::invalid(path, "not a regular file"));
+    }
+    std::fs::read(path).map_err(|e| Error::io(path, e))
+}
+
 /// Writes `bytes` to `path` through a temporary file in the same directory and a rename, so a
 /// reader never sees a half-written file.
 pub fn write_atomic(path: &std::path::Path, bytes: &[u8]) -> Result<()> {
@@ -71,4 +81,21 @@ pub fn write_atomic(path: &std::path::Path, bytes: &[u8]) -> Result<()> {
 pub fn temp_sibling(path: &std::path::Path) -> PathBuf {
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     path.with_file_name(format!(".{name}.tmp-{}", std::process::id()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn devices_and_directories_are_not_read() {
+        // Found by fuzzing scene.json: `"file": "/dev/zero"` read until memory ran out.
+        let err = read_regular_file(std::path::Path::new("/dev/zero")).unwrap_err().to_string();
+        assert_eq!(err, "/dev/zero: not a regular file");
+        let dir = tempfile::tempdir().unwrap();
+        assert!(read_regular_file(dir.path()).unwrap_err().to_string().contains("not a regular file"));
+        let file = dir.path().join("a.bin");
+        std::fs::write(&file, [1, 2, 3]).unwrap();
+        assert_eq!(read_regular_file(&file).unwrap(), [1, 2, 3]);
+    }
 }

@@ -56,6 +56,15 @@ impl EncodingSpec {
     }
 }
 
+/// Most trunk layers a network description may have (the paper network has 8).
+pub const MAX_DEPTH: usize = 64;
+/// Widest trunk layer a network description may have (the paper network's is 256).
+pub const MAX_WIDTH: usize = 1 << 14;
+/// Most frequencies per encoding: 2^(L−1) beyond 2³¹ only adds aliasing in f32.
+pub const MAX_FREQUENCIES: usize = 32;
+/// Most weights per network (the paper network has 593,408): 256 MB of f32.
+pub const MAX_WEIGHTS: usize = 1 << 26;
+
 /// The shape of a NeRF MLP (nerf-pytorch's `NeRF(D, W, skips, input_ch, input_ch_views, use_viewdirs)`).
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -118,10 +127,24 @@ impl NetworkSpec {
         self.layer_shapes().iter().map(|(_, i, o)| i * o).sum()
     }
 
-    /// Checks sizes that would make a network that cannot be built.
+    /// Checks sizes that would make a network that cannot be built, before anything is
+    /// allocated for it: a description read from a file may say anything.
     pub fn validate(&self) -> Result<(), String> {
         if self.depth == 0 || self.width < 2 {
             return Err(format!("network depth {} and width {} must be ≥ 1 and ≥ 2", self.depth, self.width));
+        }
+        if self.depth > MAX_DEPTH || self.width > MAX_WIDTH {
+            return Err(format!("network depth {} and width {} exceed the limits {MAX_DEPTH} and {MAX_WIDTH}", self.depth, self.width));
+        }
+        for (what, e) in [("position", &self.position_encoding), ("direction", &self.direction_encoding)] {
+            if e.n_frequencies > MAX_FREQUENCIES {
+                return Err(format!("{what} encoding: {} frequencies, at most {MAX_FREQUENCIES}", e.n_frequencies));
+            }
+        }
+        // Bounded depth, width and encodings keep this sum from overflowing.
+        let weights = self.macs_per_point();
+        if weights > MAX_WEIGHTS {
+            return Err(format!("the network has {weights} weights, more than the limit {MAX_WEIGHTS}"));
         }
         if let Some(s) = self.skips.iter().find(|&&s| s + 1 >= self.depth) {
             return Err(format!("skip after layer {s} needs a later layer (depth {})", self.depth));
@@ -296,5 +319,22 @@ mod tests {
         // ≈ 2.4 MB of f32 weights: 593,408 multiply-adds per point.
         assert_eq!(spec.macs_per_point(), 593_408);
         assert!(NetworkSpec { skips: vec![7], ..spec }.validate().is_err());
+    }
+
+    #[test]
+    fn absurd_sizes_are_rejected_before_allocating() {
+        // Found by fuzzing config.toml: depth 2⁵³ passed and `layer_shapes` aborted the process.
+        let spec = NetworkSpec::paper();
+        let err = NetworkSpec { depth: 1 << 53, ..spec.clone() }.validate().unwrap_err();
+        assert!(err.contains("depth 9007199254740992"), "{err}");
+        assert!(NetworkSpec { width: usize::MAX, ..spec.clone() }.validate().is_err());
+        let many = EncodingSpec { n_frequencies: 1 << 40, include_input: true };
+        let err = NetworkSpec { direction_encoding: many, ..spec.clone() }.validate().unwrap_err();
+        assert!(err.starts_with("direction encoding"), "{err}");
+        // Within every per-field limit but 64 × 16384² ≈ 1.7e10 weights in all.
+        let err = NetworkSpec { depth: MAX_DEPTH, width: MAX_WIDTH, ..spec.clone() }.validate().unwrap_err();
+        assert!(err.contains("weights"), "{err}");
+        // The largest sizes in use stay accepted.
+        NetworkSpec { depth: 16, width: 1024, ..spec }.validate().unwrap();
     }
 }

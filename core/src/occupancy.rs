@@ -195,7 +195,7 @@ impl OccupancyGrid {
 
     /// Read a grid file.
     pub fn load(path: &Path) -> Result<Self> {
-        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        let bytes = crate::error::read_regular_file(path)?;
         Self::from_bytes(&bytes, path)
     }
 

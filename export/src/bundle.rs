@@ -251,7 +251,7 @@ pub fn write_bundle(dir: &Path, bundle: &Bundle, opset: i64) -> Result<Vec<Writt
 
 /// Decode an ONNX file.
 pub fn read_model(path: &Path) -> Result<ModelProto, String> {
-    let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let bytes = nerf_core::error::read_regular_file(path).map_err(|e| e.to_string())?;
     ModelProto::decode(bytes.as_slice()).map_err(|e| format!("{}: not a valid ONNX file (truncated?): {e}", path.display()))
 }
 
