@@ -152,7 +152,7 @@ fn untrusted_run_directories_are_refused() {
     check(&orbit(&r), &["config.toml", "width 10000000", "4096"]);
 
     let latest = variant("latest", &|r| std::fs::write(r.join("checkpoints/latest"), "../../../etc").unwrap());
-    check(&orbit(&latest), &["latest: checkpoint name: \"../../../etc\" is not a plain file name"]);
+    check(&orbit(&latest), &["checkpoints/latest: names \"../../../etc\", not a checkpoint (step-NNNNNNN)"]);
     let header = variant("grid-header", &|r| {
         let name = std::fs::read_to_string(r.join("checkpoints/latest")).unwrap();
         let grid = r.join("checkpoints").join(name.trim()).join("occupancy.bin");

@@ -38,6 +38,8 @@ pub const MAX_NETWORK_WIDTH: usize = 4096;
 pub const MAX_NETWORK_DEPTH: usize = 64;
 /// Most positional-encoding frequencies (2ᵏ overflows f32 long before k = 128).
 pub const MAX_FREQUENCIES: usize = 64;
+/// Most weights per network description (the paper network has 593,408): 256 MB of f32.
+pub const MAX_NETWORK_WEIGHTS: usize = 1 << 26;
 
 /// Where a checked value came from, so the error names it: a field of a file, or a
 /// command-line option.

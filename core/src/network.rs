@@ -118,9 +118,10 @@ impl NetworkSpec {
         self.layer_shapes().iter().map(|(_, i, o)| i * o).sum()
     }
 
-    /// Checks sizes that would make a network that cannot be built.
+    /// Checks sizes that would make a network that cannot be built, before anything is
+    /// allocated for it: a description read from a file may say anything.
     pub fn validate(&self) -> Result<(), String> {
-        use crate::limits::{MAX_FREQUENCIES, MAX_NETWORK_DEPTH, MAX_NETWORK_WIDTH};
+        use crate::limits::{MAX_FREQUENCIES, MAX_NETWORK_DEPTH, MAX_NETWORK_WEIGHTS, MAX_NETWORK_WIDTH};
         if self.depth == 0 || self.width < 2 {
             return Err(format!("network depth {} and width {} must be ≥ 1 and ≥ 2", self.depth, self.width));
         }
@@ -134,6 +135,11 @@ impl NetworkSpec {
             if e.n_frequencies > MAX_FREQUENCIES {
                 return Err(format!("network {name}: {} frequencies is more than the limit of {MAX_FREQUENCIES}", e.n_frequencies));
             }
+        }
+        // Bounded depth, width and encodings keep this sum from overflowing.
+        let weights = self.macs_per_point();
+        if weights > MAX_NETWORK_WEIGHTS {
+            return Err(format!("the network has {weights} weights, more than the limit of {MAX_NETWORK_WEIGHTS}"));
         }
         if let Some(s) = self.skips.iter().find(|&&s| s + 1 >= self.depth) {
             return Err(format!("skip after layer {s} needs a later layer (depth {})", self.depth));
@@ -313,5 +319,24 @@ mod tests {
         assert!(err.contains("width 1048576") && err.contains("4096"), "{err}");
         let err = NetworkSpec { position_encoding: EncodingSpec { n_frequencies: 65, include_input: true }, ..spec }.validate().unwrap_err();
         assert!(err.contains("position_encoding: 65 frequencies"), "{err}");
+    }
+
+    #[test]
+    fn absurd_sizes_are_rejected_before_allocating() {
+        // Found by fuzzing config.toml: depth 2⁵³ passed and `layer_shapes` aborted the process.
+        let spec = NetworkSpec::paper();
+        let err = NetworkSpec { depth: 1 << 53, ..spec.clone() }.validate().unwrap_err();
+        assert!(err.contains("depth 9007199254740992"), "{err}");
+        assert!(NetworkSpec { width: usize::MAX, ..spec.clone() }.validate().is_err());
+        let many = EncodingSpec { n_frequencies: 1 << 40, include_input: true };
+        let err = NetworkSpec { direction_encoding: many, ..spec.clone() }.validate().unwrap_err();
+        assert!(err.contains("direction_encoding"), "{err}");
+        // Within every per-field limit but 64 × 4096² ≈ 1.1e9 weights in all.
+        let err = NetworkSpec { depth: crate::limits::MAX_NETWORK_DEPTH, width: crate::limits::MAX_NETWORK_WIDTH, ..spec.clone() }
+            .validate()
+            .unwrap_err();
+        assert!(err.contains("weights"), "{err}");
+        // The largest sizes in use stay accepted.
+        NetworkSpec { depth: 16, width: 1024, ..spec }.validate().unwrap();
     }
 }

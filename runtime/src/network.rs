@@ -23,7 +23,8 @@ impl OrtNetwork {
     /// Load `path`, checking it decodes and follows the contract before onnxruntime sees it.
     /// `threads`: onnxruntime's intra-op threads (`None`: one per core).
     pub fn load(path: &Path, threads: Option<usize>) -> Result<Self> {
-        let bytes = std::fs::read(path).map_err(|e| RuntimeError::bundle(path, format!("cannot read the graph: {e}")))?;
+        let bytes = nerf_core::limits::read_bounded(path, nerf_export::bundle::MAX_GRAPH_BYTES)
+            .map_err(|e| RuntimeError::bundle(path, format!("cannot read the graph: {e}")))?;
         let model = ModelProto::decode(bytes.as_slice())
             .map_err(|e| RuntimeError::bundle(path, format!("not a valid ONNX file (truncated?): {e}")))?;
         check_contract(&model).map_err(|e| RuntimeError::bundle(path, e))?;

@@ -1,0 +1,218 @@
+//! One harness per file a user hands us. Each builds its seeds with the project's own writers
+//! (a generated scene, a real training run, `nerf export`) and calls the public parser the
+//! commands call, on the mutated file written where that parser reads it.
+
+use super::{Format, Harness, HarnessDef};
+use nerf::evaluate::LoadedRun;
+use nerf::run_dir::RunDir;
+use nerf::train::{Checkpoint, Preset, TrainConfig, TrainOptions, Trainer, train};
+use nerf_core::dataset::{Split, SyntheticSceneConfig, generate_scene, load_split};
+use nerf_core::imageio::{load_rgba, save_gif};
+use nerf_core::occupancy::FILE_NAME as OCCUPANCY_FILE;
+use nerf_export::bundle::{read_model, read_scene};
+use nerf_export::{check_contract, read_bundle_network, read_occupancy};
+use std::path::{Path, PathBuf};
+
+/// Every harness, in the order they run.
+pub const ALL: [HarnessDef; 10] = [
+    HarnessDef { name: "transforms", file: "transforms_train.json", setup: transforms },
+    HarnessDef { name: "image", file: "train/r_0.png (PNG/GIF)", setup: image },
+    HarnessDef { name: "config", file: "run/config.toml", setup: config },
+    HarnessDef { name: "camera", file: "run/camera.json", setup: camera },
+    HarnessDef { name: "checkpoint-state", file: "checkpoints/step-*/state.json", setup: checkpoint_state },
+    HarnessDef { name: "checkpoint-model", file: "checkpoints/step-*/model.bpk", setup: checkpoint_model },
+    HarnessDef { name: "checkpoint-optim", file: "checkpoints/step-*/optim.bpk", setup: checkpoint_optim },
+    HarnessDef { name: "scene", file: "bundle/scene.json", setup: scene },
+    HarnessDef { name: "occupancy", file: "bundle/occupancy.bin", setup: occupancy },
+    HarnessDef { name: "onnx", file: "bundle/coarse.onnx", setup: onnx },
+];
+
+/// A harness that writes the input to `target` and calls `parse`.
+struct FileHarness<F> {
+    target: PathBuf,
+    seeds: Vec<Vec<u8>>,
+    format: Format,
+    parse: F,
+}
+
+impl<F: FnMut() -> Result<(), String>> Harness for FileHarness<F> {
+    fn seeds(&self) -> &[Vec<u8>] {
+        &self.seeds
+    }
+
+    fn format(&self) -> Format {
+        self.format
+    }
+
+    fn execute(&mut self, input: &[u8]) -> Result<(), String> {
+        std::fs::write(&self.target, input).map_err(|e| format!("harness: writing {}: {e}", self.target.display()))?;
+        (self.parse)()
+    }
+}
+
+fn boxed<F: FnMut() -> Result<(), String> + 'static>(target: PathBuf, seeds: Vec<Vec<u8>>, format: Format, parse: F) -> Box<dyn Harness> {
+    Box::new(FileHarness { target, seeds, format, parse })
+}
+
+fn read(path: &Path) -> Result<Vec<u8>, String> {
+    std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))
+}
+
+/// An 8×8 generated Blender scene (3 train, 1 val, 1 test views) in `work/scene`.
+fn small_scene(work: &Path) -> Result<PathBuf, String> {
+    let dir = work.join("scene");
+    let cfg = SyntheticSceneConfig { width: 8, height: 8, n_train: 3, n_val: 1, n_test: 1, seed: 1 };
+    generate_scene(&dir, &cfg).map_err(|e| e.to_string())?;
+    Ok(dir)
+}
+
+/// A tiny network trained for two steps on the small scene, with an occupancy grid.
+fn tiny_config() -> TrainConfig {
+    let mut c = Preset::CpuFast.config();
+    c.network.depth = 2;
+    c.network.width = 16;
+    c.network.skips = vec![0];
+    c.sampling.n_coarse = 8;
+    c.sampling.n_fine = 8;
+    c.batch_rays = 32;
+    c.iters = 2;
+    c.precrop_iters = 0;
+    c.eval_every_min = 0.0;
+    c.occupancy.resolution = 8;
+    c.occupancy.warmup_steps = 0;
+    c.occupancy.update_every = 1;
+    c
+}
+
+/// `work/run`: a real run (config.toml, camera.json, a checkpoint) written by `nerf train`'s code.
+fn trained_run(work: &Path) -> Result<(PathBuf, PathBuf), String> {
+    let data = small_scene(work)?;
+    let run = work.join("run");
+    let options =
+        TrainOptions { data: data.clone(), run: run.clone(), config: tiny_config(), downscale: 1, time_budget_min: None, iters: None, progress: false };
+    train(&options).map_err(|e| e.to_string())?;
+    Ok((data, run))
+}
+
+/// `work/bundle`: the trained run exported by `nerf export`'s code (graphs, scene.json, grid).
+fn exported_bundle(work: &Path) -> Result<PathBuf, String> {
+    let (_, run) = trained_run(work)?;
+    let bundle = work.join("bundle");
+    nerf::export::export_run(&run, &bundle, nerf_export::DEFAULT_OPSET).map_err(|e| e.to_string())?;
+    Ok(bundle)
+}
+
+fn transforms(work: &Path) -> Result<Box<dyn Harness>, String> {
+    let dir = small_scene(work)?;
+    let target = nerf_core::dataset::transforms_path(&dir, Split::Train);
+    // All three splits' files are valid train files: their images are in the scene too.
+    let seeds = Split::ALL.iter().map(|&s| read(&nerf_core::dataset::transforms_path(&dir, s))).collect::<Result<_, _>>()?;
+    Ok(boxed(target, seeds, Format::Json, move || {
+        // Training reads pixels; `nerf render --split` reads only the sizes (and downscales).
+        let with_images = load_split(&dir, Split::Train, 1, true).map(drop).map_err(|e| e.to_string());
+        let sizes_only = load_split(&dir, Split::Train, 2, false).map(drop).map_err(|e| e.to_string());
+        with_images.and(sizes_only)
+    }))
+}
+
+fn image(work: &Path) -> Result<Box<dyn Harness>, String> {
+    let dir = small_scene(work)?;
+    let target = dir.join("train/r_0.png");
+    let rgba = read(&target)?;
+    // The same 8×8 picture in the other layouts the loader accepts, and as a GIF.
+    let decoded = image::open(&target).map_err(|e| e.to_string())?;
+    let mut seeds = vec![rgba];
+    let encode = |img: image::DynamicImage| -> Result<Vec<u8>, String> {
+        let mut out = std::io::Cursor::new(Vec::new());
+        img.write_to(&mut out, image::ImageFormat::Png).map_err(|e| e.to_string())?;
+        Ok(out.into_inner())
+    };
+    seeds.push(encode(image::DynamicImage::ImageLuma8(decoded.to_luma8()))?);
+    seeds.push(encode(image::DynamicImage::ImageLumaA8(decoded.to_luma_alpha8()))?);
+    seeds.push(encode(image::DynamicImage::ImageRgb8(decoded.to_rgb8()))?);
+    seeds.push(encode(image::DynamicImage::ImageRgba16(decoded.to_rgba16()))?);
+    let gif = work.join("r_0.gif");
+    let rgb: Vec<[f32; 3]> = decoded.to_rgb32f().pixels().map(|p| p.0).collect();
+    save_gif(&gif, 8, 8, &[rgb], 40).map_err(|e| e.to_string())?;
+    seeds.push(read(&gif)?);
+    Ok(boxed(target.clone(), seeds, Format::Binary, move || {
+        load_rgba(&target).map_err(|e| e.to_string())?;
+        load_split(&dir, Split::Train, 2, true).map(drop).map_err(|e| e.to_string())
+    }))
+}
+
+/// A run-directory harness: mutates `file` of a trained run and opens the run as `nerf eval`,
+/// `nerf render` and `nerf export` do.
+fn run_file(work: &Path, file: &str, format: Format) -> Result<Box<dyn Harness>, String> {
+    let (_, run) = trained_run(work)?;
+    let target = run.join(file);
+    let seeds = vec![read(&target)?];
+    Ok(boxed(target, seeds, format, move || LoadedRun::open(&run).map(drop).map_err(|e| e.to_string())))
+}
+
+fn config(work: &Path) -> Result<Box<dyn Harness>, String> {
+    run_file(work, "config.toml", Format::Toml)
+}
+
+fn camera(work: &Path) -> Result<Box<dyn Harness>, String> {
+    run_file(work, "camera.json", Format::Json)
+}
+
+/// A checkpoint harness: mutates `file` of the run's latest checkpoint and resumes a trainer
+/// from it, as `nerf train` does on an existing run.
+fn checkpoint_file(work: &Path, file: &str, format: Format) -> Result<Box<dyn Harness>, String> {
+    let (data, run) = trained_run(work)?;
+    let checkpoint = RunDir::open(&run).and_then(|r| r.latest_checkpoint()).map_err(|e| e.to_string())?.ok_or("the run has no checkpoint")?;
+    let train_data = load_split(&data, Split::Train, 1, true).map_err(|e| e.to_string())?;
+    let mut trainer = Trainer::new(tiny_config(), train_data, nerf::backend::cpu_autodiff()).map_err(|e| e.to_string())?;
+    let target = checkpoint.dir.join(file);
+    let seeds = vec![read(&target)?];
+    Ok(boxed(target, seeds, format, move || trainer.resume(&Checkpoint { dir: checkpoint.dir.clone() }).map(drop).map_err(|e| e.to_string())))
+}
+
+fn checkpoint_state(work: &Path) -> Result<Box<dyn Harness>, String> {
+    checkpoint_file(work, "state.json", Format::Json)
+}
+
+fn checkpoint_model(work: &Path) -> Result<Box<dyn Harness>, String> {
+    checkpoint_file(work, "model.bpk", Format::Binary)
+}
+
+fn checkpoint_optim(work: &Path) -> Result<Box<dyn Harness>, String> {
+    checkpoint_file(work, "optim.bpk", Format::Binary)
+}
+
+/// Reads a bundle as `nerf-render` does before onnxruntime sees it: `scene.json`, the grid,
+/// and each graph decoded, contract-checked and read back as a network.
+fn read_bundle(dir: &Path) -> Result<(), String> {
+    let scene = read_scene(dir)?;
+    read_occupancy(dir, &scene)?;
+    for file in std::iter::once(&scene.networks.coarse).chain(&scene.networks.fine) {
+        let path = dir.join(file);
+        check_contract(&read_model(&path)?).map_err(|e| format!("{}: {e}", path.display()))?;
+        read_bundle_network(dir, file)?;
+    }
+    Ok(())
+}
+
+fn scene(work: &Path) -> Result<Box<dyn Harness>, String> {
+    let bundle = exported_bundle(work)?;
+    let target = bundle.join(nerf_export::bundle::SCENE_FILE);
+    let seeds = vec![read(&target)?];
+    Ok(boxed(target, seeds, Format::Json, move || read_bundle(&bundle)))
+}
+
+fn occupancy(work: &Path) -> Result<Box<dyn Harness>, String> {
+    let bundle = exported_bundle(work)?;
+    let target = bundle.join(OCCUPANCY_FILE);
+    let seeds = vec![read(&target)?];
+    Ok(boxed(target, seeds, Format::Binary, move || read_bundle(&bundle)))
+}
+
+fn onnx(work: &Path) -> Result<Box<dyn Harness>, String> {
+    let bundle = exported_bundle(work)?;
+    let target = bundle.join("coarse.onnx");
+    // The fine graph is a valid coarse.onnx too (same contract, another stage).
+    let seeds = vec![read(&target)?, read(&bundle.join("fine.onnx"))?];
+    Ok(boxed(target, seeds, Format::Onnx, move || read_bundle(&bundle)))
+}
