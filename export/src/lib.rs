@@ -2,11 +2,13 @@
 //! ONNX graphs written with our own prost messages, and writes scene bundles
 //! (`coarse.onnx`, `fine.onnx`, `scene.json`) that a renderer needs nothing else to use.
 //!
-//! It does not depend on burn: any network given as plain data can be compiled.
+//! It does not depend on burn: any network given as plain data can be compiled. [`import`] reads
+//! models trained elsewhere (nerf-pytorch checkpoints) into bundles.
 #![warn(missing_docs)]
 
 pub mod bundle;
 pub mod graph;
+pub mod import;
 pub mod proto;
 
 pub use bundle::{Bundle, SceneDescription, read_bundle_network, read_occupancy, read_scene, write_bundle};

@@ -107,6 +107,11 @@ enum Command {
         #[arg(long, default_value_t = nerf_export::DEFAULT_OPSET)]
         opset: i64,
     },
+    /// Import a model trained elsewhere into a scene bundle (coarse.onnx, fine.onnx, scene.json).
+    Import {
+        #[command(subcommand)]
+        source: ImportSource,
+    },
     /// Measure speed, all figures from one run: training steps, network throughput (burn and
     /// onnxruntime) and frame times (burn and onnxruntime, paper network, 64 + 128 samples).
     Bench {
@@ -166,6 +171,29 @@ enum Command {
     },
 }
 
+#[derive(Subcommand)]
+enum ImportSource {
+    /// A nerf-pytorch run: its checkpoint and args.txt (read without Python or PyTorch).
+    NerfPytorch {
+        /// The checkpoint, <run>/NNNNNN.tar (torch.save's zip or legacy format).
+        #[arg(long)]
+        checkpoint: PathBuf,
+        /// The run's args.txt or config.txt (default: beside the checkpoint).
+        #[arg(long)]
+        args: Option<PathBuf>,
+        /// The Blender scene it was trained on: camera and test poses (default: the run's
+        /// datadir, when it exists here).
+        #[arg(long)]
+        data: Option<PathBuf>,
+        /// Bundle directory to write (replaced only once the new bundle is complete).
+        #[arg(long)]
+        out: PathBuf,
+        /// ONNX opset (17–23).
+        #[arg(long, default_value_t = nerf_export::DEFAULT_OPSET)]
+        opset: i64,
+    },
+}
+
 #[derive(Clone, Copy, PartialEq, clap::ValueEnum)]
 enum BenchPart {
     /// Training steps.
@@ -221,6 +249,29 @@ fn main() -> Result<()> {
         Command::Export { run, out, opset } => {
             let files = nerf::export::export_run(&run, &out, opset)?;
             for f in &files {
+                println!("{:>10} bytes  {}", f.bytes, f.path.display());
+            }
+        }
+        Command::Import { source: ImportSource::NerfPytorch { checkpoint, args, data, out, opset } } => {
+            let opts = nerf_export::import::NerfPytorchImport { checkpoint, args, data };
+            let imported = nerf_export::import::import_nerf_pytorch(&opts)?;
+            let b = &imported.bundle;
+            let shape = |n: &nerf_core::network::PlainNetwork| format!("{}×{}", n.spec.depth, n.spec.width);
+            let (s, k) = (&b.scene.sampling, &b.scene.camera);
+            println!(
+                "nerf-pytorch run ({}): coarse {}, fine {}, {} + {} samples; camera {}×{}, focal {:.2}, {} test poses from {}",
+                imported.args_file.display(),
+                shape(&b.coarse),
+                b.fine.as_ref().map(shape).unwrap_or_else(|| "none".into()),
+                s.n_coarse,
+                s.n_fine,
+                k.width,
+                k.height,
+                k.focal,
+                b.scene.poses.test.len(),
+                imported.data.display()
+            );
+            for f in nerf_export::write_bundle(&out, b, opset)? {
                 println!("{:>10} bytes  {}", f.bytes, f.path.display());
             }
         }
