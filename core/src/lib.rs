@@ -9,6 +9,8 @@
 //! - [`compositing`]: α from density, transmittance, weights, rgb/depth/acc, white background.
 //! - [`dataset`]: the Blender (`transforms_*.json`) parser, downscaling, a generated scene.
 //! - [`network`]: the NeRF MLP described as plain data (sizes, skips, encodings, weights).
+//! - [`hash_grid`]: the multiresolution hash encoding (tiny-cuda-nn's), its backward pass and
+//!   sparse Adam; [`spherical_harmonics`]: the degree-4 direction encoding.
 //! - [`occupancy`]: the occupancy grid for empty-space skipping.
 //! - [`metrics`], [`imageio`]: PSNR/SSIM, PNG/GIF output and depth colouring.
 //! - [`frames`]: rendering a list of views to PNGs, depth maps, `.npy`, metrics and a GIF.
@@ -19,6 +21,7 @@ pub mod compositing;
 pub mod dataset;
 pub mod error;
 pub mod frames;
+pub mod hash_grid;
 pub mod imageio;
 pub mod metrics;
 pub mod network;
@@ -26,6 +29,7 @@ pub mod occupancy;
 pub mod rng;
 pub mod render;
 pub mod sampling;
+pub mod spherical_harmonics;
 
 pub use camera::{Intrinsics, Pose, Rays};
 pub use compositing::{Composited, composite};
