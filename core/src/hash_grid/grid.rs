@@ -31,8 +31,11 @@ use crate::error::{Error, Result};
 use crate::rng::Rng;
 use rayon::prelude::*;
 
-/// Points per rayon task in the forward pass.
-const FORWARD_CHUNK: usize = 1024;
+/// Points per forward chunk: large, so that each level's table is reused across many points
+/// (a chunk's scratch is `FORWARD_CHUNK × L·F` floats).
+const FORWARD_CHUNK: usize = 1 << 18;
+/// Rows per rayon task when transposing the scratch into the output.
+const TRANSPOSE_ROWS: usize = 4096;
 
 /// The encoding's parameters: one table of `total_entries × F` floats, level after level,
 /// each entry's F features adjacent (tiny-cuda-nn's layout).
@@ -53,30 +56,37 @@ pub struct Corners {
 }
 
 /// The corners and weights of `x` (any point; clamped to the unit cube) on `level`.
+///
+/// The same entries as [`LevelLayout::index`] on each corner, computed from per-axis terms:
+/// the hash is a XOR of one term per axis and the dense index a sum, so each axis needs its
+/// two terms once rather than eight products and eight divisions.
 #[inline(always)]
 pub fn corners(level: &LevelLayout, x: [f32; 3]) -> Corners {
     let mut cell = [0u32; 3];
-    let mut frac = [0f32; 3];
+    let mut w = [[0f32; 2]; 3];
     for d in 0..3 {
         let pos = x[d].max(0.0).min(1.0) * level.scale + 0.5;
         let floor = pos.floor();
         cell[d] = floor as u32;
-        frac[d] = pos - floor;
+        let frac = pos - floor;
+        w[d] = [1.0 - frac, frac];
     }
+    // terms[d][b]: axis d's contribution for the corner at cell[d] + b.
+    let stride = if level.dense { [1, level.resolution, level.resolution.wrapping_mul(level.resolution)] } else { super::config::PRIMES };
+    let terms = [0, 1, 2].map(|d| [cell[d].wrapping_mul(stride[d]), (cell[d] + 1).wrapping_mul(stride[d])]);
     let mut out = Corners { index: [0; 8], weight: [0.0; 8] };
     for k in 0..8 {
-        let mut weight = 1.0f32;
-        let mut c = cell;
-        for d in 0..3 {
-            if k & (1 << d) == 0 {
-                weight *= 1.0 - frac[d];
-            } else {
-                weight *= frac[d];
-                c[d] += 1;
-            }
-        }
-        out.index[k] = level.index(c);
-        out.weight[k] = weight;
+        let (bx, by, bz) = (k & 1, (k >> 1) & 1, (k >> 2) & 1);
+        // (1 · wx) · wy · wz, tiny-cuda-nn's order of products.
+        out.weight[k] = w[0][bx] * w[1][by] * w[2][bz];
+        out.index[k] = if level.dense {
+            // < 2·entries (res + res² + res³ < 2·res³ for res ≥ 2; 3 < 16 for res 1): one
+            // subtraction is the modulo.
+            let i = terms[0][bx] + terms[1][by] + terms[2][bz];
+            if i >= level.entries { i - level.entries } else { i }
+        } else {
+            (terms[0][bx] ^ terms[1][by] ^ terms[2][bz]) & (level.entries - 1)
+        };
     }
     out
 }
@@ -138,21 +148,36 @@ impl HashGrid {
     }
 
     /// [`forward`](Self::forward) into a caller's buffer of `points.len() × L·F` floats.
+    ///
+    /// Level-major like the backward pass: one rayon task per level evaluates a whole chunk of
+    /// points (so the level's part of the table is reused from cache across the chunk) into a
+    /// level-major scratch buffer, which is then transposed into the rows.
     pub fn forward_into(&self, points: &[[f32; 3]], out: &mut [f32]) {
         let width = self.output_dim();
+        let f = self.config.features_per_level;
         assert_eq!(out.len(), points.len() * width, "hash grid forward: output buffer is not [n, L·F]");
-        out.par_chunks_mut(FORWARD_CHUNK * width).zip(points.par_chunks(FORWARD_CHUNK)).for_each(|(rows, pts)| {
-            // Level after level within a chunk: one level's table stays in cache for the chunk.
-            for (l, level) in self.levels.iter().enumerate() {
-                let table = &self.params[level.offset as usize * self.config.features_per_level..];
-                match self.config.features_per_level {
-                    1 => forward_level::<1>(level, table, pts, rows, width, l),
-                    2 => forward_level::<2>(level, table, pts, rows, width, l),
-                    4 => forward_level::<4>(level, table, pts, rows, width, l),
-                    _ => forward_level::<8>(level, table, pts, rows, width, l),
+        let mut scratch = vec![0.0f32; points.len().min(FORWARD_CHUNK) * width];
+        for (pts, rows) in points.chunks(FORWARD_CHUNK).zip(out.chunks_mut(FORWARD_CHUNK * width)) {
+            let n = pts.len();
+            scratch[..n * width].par_chunks_mut(n * f).zip(self.levels.par_iter()).for_each(|(column, level)| {
+                let table = &self.params[level.offset as usize * f..(level.offset + level.entries) as usize * f];
+                match f {
+                    1 => forward_level::<1>(level, table, pts, column),
+                    2 => forward_level::<2>(level, table, pts, column),
+                    4 => forward_level::<4>(level, table, pts, column),
+                    _ => forward_level::<8>(level, table, pts, column),
                 }
-            }
-        });
+            });
+            let scratch = &scratch[..n * width];
+            rows.par_chunks_mut(TRANSPOSE_ROWS * width).enumerate().for_each(|(b, block)| {
+                for (r, row) in block.chunks_exact_mut(width).enumerate() {
+                    let i = b * TRANSPOSE_ROWS + r;
+                    for (l, dst) in row.chunks_exact_mut(f).enumerate() {
+                        dst.copy_from_slice(&scratch[(l * n + i) * f..(l * n + i + 1) * f]);
+                    }
+                }
+            });
+        }
     }
 
     /// Accumulate the table gradient of `points` with output gradient `grad_out` into `grad`
@@ -179,9 +204,10 @@ fn total_entries(levels: &[LevelLayout]) -> usize {
     levels.last().map_or(0, |l| (l.offset + l.entries) as usize)
 }
 
+/// One level for `points`, written level-major: `column` is `[points.len(), F]`.
 #[inline(always)]
-fn forward_level<const F: usize>(level: &LevelLayout, table: &[f32], points: &[[f32; 3]], rows: &mut [f32], width: usize, l: usize) {
-    for (row, &x) in rows.chunks_exact_mut(width).zip(points) {
+fn forward_level<const F: usize>(level: &LevelLayout, table: &[f32], points: &[[f32; 3]], column: &mut [f32]) {
+    for (dst, &x) in column.chunks_exact_mut(F).zip(points) {
         let c = corners(level, x);
         let mut acc = [0f32; F];
         for k in 0..8 {
@@ -191,7 +217,7 @@ fn forward_level<const F: usize>(level: &LevelLayout, table: &[f32], points: &[[
                 acc[f] += c.weight[k] * value[f];
             }
         }
-        row[l * F..(l + 1) * F].copy_from_slice(&acc);
+        dst.copy_from_slice(&acc);
     }
 }
 
@@ -366,6 +392,26 @@ mod tests {
                 for (a, b) in row.iter().zip(reference_forward(&grid, x)) {
                     assert!((*a as f64 - b).abs() < 1e-5, "F {features}, {x:?}: {a} vs {b}");
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn corners_agree_with_the_layout_index() {
+        let mut levels = HashGridConfig::default().layout().unwrap();
+        levels.extend(small_config().layout().unwrap());
+        levels.extend(HashGridConfig { base_resolution: 1, max_resolution: 3, levels: 3, ..small_config() }.layout().unwrap());
+        let mut points = random_points(200, 11);
+        points.extend([[1.0, 1.0, 1.0], [0.0, 1.0, 0.0], [0.999_999, 0.5, 1.0]]);
+        for level in &levels {
+            for &x in &points {
+                let c = corners(level, x);
+                let cell = x.map(|v| (v * level.scale + 0.5).floor() as u32);
+                for k in 0..8 {
+                    let corner = [0, 1, 2].map(|d| cell[d] + ((k >> d) & 1) as u32);
+                    assert_eq!(c.index[k], level.index(corner), "level {level:?}, {x:?}, corner {k}");
+                }
+                assert!((c.weight.iter().sum::<f32>() - 1.0).abs() < 1e-5);
             }
         }
     }
