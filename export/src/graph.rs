@@ -171,7 +171,7 @@ fn encoding_text(e: &EncodingSpec) -> String {
 }
 
 /// `name` float32 `[N, columns]`.
-fn value_info((name, columns): (&str, i64), doc: &str) -> ValueInfoProto {
+pub(crate) fn value_info((name, columns): (&str, i64), doc: &str) -> ValueInfoProto {
     use tensor_shape_proto::{Dimension, dimension::Value};
     let dim = vec![Dimension { value: Some(Value::DimParam("N".into())) }, Dimension { value: Some(Value::DimValue(columns)) }];
     ValueInfoProto {
@@ -188,13 +188,13 @@ fn value_info((name, columns): (&str, i64), doc: &str) -> ValueInfoProto {
 
 /// Accumulates nodes and initializers with unique names.
 #[derive(Default)]
-struct Builder {
-    nodes: Vec<NodeProto>,
-    initializers: Vec<TensorProto>,
+pub(crate) struct Builder {
+    pub(crate) nodes: Vec<NodeProto>,
+    pub(crate) initializers: Vec<TensorProto>,
 }
 
 impl Builder {
-    fn node(&mut self, op: &str, inputs: &[&str], output: &str, attribute: Vec<AttributeProto>) -> String {
+    pub(crate) fn node(&mut self, op: &str, inputs: &[&str], output: &str, attribute: Vec<AttributeProto>) -> String {
         self.nodes.push(NodeProto {
             input: inputs.iter().map(|s| s.to_string()).collect(),
             output: vec![output.to_string()],
@@ -207,16 +207,16 @@ impl Builder {
         output.to_string()
     }
 
-    fn unary(&mut self, op: &str, input: &str, output: &str) -> String {
+    pub(crate) fn unary(&mut self, op: &str, input: &str, output: &str) -> String {
         self.node(op, &[input], output, vec![])
     }
 
-    fn concat(&mut self, inputs: &[&str], output: &str) -> String {
+    pub(crate) fn concat(&mut self, inputs: &[&str], output: &str) -> String {
         self.node("Concat", inputs, output, vec![int_attribute("axis", 1)])
     }
 
     /// A named constant, stored once however often it is used.
-    fn i64_constant(&mut self, name: &str, values: &[i64]) -> String {
+    pub(crate) fn i64_constant(&mut self, name: &str, values: &[i64]) -> String {
         if !self.initializers.iter().any(|t| t.name == name) {
             self.initializers.push(TensorProto {
                 dims: vec![values.len() as i64],
@@ -229,7 +229,7 @@ impl Builder {
         name.to_string()
     }
 
-    fn f32_tensor(&mut self, name: &str, dims: &[usize], values: &[f32]) -> String {
+    pub(crate) fn f32_tensor(&mut self, name: &str, dims: &[usize], values: &[f32]) -> String {
         self.initializers.push(TensorProto {
             dims: dims.iter().map(|&d| d as i64).collect(),
             data_type: data_type::FLOAT,
@@ -271,7 +271,7 @@ impl Builder {
     }
 }
 
-fn int_attribute(name: &str, value: i64) -> AttributeProto {
+pub(crate) fn int_attribute(name: &str, value: i64) -> AttributeProto {
     AttributeProto { name: name.into(), r#type: attribute_type::INT, i: value, ..Default::default() }
 }
 

@@ -146,6 +146,47 @@ impl HashGridConfig {
     }
 }
 
+/// The axis-aligned box a grid covers: world points map into the unit cube by
+/// `(p − min) · scale`, `scale = 1/(max − min)` per axis (rounded to f32 once, and the exported
+/// graph multiplies by the same f32, so both see the same unit-cube point).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GridBound {
+    /// The corner mapped to (0, 0, 0).
+    pub min: [f32; 3],
+    /// The corner mapped to (1, 1, 1).
+    pub max: [f32; 3],
+}
+
+impl GridBound {
+    /// The cube `[−half, half]³` (the Blender scenes use half = 1.5).
+    pub fn cube(half: f32) -> Self {
+        GridBound { min: [-half; 3], max: [half; 3] }
+    }
+
+    /// Check the box is finite and not flat.
+    pub fn validate(&self) -> Result<()> {
+        for d in 0..3 {
+            if !(self.min[d].is_finite() && self.max[d].is_finite() && self.max[d] > self.min[d]) {
+                return Err(Error::Argument(format!("grid bound: axis {d} spans [{}, {}], needs finite min < max", self.min[d], self.max[d])));
+            }
+        }
+        Ok(())
+    }
+
+    /// `1/(max − min)` per axis.
+    pub fn scale(&self) -> [f32; 3] {
+        [0, 1, 2].map(|d| 1.0 / (self.max[d] - self.min[d]))
+    }
+
+    /// `p` in unit-cube coordinates (not clamped; the encoding clamps).
+    #[inline]
+    pub fn to_unit(&self, p: [f32; 3]) -> [f32; 3] {
+        let s = self.scale();
+        [0, 1, 2].map(|d| (p[d] - self.min[d]) * s[d])
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -216,6 +257,17 @@ mod tests {
         assert_eq!(HashGridConfig::log2_of_table_size(1 << 17).unwrap(), 17);
         assert!(ok.layout().is_ok());
         assert!(HashGridConfig { levels: 0, ..ok }.layout().is_err());
+    }
+
+    #[test]
+    fn bound_maps_its_corners_to_the_unit_cube() {
+        let b = GridBound { min: [-1.5, 0.0, 2.0], max: [1.5, 1.0, 6.0] };
+        b.validate().unwrap();
+        assert_eq!(b.to_unit([-1.5, 0.0, 2.0]), [0.0, 0.0, 0.0]);
+        assert_eq!(b.to_unit([0.0, 0.25, 4.0]), [0.5, 0.25, 0.5]);
+        assert!((b.to_unit([1.5, 1.0, 6.0])[0] - 1.0).abs() < 1e-6);
+        let flat = GridBound { min: [0.0; 3], max: [1.0, 0.0, 1.0] }.validate().unwrap_err().to_string();
+        assert!(flat.contains("axis 1"), "{flat}");
     }
 
     #[test]
