@@ -10,7 +10,8 @@
 //! - [`dataset`]: the Blender (`transforms_*.json`) parser, downscaling, a generated scene.
 //! - [`network`]: the NeRF MLP described as plain data (sizes, skips, encodings, weights).
 //! - [`hash_grid`]: the multiresolution hash encoding (tiny-cuda-nn's), its backward pass and
-//!   sparse Adam; [`spherical_harmonics`]: the degree-4 direction encoding.
+//!   sparse Adam; [`spherical_harmonics`]: the degree-4 direction encoding; [`ngp`]: the
+//!   instant-ngp field (grid + two small MLPs) as plain data.
 //! - [`occupancy`]: the occupancy grid for empty-space skipping.
 //! - [`metrics`], [`imageio`]: PSNR/SSIM, PNG/GIF output and depth colouring.
 //! - [`frames`]: rendering a list of views to PNGs, depth maps, `.npy`, metrics and a GIF.
@@ -25,6 +26,7 @@ pub mod hash_grid;
 pub mod imageio;
 pub mod metrics;
 pub mod network;
+pub mod ngp;
 pub mod occupancy;
 pub mod rng;
 pub mod render;

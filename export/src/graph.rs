@@ -138,14 +138,8 @@ pub fn compile(net: &PlainNetwork, name: &str, opset: i64, metadata: &[(String, 
             "NeRF {name} network: {}×{} MLP (skips after {:?}), positional encodings inside the graph, view-dependent colour: {}.",
             spec.depth, spec.width, spec.skips, spec.use_viewdirs
         ),
-        input: vec![
-            value_info(CONTRACT_INPUTS[0], "World-space sample positions, float32 [N, 3]."),
-            value_info(CONTRACT_INPUTS[1], "Unit view directions (the ray direction normalised), float32 [N, 3], one per point."),
-        ],
-        output: vec![
-            value_info(CONTRACT_OUTPUTS[0], "Colour in [0, 1] (sigmoid applied), float32 [N, 3]."),
-            value_info(CONTRACT_OUTPUTS[1], "Volume density (ReLU applied), float32 [N, 1]."),
-        ],
+        input: contract_inputs(),
+        output: contract_outputs("Volume density (ReLU applied), float32 [N, 1]."),
         value_info: vec![],
     };
     Ok(ModelProto {
@@ -168,6 +162,19 @@ fn encoding_text(e: &EncodingSpec) -> String {
         e.include_input,
         e.output_dim()
     )
+}
+
+/// The contract's inputs, documented.
+pub(crate) fn contract_inputs() -> Vec<ValueInfoProto> {
+    vec![
+        value_info(CONTRACT_INPUTS[0], "World-space sample positions, float32 [N, 3]."),
+        value_info(CONTRACT_INPUTS[1], "Unit view directions (the ray direction normalised), float32 [N, 3], one per point."),
+    ]
+}
+
+/// The contract's outputs; `sigma_doc` says how σ is made non-negative.
+pub(crate) fn contract_outputs(sigma_doc: &str) -> Vec<ValueInfoProto> {
+    vec![value_info(CONTRACT_OUTPUTS[0], "Colour in [0, 1] (sigmoid applied), float32 [N, 3]."), value_info(CONTRACT_OUTPUTS[1], sigma_doc)]
 }
 
 /// `name` float32 `[N, columns]`.
@@ -241,7 +248,7 @@ impl Builder {
     }
 
     /// `Gemm(input, W, b)` (then `activation`), W stored `[in, out]`.
-    fn dense(&mut self, layer: &DenseLayer, input: &str, activation: Option<&str>) -> String {
+    pub(crate) fn dense(&mut self, layer: &DenseLayer, input: &str, activation: Option<&str>) -> String {
         let w = self.f32_tensor(&format!("{}.weight", layer.name), &[layer.in_dim, layer.out_dim], &layer.weight);
         let b = self.f32_tensor(&format!("{}.bias", layer.name), &[layer.out_dim], &layer.bias);
         let linear = self.node("Gemm", &[input, &w, &b], &format!("{}.linear", layer.name), vec![]);

@@ -136,12 +136,12 @@ fn f32_scalar(g: &mut Builder, name: &str, value: f32) -> String {
     g.f32_tensor(name, &[], &[value])
 }
 
-/// Columns `[d, d+1)` of `input` along `axis`.
-fn slice(g: &mut Builder, input: &str, d: i64, axis: i64, output: &str) -> String {
-    let start = g.i64_constant(&format!("slice.start{d}"), &[d]);
-    let end = g.i64_constant(&format!("slice.start{}", d + 1), &[d + 1]);
-    let axes = g.i64_constant(&format!("slice.axis{axis}"), &[axis]);
-    g.node("Slice", &[input, &start, &end, &axes], output, vec![])
+/// Indices `[start, end)` of `input` along `axis`.
+pub(crate) fn slice(g: &mut Builder, input: &str, (start, end): (i64, i64), axis: i64, output: &str) -> String {
+    let s = g.i64_constant(&format!("index.{start}"), &[start]);
+    let e = g.i64_constant(&format!("index.{end}"), &[end]);
+    let a = g.i64_constant(&format!("index.{axis}"), &[axis]);
+    g.node("Slice", &[input, &s, &e, &a], output, vec![])
 }
 
 /// The hash-grid encoding of world points `input [N, 3]` → `[N, L·F]` (module doc).
@@ -177,7 +177,7 @@ pub(crate) fn lower_hash_grid(g: &mut Builder, input: &str, grid: &HashGrid, bou
         let bits: Vec<i64> = (0..8).map(|k| (k >> d) & 1).collect();
         let bits_i = i64_tensor(g, &format!("grid.corner_bits{d}"), &[8], &bits);
         let bits_b = bool_tensor(g, &format!("grid.corner_mask{d}"), &[8], &bits.iter().map(|&b| b == 1).collect::<Vec<_>>());
-        let c = slice(g, &cell, d, 2, &format!("grid.cell{d}"));
+        let c = slice(g, &cell, (d, d + 1), 2, &format!("grid.cell{d}"));
         let coord = g.node("Add", &[&c, &bits_i], &format!("grid.corner{d}"), vec![]);
         let term = if d == 0 {
             coord // stride 1 for dense and hashed levels alike
@@ -187,8 +187,8 @@ pub(crate) fn lower_hash_grid(g: &mut Builder, input: &str, grid: &HashGrid, bou
             g.node("Mul", &[&coord, &stride], &format!("grid.term{d}"), vec![])
         };
         terms.push(term);
-        let fd = slice(g, &frac, d, 2, &format!("grid.frac{d}"));
-        let gd = slice(g, &one_minus, d, 2, &format!("grid.one_minus_frac{d}"));
+        let fd = slice(g, &frac, (d, d + 1), 2, &format!("grid.frac{d}"));
+        let gd = slice(g, &one_minus, (d, d + 1), 2, &format!("grid.one_minus_frac{d}"));
         weights.push(g.node("Where", &[&bits_b, &fd, &gd], &format!("grid.weight{d}"), vec![]));
     }
     let wxy = g.node("Mul", &[&weights[0], &weights[1]], "grid.weight01", vec![]);
@@ -249,7 +249,7 @@ fn xor_low_bits(g: &mut Builder, terms: &[String], k: u32) -> String {
 /// The 16 spherical harmonics of unit directions `input [N, 3]` → `[N, 16]`, the operations of
 /// [`nerf_core::spherical_harmonics::sh4`] in the same order.
 pub(crate) fn lower_sh4(g: &mut Builder, input: &str) -> String {
-    let [x, y, z] = [0, 1, 2].map(|d| slice(g, input, d, 1, &format!("sh.{}", ["x", "y", "z"][d as usize])));
+    let [x, y, z] = [0, 1, 2].map(|d| slice(g, input, (d, d + 1), 1, &format!("sh.{}", ["x", "y", "z"][d as usize])));
     let c: Vec<String> = SH4_CONSTANTS.iter().enumerate().map(|(i, &v)| f32_scalar(g, &format!("sh.c{i}"), v)).collect();
     let neg: Vec<String> = [1, 2].iter().map(|&i| f32_scalar(g, &format!("sh.neg_c{i}"), -SH4_CONSTANTS[i])).collect();
     let k = |g: &mut Builder, v: f32, name: &str| f32_scalar(g, name, v);

@@ -2,6 +2,8 @@
 
 mod encoding;
 mod mlp;
+mod ngp;
 
 pub use encoding::encode;
 pub use mlp::{NerfMlp, NerfModel};
+pub use ngp::{GridInputs, NgpField, NgpMlps, trunc_exp};
