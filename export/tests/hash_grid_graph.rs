@@ -97,13 +97,14 @@ fn field_graph_matches_the_plain_field() {
         geometry_features: 15,
         color_hidden: 64,
     };
-    // Weights U(±1/√fan_in)·2 and a U(−1, 1) table: σ = exp(raw) reaches well above 1.
+    // Weights U(±2/√fan_in) (σ's layer ×4) and a U(−1, 1) table: σ = exp(raw) spans orders of
+    // magnitude, as after training (a fresh field gives σ ≈ 1).
     let mut rng = Rng::new(9);
     let layers = spec
         .layer_shapes()
         .into_iter()
         .map(|(name, in_dim, out_dim)| {
-            let a = 2.0 / (in_dim as f32).sqrt();
+            let a = if name == "density.1" { 8.0 } else { 2.0 } / (in_dim as f32).sqrt();
             let weight = (0..in_dim * out_dim).map(|_| (rng.uniform() * 2.0 - 1.0) * a).collect();
             DenseLayer { name, in_dim, out_dim, weight, bias: vec![0.0; out_dim] }
         })
