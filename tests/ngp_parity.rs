@@ -18,12 +18,15 @@ fn ngp_field_graph_matches_burn() {
     device.seed(21);
     let spec = NgpSpec { grid: HashGridConfig { log2_table_size: 17, ..HashGridConfig::default() }, ..NgpSpec::default() };
     let field = NgpField::new(spec, 3, &device).unwrap();
-    // Trained-like magnitudes: a U(−1, 1) table and a density head ×4, so that σ = exp(raw)
-    // spans orders of magnitude (a fresh field gives σ ≈ 1 everywhere).
+    // Trained-like magnitudes: a U(−1, 1) table, weights U(±2/√fan_in) and σ's layer ×4, so
+    // that σ = exp(raw) spans orders of magnitude (a fresh field gives σ ≈ 1 everywhere).
     let mut plain = field.to_plain();
     let mut rng = Rng::new(4);
     plain.table.iter_mut().for_each(|p| *p = rng.uniform() * 2.0 - 1.0);
-    plain.layers[1].weight.iter_mut().for_each(|w| *w *= 4.0);
+    for layer in &mut plain.layers {
+        let a = if layer.name == "density.1" { 8.0 } else { 2.0 } / (layer.in_dim as f32).sqrt();
+        layer.weight.iter_mut().for_each(|w| *w = (rng.uniform() * 2.0 - 1.0) * a);
+    }
     let field = NgpField::from_plain(&plain, &device).unwrap();
 
     let dir = tempfile::tempdir().unwrap();
