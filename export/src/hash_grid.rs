@@ -26,9 +26,10 @@
 //! same hash without any bitwise operator: each term's low k = log₂T bits are extracted with
 //! `Div` by 2^j and `Mod` 2, the XOR of three bits is their sum `Mod` 2, and the bits are
 //! weighted back by 2^j and summed. It runs at opset 17, with only `Div`, `Mod`, `Add`, `Mul`,
-//! `ReduceSum` on int64 (kernels the CUDA provider registers, as far as its operator tables
-//! say; not run on a GPU here), at the price of k× the memory for the index computation
-//! (`[N, L, 8, k]` int64): render in smaller batches.
+//! `ReduceSum`, `Where` on int64, at the price of k× the memory for the index computation
+//! (`[N, L, 8, k]` int64): render in smaller batches. It computes the same values as the
+//! bitwise graph in onnxruntime's CPU provider (tested); whether the CUDA provider runs every
+//! one of its nodes on the GPU was not checked here (no GPU, and its kernel list not read).
 
 use crate::ExportError;
 use crate::graph::{Builder, OPSETS, int_attribute, ir_version_for, value_info};
