@@ -41,6 +41,13 @@ pub struct GridThroughput {
     pub backward_samples_per_s: f64,
     /// Backward pass + sparse Adam step, samples/s.
     pub backward_update_samples_per_s: f64,
+    /// Forward and backward + update in samples per CPU-second of this process (all threads
+    /// together; Linux only, else NaN). Less sensitive than wall time to other processes
+    /// sharing the cores: on an idle machine, wall throughput ≈ threads × this when the pass
+    /// scales.
+    pub forward_samples_per_cpu_s: f64,
+    /// Backward + update, samples per CPU-second.
+    pub backward_update_samples_per_cpu_s: f64,
     /// Table size in MiB (parameters only; Adam adds 3×, the gradient 1×).
     pub table_mib: f64,
     /// Fraction of the table's entries one pass touches.
@@ -89,23 +96,30 @@ pub fn measure_throughput(config: &HashGridConfig, points: usize, threads: usize
             v.sort_by(f64::total_cmp);
             v[v.len() / 2]
         };
+        // (wall, CPU) seconds of `f`.
         let timed = |f: &mut dyn FnMut()| {
-            let start = Instant::now();
+            let (start, cpu) = (Instant::now(), process_cpu_seconds());
             f();
-            start.elapsed().as_secs_f64()
+            (start.elapsed().as_secs_f64(), process_cpu_seconds() - cpu)
         };
         // Warm-up: first touches of the gradient and Adam buffers page them in.
         grid.forward_into(&xs, &mut out);
         grid.backward(&xs, &grad_out, &mut grad);
         let touched = grad.touched_entries();
         adam.step(&mut grid, &mut grad);
-        let forward = median((0..repeats).map(|_| timed(&mut || grid.forward_into(&xs, &mut out))).collect());
-        let (mut backward, mut both) = (Vec::new(), Vec::new());
+        let (mut forward, mut forward_cpu) = (Vec::new(), Vec::new());
+        for _ in 0..repeats {
+            let (wall, cpu) = timed(&mut || grid.forward_into(&xs, &mut out));
+            forward.push(wall);
+            forward_cpu.push(cpu);
+        }
+        let (mut backward, mut both, mut both_cpu) = (Vec::new(), Vec::new(), Vec::new());
         for _ in 0..repeats {
             let b = timed(&mut || grid.backward(&xs, &grad_out, &mut grad));
             let u = timed(&mut || adam.step(&mut grid, &mut grad));
-            backward.push(b);
-            both.push(b + u);
+            backward.push(b.0);
+            both.push(b.0 + u.0);
+            both_cpu.push(b.1 + u.1);
         }
         let total = config.total_entries()?;
         Ok(GridThroughput {
@@ -113,13 +127,26 @@ pub fn measure_throughput(config: &HashGridConfig, points: usize, threads: usize
             points,
             threads,
             order,
-            forward_samples_per_s: points as f64 / forward,
+            forward_samples_per_s: points as f64 / median(forward),
+            forward_samples_per_cpu_s: points as f64 / median(forward_cpu),
+            backward_update_samples_per_cpu_s: points as f64 / median(both_cpu),
             backward_samples_per_s: points as f64 / median(backward),
             backward_update_samples_per_s: points as f64 / median(both),
             table_mib: (total * config.features_per_level * 4) as f64 / (1 << 20) as f64,
             touched_fraction: touched as f64 / total as f64,
         })
     })
+}
+
+/// User + system CPU time of this process so far, in seconds (`/proc/self/stat`, clock ticks of
+/// 1/100 s); NaN where that file is not available.
+fn process_cpu_seconds() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else { return f64::NAN };
+    // Fields after the parenthesised command name: state is the 3rd field, utime the 14th.
+    let Some(rest) = stat.rsplit_once(')').map(|(_, r)| r) else { return f64::NAN };
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(f64::NAN);
+    (ticks(11) + ticks(12)) / 100.0
 }
 
 #[cfg(test)]
@@ -137,6 +164,7 @@ mod tests {
         let t = measure_throughput(&config, 2000, 1, SampleOrder::Uniform, 1).unwrap();
         assert!(t.forward_samples_per_s > 0.0 && t.backward_update_samples_per_s > 0.0);
         assert!(t.backward_update_samples_per_s <= t.backward_samples_per_s);
+        assert!(process_cpu_seconds() > 0.0, "this process has used CPU time");
         assert!(t.touched_fraction > 0.0 && t.touched_fraction <= 1.0);
         assert!(measure_throughput(&config, 0, 1, SampleOrder::Uniform, 1).unwrap_err().to_string().contains("points 0"));
     }
