@@ -9,6 +9,9 @@
 //! - [`compositing`]: α from density, transmittance, weights, rgb/depth/acc, white background.
 //! - [`dataset`]: the Blender (`transforms_*.json`) parser, downscaling, a generated scene.
 //! - [`network`]: the NeRF MLP described as plain data (sizes, skips, encodings, weights).
+//! - [`hash_grid`]: the multiresolution hash encoding (tiny-cuda-nn's), its backward pass and
+//!   sparse Adam; [`spherical_harmonics`]: the degree-4 direction encoding; [`ngp`]: the
+//!   instant-ngp field (grid + two small MLPs) as plain data.
 //! - [`occupancy`]: the occupancy grid for empty-space skipping and its file format.
 //! - [`render`]: the inference renderers (dense hierarchical, marching through the grid) over
 //!   one front-to-back accumulator; the field that evaluates the networks is a trait.
@@ -24,14 +27,17 @@ pub mod compositing;
 pub mod dataset;
 pub mod error;
 pub mod frames;
+pub mod hash_grid;
 pub mod imageio;
 pub mod limits;
 pub mod metrics;
 pub mod network;
+pub mod ngp;
 pub mod occupancy;
 pub mod rng;
 pub mod render;
 pub mod sampling;
+pub mod spherical_harmonics;
 
 pub use camera::{Intrinsics, Pose, Rays};
 pub use compositing::{Composited, composite};

@@ -138,14 +138,8 @@ pub fn compile(net: &PlainNetwork, name: &str, opset: i64, metadata: &[(String, 
             "NeRF {name} network: {}×{} MLP (skips after {:?}), positional encodings inside the graph, view-dependent colour: {}.",
             spec.depth, spec.width, spec.skips, spec.use_viewdirs
         ),
-        input: vec![
-            value_info(CONTRACT_INPUTS[0], "World-space sample positions, float32 [N, 3]."),
-            value_info(CONTRACT_INPUTS[1], "Unit view directions (the ray direction normalised), float32 [N, 3], one per point."),
-        ],
-        output: vec![
-            value_info(CONTRACT_OUTPUTS[0], "Colour in [0, 1] (sigmoid applied), float32 [N, 3]."),
-            value_info(CONTRACT_OUTPUTS[1], "Volume density (ReLU applied), float32 [N, 1]."),
-        ],
+        input: contract_inputs(),
+        output: contract_outputs("Volume density (ReLU applied), float32 [N, 1]."),
         value_info: vec![],
     };
     Ok(ModelProto {
@@ -170,8 +164,21 @@ fn encoding_text(e: &EncodingSpec) -> String {
     )
 }
 
+/// The contract's inputs, documented.
+pub(crate) fn contract_inputs() -> Vec<ValueInfoProto> {
+    vec![
+        value_info(CONTRACT_INPUTS[0], "World-space sample positions, float32 [N, 3]."),
+        value_info(CONTRACT_INPUTS[1], "Unit view directions (the ray direction normalised), float32 [N, 3], one per point."),
+    ]
+}
+
+/// The contract's outputs; `sigma_doc` says how σ is made non-negative.
+pub(crate) fn contract_outputs(sigma_doc: &str) -> Vec<ValueInfoProto> {
+    vec![value_info(CONTRACT_OUTPUTS[0], "Colour in [0, 1] (sigmoid applied), float32 [N, 3]."), value_info(CONTRACT_OUTPUTS[1], sigma_doc)]
+}
+
 /// `name` float32 `[N, columns]`.
-fn value_info((name, columns): (&str, i64), doc: &str) -> ValueInfoProto {
+pub(crate) fn value_info((name, columns): (&str, i64), doc: &str) -> ValueInfoProto {
     use tensor_shape_proto::{Dimension, dimension::Value};
     let dim = vec![Dimension { value: Some(Value::DimParam("N".into())) }, Dimension { value: Some(Value::DimValue(columns)) }];
     ValueInfoProto {
@@ -188,13 +195,13 @@ fn value_info((name, columns): (&str, i64), doc: &str) -> ValueInfoProto {
 
 /// Accumulates nodes and initializers with unique names.
 #[derive(Default)]
-struct Builder {
-    nodes: Vec<NodeProto>,
-    initializers: Vec<TensorProto>,
+pub(crate) struct Builder {
+    pub(crate) nodes: Vec<NodeProto>,
+    pub(crate) initializers: Vec<TensorProto>,
 }
 
 impl Builder {
-    fn node(&mut self, op: &str, inputs: &[&str], output: &str, attribute: Vec<AttributeProto>) -> String {
+    pub(crate) fn node(&mut self, op: &str, inputs: &[&str], output: &str, attribute: Vec<AttributeProto>) -> String {
         self.nodes.push(NodeProto {
             input: inputs.iter().map(|s| s.to_string()).collect(),
             output: vec![output.to_string()],
@@ -207,16 +214,16 @@ impl Builder {
         output.to_string()
     }
 
-    fn unary(&mut self, op: &str, input: &str, output: &str) -> String {
+    pub(crate) fn unary(&mut self, op: &str, input: &str, output: &str) -> String {
         self.node(op, &[input], output, vec![])
     }
 
-    fn concat(&mut self, inputs: &[&str], output: &str) -> String {
+    pub(crate) fn concat(&mut self, inputs: &[&str], output: &str) -> String {
         self.node("Concat", inputs, output, vec![int_attribute("axis", 1)])
     }
 
     /// A named constant, stored once however often it is used.
-    fn i64_constant(&mut self, name: &str, values: &[i64]) -> String {
+    pub(crate) fn i64_constant(&mut self, name: &str, values: &[i64]) -> String {
         if !self.initializers.iter().any(|t| t.name == name) {
             self.initializers.push(TensorProto {
                 dims: vec![values.len() as i64],
@@ -229,7 +236,7 @@ impl Builder {
         name.to_string()
     }
 
-    fn f32_tensor(&mut self, name: &str, dims: &[usize], values: &[f32]) -> String {
+    pub(crate) fn f32_tensor(&mut self, name: &str, dims: &[usize], values: &[f32]) -> String {
         self.initializers.push(TensorProto {
             dims: dims.iter().map(|&d| d as i64).collect(),
             data_type: data_type::FLOAT,
@@ -241,7 +248,7 @@ impl Builder {
     }
 
     /// `Gemm(input, W, b)` (then `activation`), W stored `[in, out]`.
-    fn dense(&mut self, layer: &DenseLayer, input: &str, activation: Option<&str>) -> String {
+    pub(crate) fn dense(&mut self, layer: &DenseLayer, input: &str, activation: Option<&str>) -> String {
         let w = self.f32_tensor(&format!("{}.weight", layer.name), &[layer.in_dim, layer.out_dim], &layer.weight);
         let b = self.f32_tensor(&format!("{}.bias", layer.name), &[layer.out_dim], &layer.bias);
         let linear = self.node("Gemm", &[input, &w, &b], &format!("{}.linear", layer.name), vec![]);
@@ -271,7 +278,7 @@ impl Builder {
     }
 }
 
-fn int_attribute(name: &str, value: i64) -> AttributeProto {
+pub(crate) fn int_attribute(name: &str, value: i64) -> AttributeProto {
     AttributeProto { name: name.into(), r#type: attribute_type::INT, i: value, ..Default::default() }
 }
 

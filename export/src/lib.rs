@@ -8,7 +8,9 @@
 
 pub mod bundle;
 pub mod graph;
+pub mod hash_grid;
 pub mod import;
+pub mod ngp;
 pub mod proto;
 
 pub use bundle::{Bundle, SceneDescription, read_bundle_network, read_occupancy, read_scene, write_bundle};

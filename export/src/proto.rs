@@ -172,6 +172,8 @@ pub mod data_type {
     pub const FLOAT: i32 = 1;
     /// INT64.
     pub const INT64: i32 = 7;
+    /// BOOL.
+    pub const BOOL: i32 = 9;
 }
 
 /// `ValueInfoProto`: a named, typed graph input/output.

@@ -1,0 +1,338 @@
+//! The hash-grid encoding and the degree-4 spherical harmonics as standard ONNX operators, so a
+//! hash-grid field runs in any ONNX runtime with its table as one initializer.
+//!
+//! # The encoding, op by op (`points [N, 3]` → `features [N, L·F]`)
+//! 1. `Sub` the bound's min, `Mul` by its f32 scale, `Clip` to [0, 1]: the unit-cube point,
+//!    the same f32 operations as [`GridBound::to_unit`] and the clamp in
+//!    [`nerf_core::hash_grid::corners`].
+//! 2. `Unsqueeze` to `[N, 1, 3]`, `Mul` by the level scales `[L, 1]`, `Add` 0.5: positions
+//!    `[N, L, 3]`; `Floor`, `Sub` (fractions), `Cast` to int64 (cells).
+//! 3. Per axis d (`Slice`): corner coordinates `cell_d + bit_d(k)` for the 8 corners `[N, L, 8]`,
+//!    multiplied by the level's stride on that axis (dense: 1, res, res²; hashed: the primes
+//!    1, 2654435761, 805459861); weights `Where(bit_d(k), frac_d, 1 − frac_d)`, multiplied
+//!    x·y·z as tiny-cuda-nn does. int64 holds the products exactly (< 2⁴⁹), and since T divides
+//!    2³², `(a ⊕ b ⊕ c) mod T` on int64 equals the u32 hash mod T.
+//! 4. Dense index `Mod(Σ terms, entries)`, hashed index `BitwiseAnd(a ⊕ b ⊕ c, T − 1)`, chosen
+//!    per level by `Where`, plus the level's offset: rows of the table.
+//! 5. `Gather` the rows of the table `[entries, F]` → `[N, L, 8, F]`, weight, `ReduceSum` the
+//!    corners, `Reshape` to `[N, L·F]` (level-major, as the Rust encoding).
+//!
+//! # GPU consumers
+//! `BitwiseXor` and `BitwiseAnd` need opset 18. onnxruntime's CPU provider implements them for
+//! int32/int64, but its CUDA provider has no kernels for them: a CUDA session still loads and
+//! computes the right values, but places those nodes on the CPU, so every batch copies the
+//! `[N, L, 8]` int64 hash terms to the host and the indices back (≈ 3·N·L·8·8 bytes each
+//! way), which costs far more than the lookups themselves. [`HashOps::Arithmetic`] writes the
+//! same hash without any bitwise operator: each term's low k = log₂T bits are extracted with
+//! `Div` by 2^j and `Mod` 2, the XOR of three bits is their sum `Mod` 2, and the bits are
+//! weighted back by 2^j and summed. It runs at opset 17, with only `Div`, `Mod`, `Add`, `Mul`,
+//! `ReduceSum`, `Where` on int64, at the price of k× the memory for the index computation
+//! (`[N, L, 8, k]` int64): render in smaller batches. It computes the same values as the
+//! bitwise graph in onnxruntime's CPU provider (tested); whether the CUDA provider runs every
+//! one of its nodes on the GPU was not checked here (no GPU, and its kernel list not read).
+
+use crate::ExportError;
+use crate::graph::{Builder, OPSETS, int_attribute, ir_version_for, value_info};
+use crate::proto::*;
+use nerf_core::hash_grid::{GridBound, HashGrid};
+use nerf_core::spherical_harmonics::{SH4_CONSTANTS, SH4_DIM};
+
+/// How the spatial hash's XOR and `mod T` are written.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum HashOps {
+    /// `BitwiseXor` and `BitwiseAnd` (opset ≥ 18).
+    #[default]
+    Bitwise,
+    /// Bit extraction with `Div`/`Mod`/`Add` (opset ≥ 17, no bitwise operator; k× index memory).
+    Arithmetic,
+}
+
+impl HashOps {
+    /// The lowest opset this lowering needs.
+    pub fn min_opset(self) -> i64 {
+        match self {
+            HashOps::Bitwise => 18,
+            HashOps::Arithmetic => 17,
+        }
+    }
+}
+
+/// Metadata key holding the grid's configuration (JSON).
+pub const GRID_KEY: &str = "nerf.hash_grid";
+/// Metadata key holding the grid's bound (JSON).
+pub const BOUND_KEY: &str = "nerf.grid_bound";
+
+/// Check an opset for a hash-grid graph.
+pub fn check_opset(opset: i64, ops: HashOps) -> Result<(), ExportError> {
+    if !OPSETS.contains(&opset) || opset < ops.min_opset() {
+        return Err(ExportError::Unsupported(format!(
+            "opset {opset}: the hash grid with {ops:?} operators needs opset {}–{}",
+            ops.min_opset().max(*OPSETS.start()),
+            OPSETS.end()
+        )));
+    }
+    Ok(())
+}
+
+/// A graph of the two encodings alone: inputs `points`, `viewdirs` `[N, 3]`, outputs
+/// `features [N, L·F]` (the hash grid of `points` in `bound`) and `sh [N, 16]` (of `viewdirs`).
+/// For parity checks, and for consumers that run the heads elsewhere.
+pub fn compile_encodings(grid: &HashGrid, bound: &GridBound, ops: HashOps, opset: i64) -> Result<ModelProto, ExportError> {
+    check_opset(opset, ops)?;
+    bound.validate().map_err(|e| ExportError::Network(e.to_string()))?;
+    let mut g = Builder::default();
+    let features = lower_hash_grid(&mut g, "points", grid, bound, ops);
+    g.unary("Identity", &features, "features");
+    let sh = lower_sh4(&mut g, "viewdirs");
+    g.unary("Identity", &sh, "sh");
+    let width = grid.output_dim() as i64;
+    let graph = GraphProto {
+        node: g.nodes,
+        name: "encodings".into(),
+        initializer: g.initializers,
+        doc_string: format!("Hash-grid encoding ({} levels × {} features) of points and degree-4 spherical harmonics of view directions.", grid.config().levels, grid.config().features_per_level),
+        input: vec![value_info(("points", 3), "World positions, float32 [N, 3]."), value_info(("viewdirs", 3), "Unit view directions, float32 [N, 3].")],
+        output: vec![
+            value_info(("features", width), "Hash-grid features, float32 [N, L·F], level-major."),
+            value_info(("sh", SH4_DIM as i64), "Spherical harmonics of degree 4, float32 [N, 16]."),
+        ],
+        value_info: vec![],
+    };
+    Ok(model(graph, opset, grid, bound))
+}
+
+/// The model around `graph`, with the grid and bound in the metadata.
+pub(crate) fn model(graph: GraphProto, opset: i64, grid: &HashGrid, bound: &GridBound) -> ModelProto {
+    let props = [
+        (GRID_KEY.to_string(), serde_json::to_string(grid.config()).expect("a config serialises")),
+        (BOUND_KEY.to_string(), serde_json::to_string(bound).expect("a bound serialises")),
+    ];
+    ModelProto {
+        ir_version: ir_version_for(opset),
+        opset_import: vec![OperatorSetIdProto { domain: String::new(), version: opset }],
+        producer_name: "nerf-rs".into(),
+        producer_version: env!("CARGO_PKG_VERSION").into(),
+        domain: "rs.nerf".into(),
+        model_version: 1,
+        doc_string: "A hash-grid radiance field compiled by nerf-rs.".into(),
+        graph: Some(graph),
+        metadata_props: props.into_iter().map(|(key, value)| StringStringEntryProto { key, value }).collect(),
+    }
+}
+
+fn tensor(g: &mut Builder, name: &str, dims: &[i64], data_type: i32, raw_data: Vec<u8>) -> String {
+    g.initializers.push(TensorProto { dims: dims.to_vec(), data_type, name: name.into(), raw_data, ..Default::default() });
+    name.to_string()
+}
+
+fn i64_tensor(g: &mut Builder, name: &str, dims: &[i64], values: &[i64]) -> String {
+    tensor(g, name, dims, data_type::INT64, values.iter().flat_map(|v| v.to_le_bytes()).collect())
+}
+
+fn bool_tensor(g: &mut Builder, name: &str, dims: &[i64], values: &[bool]) -> String {
+    tensor(g, name, dims, data_type::BOOL, values.iter().map(|&b| u8::from(b)).collect())
+}
+
+fn f32_scalar(g: &mut Builder, name: &str, value: f32) -> String {
+    g.f32_tensor(name, &[], &[value])
+}
+
+/// Indices `[start, end)` of `input` along `axis`.
+pub(crate) fn slice(g: &mut Builder, input: &str, (start, end): (i64, i64), axis: i64, output: &str) -> String {
+    let s = g.i64_constant(&format!("index.{start}"), &[start]);
+    let e = g.i64_constant(&format!("index.{end}"), &[end]);
+    let a = g.i64_constant(&format!("index.{axis}"), &[axis]);
+    g.node("Slice", &[input, &s, &e, &a], output, vec![])
+}
+
+/// The hash-grid encoding of world points `input [N, 3]` → `[N, L·F]` (module doc).
+pub(crate) fn lower_hash_grid(g: &mut Builder, input: &str, grid: &HashGrid, bound: &GridBound, ops: HashOps) -> String {
+    let levels = grid.levels();
+    let l = levels.len() as i64;
+    let f = grid.config().features_per_level as i64;
+    // 1. Unit cube.
+    let min = g.f32_tensor("grid.bound_min", &[3], &bound.min);
+    let scale = g.f32_tensor("grid.bound_scale", &[3], &bound.scale());
+    let shifted = g.node("Sub", &[input, &min], "grid.shifted", vec![]);
+    let unit = g.node("Mul", &[&shifted, &scale], "grid.unit", vec![]);
+    let zero = f32_scalar(g, "grid.zero", 0.0);
+    let one = f32_scalar(g, "grid.one", 1.0);
+    let clipped = g.node("Clip", &[&unit, &zero, &one], "grid.clipped", vec![]);
+    // 2. Positions, cells, fractions per level.
+    let axes1 = g.i64_constant("axes.1", &[1]);
+    let u = g.node("Unsqueeze", &[&clipped, &axes1], "grid.unsqueezed", vec![]);
+    let scales: Vec<f32> = levels.iter().map(|v| v.scale).collect();
+    let scales = g.f32_tensor("grid.level_scales", &[levels.len(), 1], &scales);
+    let scaled = g.node("Mul", &[&u, &scales], "grid.scaled", vec![]);
+    let half = f32_scalar(g, "grid.half", 0.5);
+    let pos = g.node("Add", &[&scaled, &half], "grid.pos", vec![]);
+    let floor = g.unary("Floor", &pos, "grid.floor");
+    let frac = g.node("Sub", &[&pos, &floor], "grid.frac", vec![]);
+    let one_minus = g.node("Sub", &[&one, &frac], "grid.one_minus_frac", vec![]);
+    let cell = g.node("Cast", &[&floor], "grid.cell", vec![int_attribute("to", data_type::INT64 as i64)]);
+    // 3. Per-axis corner terms and weights, [N, L, 8].
+    let per_level = |v: &dyn Fn(&nerf_core::hash_grid::LevelLayout) -> i64| levels.iter().map(v).collect::<Vec<i64>>();
+    let mut terms = Vec::new();
+    let mut weights = Vec::new();
+    for d in 0..3i64 {
+        let bits: Vec<i64> = (0..8).map(|k| (k >> d) & 1).collect();
+        let bits_i = i64_tensor(g, &format!("grid.corner_bits{d}"), &[8], &bits);
+        let bits_b = bool_tensor(g, &format!("grid.corner_mask{d}"), &[8], &bits.iter().map(|&b| b == 1).collect::<Vec<_>>());
+        let c = slice(g, &cell, (d, d + 1), 2, &format!("grid.cell{d}"));
+        let coord = g.node("Add", &[&c, &bits_i], &format!("grid.corner{d}"), vec![]);
+        let term = if d == 0 {
+            coord // stride 1 for dense and hashed levels alike
+        } else {
+            let stride = per_level(&|v| if v.dense { (v.resolution as i64).pow(d as u32) } else { nerf_core::hash_grid::config::PRIMES[d as usize] as i64 });
+            let stride = i64_tensor(g, &format!("grid.stride{d}"), &[l, 1], &stride);
+            g.node("Mul", &[&coord, &stride], &format!("grid.term{d}"), vec![])
+        };
+        terms.push(term);
+        let fd = slice(g, &frac, (d, d + 1), 2, &format!("grid.frac{d}"));
+        let gd = slice(g, &one_minus, (d, d + 1), 2, &format!("grid.one_minus_frac{d}"));
+        weights.push(g.node("Where", &[&bits_b, &fd, &gd], &format!("grid.weight{d}"), vec![]));
+    }
+    let wxy = g.node("Mul", &[&weights[0], &weights[1]], "grid.weight01", vec![]);
+    let weight = g.node("Mul", &[&wxy, &weights[2]], "grid.weight", vec![]);
+    // 4. Entry indices.
+    let sum01 = g.node("Add", &[&terms[0], &terms[1]], "grid.dense_sum01", vec![]);
+    let sum = g.node("Add", &[&sum01, &terms[2]], "grid.dense_sum", vec![]);
+    let entries = i64_tensor(g, "grid.level_entries", &[l, 1], &per_level(&|v| v.entries as i64));
+    let dense = g.node("Mod", &[&sum, &entries], "grid.dense_index", vec![]);
+    let hashed = match ops {
+        HashOps::Bitwise => {
+            let x01 = g.node("BitwiseXor", &[&terms[0], &terms[1]], "grid.hash01", vec![]);
+            let x = g.node("BitwiseXor", &[&x01, &terms[2]], "grid.hash", vec![]);
+            let mask = i64_tensor(g, "grid.level_mask", &[l, 1], &per_level(&|v| v.entries as i64 - 1));
+            g.node("BitwiseAnd", &[&x, &mask], "grid.hash_index", vec![])
+        }
+        HashOps::Arithmetic => xor_low_bits(g, &terms, grid.config().log2_table_size),
+    };
+    let is_dense = bool_tensor(g, "grid.level_dense", &[l, 1], &levels.iter().map(|v| v.dense).collect::<Vec<_>>());
+    let local = g.node("Where", &[&is_dense, &dense, &hashed], "grid.local_index", vec![]);
+    let offsets = i64_tensor(g, "grid.level_offsets", &[l, 1], &per_level(&|v| v.offset as i64));
+    let rows = g.node("Add", &[&local, &offsets], "grid.rows", vec![]);
+    // 5. Lookup, weighting, sum over corners.
+    let total = grid.params().len() / f as usize;
+    let table = g.f32_tensor("grid.table", &[total, f as usize], grid.params());
+    let values = g.node("Gather", &[&table, &rows], "grid.values", vec![int_attribute("axis", 0)]);
+    let axes3 = g.i64_constant("axes.3", &[3]);
+    let w = g.node("Unsqueeze", &[&weight, &axes3], "grid.weight_unsqueezed", vec![]);
+    let weighted = g.node("Mul", &[&values, &w], "grid.weighted", vec![]);
+    let axes2 = g.i64_constant("axes.2", &[2]);
+    let summed = g.node("ReduceSum", &[&weighted, &axes2], "grid.summed", vec![int_attribute("keepdims", 0)]);
+    let shape = g.i64_constant("grid.output_shape", &[0, l * f]);
+    g.node("Reshape", &[&summed, &shape], "grid.features", vec![])
+}
+
+/// `(t₀ ⊕ t₁ ⊕ t₂) mod 2^k` for non-negative int64 `[N, L, 8]` terms, without bitwise operators:
+/// bit j of each term is `(t / 2^j) mod 2`, the XOR of three bits is their sum mod 2.
+fn xor_low_bits(g: &mut Builder, terms: &[String], k: u32) -> String {
+    let powers: Vec<i64> = (0..k).map(|j| 1i64 << j).collect();
+    let powers = i64_tensor(g, "grid.bit_values", &[k as i64], &powers);
+    let two = i64_tensor(g, "grid.two", &[], &[2]);
+    let axes3 = g.i64_constant("axes.3", &[3]);
+    let mut bit_sum: Option<String> = None;
+    for (d, t) in terms.iter().enumerate() {
+        let tu = g.node("Unsqueeze", &[t, &axes3], &format!("grid.term{d}_unsqueezed"), vec![]);
+        let shifted = g.node("Div", &[&tu, &powers], &format!("grid.term{d}_shifted"), vec![]);
+        let bits = g.node("Mod", &[&shifted, &two], &format!("grid.term{d}_bits"), vec![]);
+        bit_sum = Some(match bit_sum {
+            None => bits,
+            Some(s) => g.node("Add", &[&s, &bits], &format!("grid.bit_sum{d}"), vec![]),
+        });
+    }
+    let xor_bits = g.node("Mod", &[&bit_sum.expect("three terms"), &two], "grid.xor_bits", vec![]);
+    let valued = g.node("Mul", &[&xor_bits, &powers], "grid.xor_valued", vec![]);
+    g.node("ReduceSum", &[&valued, &axes3], "grid.hash_index", vec![int_attribute("keepdims", 0)])
+}
+
+/// The 16 spherical harmonics of unit directions `input [N, 3]` → `[N, 16]`, the operations of
+/// [`nerf_core::spherical_harmonics::sh4`] in the same order.
+pub(crate) fn lower_sh4(g: &mut Builder, input: &str) -> String {
+    let [x, y, z] = [0, 1, 2].map(|d| slice(g, input, (d, d + 1), 1, &format!("sh.{}", ["x", "y", "z"][d as usize])));
+    let c: Vec<String> = SH4_CONSTANTS.iter().enumerate().map(|(i, &v)| f32_scalar(g, &format!("sh.c{i}"), v)).collect();
+    let neg: Vec<String> = [1, 2].iter().map(|&i| f32_scalar(g, &format!("sh.neg_c{i}"), -SH4_CONSTANTS[i])).collect();
+    let k = |g: &mut Builder, v: f32, name: &str| f32_scalar(g, name, v);
+    let (m3, one, five, three) = (k(g, -3.0, "sh.minus3"), k(g, 1.0, "sh.one"), k(g, 5.0, "sh.five"), k(g, 3.0, "sh.three"));
+    let mul = |g: &mut Builder, a: &str, b: &str, out: &str| g.node("Mul", &[a, b], &format!("sh.{out}"), vec![]);
+    let xy = mul(g, &x, &y, "xy");
+    let yz = mul(g, &y, &z, "yz");
+    let xz = mul(g, &x, &z, "xz");
+    let x2 = mul(g, &x, &x, "x2");
+    let y2 = mul(g, &y, &y, "y2");
+    let z2 = mul(g, &z, &z, "z2");
+    // Band 0: the constant, one per row.
+    let shape = g.node("Shape", &[&x], "sh.row_shape", vec![]);
+    let c0 = g.node("Expand", &[&c[0], &shape], "sh.0", vec![]);
+    let o1 = mul(g, &neg[0], &y, "1");
+    let o2 = mul(g, &c[1], &z, "2");
+    let o3 = mul(g, &neg[0], &x, "3");
+    let o4 = mul(g, &c[2], &xy, "4");
+    let o5 = mul(g, &neg[1], &yz, "5");
+    let c3z2 = mul(g, &c[3], &z2, "c3z2");
+    let o6 = g.node("Sub", &[&c3z2, &c[4]], "sh.6", vec![]);
+    let o7 = mul(g, &neg[1], &xz, "7");
+    let c5x2 = mul(g, &c[5], &x2, "c5x2");
+    let c5y2 = mul(g, &c[5], &y2, "c5y2");
+    let o8 = g.node("Sub", &[&c5x2, &c5y2], "sh.8", vec![]);
+    // −3x² + y², 1 − 5z², 5z² − 3, x² − y², −x² + 3y².
+    let m3x2 = mul(g, &m3, &x2, "m3x2");
+    let p9 = g.node("Add", &[&m3x2, &y2], "sh.p9", vec![]);
+    let five_z2 = mul(g, &five, &z2, "five_z2");
+    let p11 = g.node("Sub", &[&one, &five_z2], "sh.p11", vec![]);
+    let p12 = g.node("Sub", &[&five_z2, &three], "sh.p12", vec![]);
+    let p14 = g.node("Sub", &[&x2, &y2], "sh.p14", vec![]);
+    let neg_x2 = g.unary("Neg", &x2, "sh.neg_x2");
+    let three_y2 = mul(g, &three, &y2, "three_y2");
+    let p15 = g.node("Add", &[&neg_x2, &three_y2], "sh.p15", vec![]);
+    let cxp = |g: &mut Builder, ci: usize, v: &str, p: &str, out: &str| {
+        let cv = g.node("Mul", &[&c[ci], v], &format!("sh.c{ci}_{out}"), vec![]);
+        g.node("Mul", &[&cv, p], &format!("sh.{out}"), vec![])
+    };
+    let o9 = cxp(g, 6, &y, &p9, "9");
+    let o10 = cxp(g, 7, &xy, &z, "10");
+    let o11 = cxp(g, 8, &y, &p11, "11");
+    let o12 = cxp(g, 9, &z, &p12, "12");
+    let o13 = cxp(g, 8, &x, &p11, "13");
+    let o14 = cxp(g, 10, &z, &p14, "14");
+    let o15 = cxp(g, 6, &x, &p15, "15");
+    let all = [&c0, &o1, &o2, &o3, &o4, &o5, &o6, &o7, &o8, &o9, &o10, &o11, &o12, &o13, &o14, &o15];
+    let all: Vec<&str> = all.iter().map(|s| s.as_str()).collect();
+    g.concat(&all, "sh.output")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nerf_core::hash_grid::HashGridConfig;
+
+    fn grid() -> HashGrid {
+        HashGrid::new(HashGridConfig { levels: 4, features_per_level: 2, log2_table_size: 9, base_resolution: 4, max_resolution: 17 }, 1).unwrap()
+    }
+
+    #[test]
+    fn graph_names_and_opsets() {
+        let g = grid();
+        let model = compile_encodings(&g, &GridBound::cube(1.5), HashOps::Bitwise, 18).unwrap();
+        let graph = model.graph.as_ref().unwrap();
+        let names: Vec<&str> = graph.input.iter().chain(&graph.output).map(|v| v.name.as_str()).collect();
+        assert_eq!(names, ["points", "viewdirs", "features", "sh"]);
+        let ops: Vec<&str> = graph.node.iter().map(|n| n.op_type.as_str()).collect();
+        assert!(ops.contains(&"BitwiseXor") && ops.contains(&"BitwiseAnd") && ops.contains(&"Gather"));
+        let mut init: Vec<&str> = graph.initializer.iter().map(|t| t.name.as_str()).collect();
+        init.sort();
+        let n = init.len();
+        init.dedup();
+        assert_eq!(init.len(), n, "no initializer twice");
+        let table = graph.initializer.iter().find(|t| t.name == "grid.table").unwrap();
+        assert_eq!(table.dims, [(g.params().len() / 2) as i64, 2]);
+        assert!(model.metadata_props.iter().any(|p| p.key == GRID_KEY));
+        let arithmetic = compile_encodings(&g, &GridBound::cube(1.5), HashOps::Arithmetic, 17).unwrap();
+        assert!(!arithmetic.graph.unwrap().node.iter().any(|n| n.op_type.starts_with("Bitwise")));
+        let err = compile_encodings(&g, &GridBound::cube(1.5), HashOps::Bitwise, 17).unwrap_err().to_string();
+        assert!(err.contains("opset 17") && err.contains("18"), "{err}");
+        let err = compile_encodings(&g, &GridBound::cube(0.0), HashOps::Bitwise, 18).unwrap_err().to_string();
+        assert!(err.contains("axis 0"), "{err}");
+    }
+}
