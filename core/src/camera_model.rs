@@ -345,6 +345,33 @@ mod tests {
     }
 
     #[test]
+    fn fox_directions_match_opencv_undistort_points() {
+        // The fox capture's camera; expected values from OpenCV 5.0's
+        // `cv2.undistortPoints([[i + 0.5, j + 0.5]], K, (k1, k2, p1, p2))` (100 iterations),
+        // y negated into OpenGL.
+        let fox = PinholeCamera {
+            width: 216,
+            height: 384,
+            fx: 275.104,
+            fy: 274.898,
+            cx: 110.9116,
+            cy: 193.0536,
+            pixel_center: PixelCenter::HalfPixel,
+            distortion: Some(OpenCvDistortion { k1: 0.0578421, k2: -0.0805099, p1: -0.000980296, p2: 0.00015575 }),
+        };
+        let cases = [
+            ((0.0, 0.0), (-0.39941427, 0.69628246)),
+            ((215.0, 383.0), (0.37869988, -0.69087819)),
+            ((100.0, 17.0), (-0.03747789, 0.63097599)),
+            ((3.0, 300.0), (-0.38691716, -0.38757754)),
+        ];
+        for ((i, j), (x, y)) in cases {
+            let d = fox.camera_direction(i, j);
+            assert!((d.x - x).abs() < 2e-6 && (d.y - y).abs() < 2e-6 && d.z == -1.0, "({i}, {j}): {d:?}");
+        }
+    }
+
+    #[test]
     fn project_inverts_camera_direction() {
         for c in [camera(PixelCenter::HalfPixel, Some(D)), camera(PixelCenter::Integer, None)] {
             for &(i, j) in &[(0.0, 0.0), (3.0, 1.0), (1.25, 0.5)] {

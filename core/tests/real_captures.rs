@@ -30,6 +30,15 @@ fn cos_to(c: &Capture, target: Vec3) -> Vec<f32> {
     c.views.iter().zip(view_dirs(c)).map(|(v, d)| d.dot((target - v.pose.origin()).normalize())).collect()
 }
 
+/// Asserts that the last view's pose matches `expected` (3×4 rows) to 1e-5 (relative for the
+/// translation, whose scale depends on the bounds).
+fn assert_last_pose(c: &Capture, expected: [[f32; 4]; 3]) {
+    let got = c.views.last().unwrap().pose.0;
+    for (g, e) in got.iter().flatten().zip(expected.iter().flatten()) {
+        assert!((g - e).abs() <= 1e-5 * e.abs().max(1.0), "{got:?} vs {expected:?}");
+    }
+}
+
 /// Decodes the first view's image and checks its size against its camera.
 fn first_image_decodes(c: &Capture) {
     let view = &c.views[0];
@@ -95,6 +104,13 @@ fn fern_llff_forward_facing() {
     // Recentred: the average camera sits at the origin.
     assert!(centroid(&c.poses()).length() < 1e-4);
     assert_eq!(c.split_indices(CaptureSplit::Test), (0..n).step_by(8).collect::<Vec<_>>());
+    // nerf-pytorch's pipeline in numpy (`scripts/llff_reference.py ../shared/data/real/fern`).
+    assert_last_pose(&c, [
+        [0.98934262, 0.04736213, -0.13768839, -0.34887284],
+        [-0.05288937, 0.99792338, -0.03676361, -0.12545621],
+        [0.13566127, 0.04365406, 0.98979312, -0.03917920],
+    ]);
+    assert!((far - 6.186652).abs() < 1e-4, "{far}");
     first_image_decodes(&c);
 }
 
@@ -119,5 +135,13 @@ fn bird_llff_360() {
     let cos_focus = cos_to(&c, focus);
     assert!(cos_focus.iter().sum::<f32>() / 161.0 > mean, "{cos_focus:?}");
     assert_eq!(c.split_indices(CaptureSplit::Train).len(), 161 - 21);
+    // nerf-pytorch's pipeline in numpy (`scripts/llff_reference.py ../shared/data/real/bird`).
+    assert_last_pose(&c, [
+        [0.99164861, 0.09078091, -0.09160747, -0.64613488],
+        [-0.12824268, 0.76938118, -0.62578459, -6.50176981],
+        [0.01367178, 0.63230640, 0.77459777, 5.57915776],
+    ]);
+    let (near, far) = c.near_far.unwrap();
+    assert!((near - 1.2).abs() < 1e-5 && (far - 167.24155).abs() < 1e-2, "{near} {far}");
     first_image_decodes(&c);
 }
