@@ -55,7 +55,9 @@ const UNDISTORT_MAX_STEPS: usize = 20;
 impl OpenCvDistortion {
     /// Whether every coefficient is zero (the model is then the identity).
     pub fn is_zero(&self) -> bool {
-        [self.k1, self.k2, self.p1, self.p2].iter().all(|&c| c == 0.0)
+        [self.k1, self.k2, self.p1, self.p2]
+            .iter()
+            .all(|&c| c == 0.0)
     }
 
     /// Undistorted → distorted normalised coordinates (y down).
@@ -69,7 +71,12 @@ impl OpenCvDistortion {
 
     /// The distorted point and the Jacobian `[[∂xd/∂x, ∂xd/∂y], [∂yd/∂x, ∂yd/∂y]]`.
     fn distort_with_jacobian(&self, x: f64, y: f64) -> ((f64, f64), [[f64; 2]; 2]) {
-        let (k1, k2, p1, p2) = (self.k1 as f64, self.k2 as f64, self.p1 as f64, self.p2 as f64);
+        let (k1, k2, p1, p2) = (
+            self.k1 as f64,
+            self.k2 as f64,
+            self.p1 as f64,
+            self.p2 as f64,
+        );
         let r2 = x * x + y * y;
         let radial = 1.0 + r2 * (k1 + k2 * r2);
         // ∂radial/∂(r²) · ∂(r²)/∂x = (k1 + 2·k2·r²)·2x.
@@ -78,8 +85,14 @@ impl OpenCvDistortion {
         let xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x);
         let yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y;
         let jacobian = [
-            [radial + x * drx + 2.0 * p1 * y + 6.0 * p2 * x, x * dry + 2.0 * p1 * x + 2.0 * p2 * y],
-            [y * drx + 2.0 * p1 * x + 2.0 * p2 * y, radial + y * dry + 6.0 * p1 * y + 2.0 * p2 * x],
+            [
+                radial + x * drx + 2.0 * p1 * y + 6.0 * p2 * x,
+                x * dry + 2.0 * p1 * x + 2.0 * p2 * y,
+            ],
+            [
+                y * drx + 2.0 * p1 * x + 2.0 * p2 * y,
+                radial + y * dry + 6.0 * p1 * y + 2.0 * p2 * x,
+            ],
         ];
         ((xd, yd), jacobian)
     }
@@ -155,7 +168,9 @@ impl PinholeCamera {
     /// error saying what `Intrinsics` cannot express.
     pub fn to_intrinsics(&self) -> Result<Intrinsics> {
         let unsupported = |what: String| {
-            Err(Error::Argument(format!("the camera cannot be expressed as Intrinsics: {what}")))
+            Err(Error::Argument(format!(
+                "the camera cannot be expressed as Intrinsics: {what}"
+            )))
         };
         if (self.fx - self.fy).abs() > 1e-4 * self.fx.abs() {
             return unsupported(format!("fx = {} and fy = {} differ", self.fx, self.fy));
@@ -171,7 +186,11 @@ impl PinholeCamera {
         if self.distortion.is_some_and(|d| !d.is_zero()) {
             return unsupported("it has lens distortion".into());
         }
-        Ok(Intrinsics { width: self.width, height: self.height, focal: self.fx })
+        Ok(Intrinsics {
+            width: self.width,
+            height: self.height,
+            focal: self.fx,
+        })
     }
 
     /// The same camera at another resolution: focal lengths and principal point scale with
@@ -194,7 +213,10 @@ impl PinholeCamera {
     /// Normalised, still distorted coordinates (y down) of the ray through pixel (i, j).
     fn distorted_normalised(&self, i: f32, j: f32) -> (f64, f64) {
         let offset = self.pixel_center.offset() as f64;
-        ((i as f64 + offset - self.cx as f64) / self.fx as f64, (j as f64 + offset - self.cy as f64) / self.fy as f64)
+        (
+            (i as f64 + offset - self.cx as f64) / self.fx as f64,
+            (j as f64 + offset - self.cy as f64) / self.fy as f64,
+        )
     }
 
     /// The camera-space (OpenGL) direction of the ray through pixel column `i`, row `j`, with
@@ -240,7 +262,8 @@ impl PinholeCamera {
         let mut rays = Rays::with_capacity(pixels.len());
         for &(i, j) in pixels {
             rays.origins.push(origin);
-            rays.directions.push((rotation * self.camera_direction(i as f32, j as f32)).to_array());
+            rays.directions
+                .push((rotation * self.camera_direction(i as f32, j as f32)).to_array());
         }
         rays
     }
@@ -255,7 +278,12 @@ impl PinholeCamera {
 mod tests {
     use super::*;
 
-    const D: OpenCvDistortion = OpenCvDistortion { k1: 0.1, k2: 0.01, p1: 0.001, p2: 0.002 };
+    const D: OpenCvDistortion = OpenCvDistortion {
+        k1: 0.1,
+        k2: 0.01,
+        p1: 0.001,
+        p2: 0.002,
+    };
 
     fn close(a: f64, b: f64, tol: f64) -> bool {
         (a - b).abs() <= tol
@@ -270,13 +298,26 @@ mod tests {
         //    = −0.258056640625 + 0.0004375 − 0.0005 = −0.258119140625.
         // (The coefficients are f32: 0.1 is 0.100000001…, hence tolerances of 1e-8.)
         let (xd, yd) = D.distort(0.5, -0.25);
-        assert!(close(xd, 0.51748828125, 1e-8) && close(yd, -0.258119140625, 1e-8), "{xd} {yd}");
+        assert!(
+            close(xd, 0.51748828125, 1e-8) && close(yd, -0.258119140625, 1e-8),
+            "{xd} {yd}"
+        );
         // Pure radial on the axis: k1 = 0.1 at (1, 0): radial = 1.1 + 0.01 (k2) → 1.11.
-        let radial = OpenCvDistortion { k1: 0.1, k2: 0.01, p1: 0.0, p2: 0.0 };
+        let radial = OpenCvDistortion {
+            k1: 0.1,
+            k2: 0.01,
+            p1: 0.0,
+            p2: 0.0,
+        };
         assert!(close(radial.distort(1.0, 0.0).0, 1.11, 1e-8));
         // The centre never moves; all-zero coefficients are the identity.
         assert_eq!(D.distort(0.0, 0.0), (0.0, 0.0));
-        let zero = OpenCvDistortion { k1: 0.0, k2: 0.0, p1: 0.0, p2: 0.0 };
+        let zero = OpenCvDistortion {
+            k1: 0.0,
+            k2: 0.0,
+            p1: 0.0,
+            p2: 0.0,
+        };
         assert!(zero.is_zero() && !D.is_zero());
         assert_eq!(zero.distort(0.3, -0.7), (0.3, -0.7));
     }
@@ -296,7 +337,10 @@ mod tests {
             ];
             for r in 0..2 {
                 for c in 0..2 {
-                    assert!(close(jac[r][c], numeric[r][c], 1e-7), "({x}, {y}) [{r}][{c}]: {jac:?} vs {numeric:?}");
+                    assert!(
+                        close(jac[r][c], numeric[r][c], 1e-7),
+                        "({x}, {y}) [{r}][{c}]: {jac:?} vs {numeric:?}"
+                    );
                 }
             }
         }
@@ -305,15 +349,31 @@ mod tests {
     #[test]
     fn undistort_inverts_distort() {
         // The fox capture's coefficients and a strong barrel lens.
-        let fox = OpenCvDistortion { k1: 0.0578421, k2: -0.0805099, p1: -0.000980296, p2: 0.00015575 };
-        let barrel = OpenCvDistortion { k1: -0.3, k2: 0.1, p1: 0.002, p2: -0.001 };
+        let fox = OpenCvDistortion {
+            k1: 0.0578421,
+            k2: -0.0805099,
+            p1: -0.000980296,
+            p2: 0.00015575,
+        };
+        let barrel = OpenCvDistortion {
+            k1: -0.3,
+            k2: 0.1,
+            p1: 0.002,
+            p2: -0.001,
+        };
         for d in [D, fox, barrel] {
             for k in 0..50 {
                 // Points over a normalised image of ±0.8 × ±0.6.
-                let (x, y) = (-0.8 + 1.6 * (k % 10) as f64 / 9.0, -0.6 + 1.2 * (k / 10) as f64 / 4.0);
+                let (x, y) = (
+                    -0.8 + 1.6 * (k % 10) as f64 / 9.0,
+                    -0.6 + 1.2 * (k / 10) as f64 / 4.0,
+                );
                 let (xd, yd) = d.distort(x, y);
                 let (ux, uy) = d.undistort(xd, yd);
-                assert!(close(ux, x, 1e-10) && close(uy, y, 1e-10), "{d:?} ({x}, {y}) → ({ux}, {uy})");
+                assert!(
+                    close(ux, x, 1e-10) && close(uy, y, 1e-10),
+                    "{d:?} ({x}, {y}) → ({ux}, {uy})"
+                );
             }
         }
         // Hand value: undistort(0.51748828125, −0.258119140625) = (0.5, −0.25).
@@ -322,7 +382,16 @@ mod tests {
     }
 
     fn camera(pixel_center: PixelCenter, distortion: Option<OpenCvDistortion>) -> PinholeCamera {
-        PinholeCamera { width: 4, height: 2, fx: 2.0, fy: 4.0, cx: 2.5, cy: 1.5, pixel_center, distortion }
+        PinholeCamera {
+            width: 4,
+            height: 2,
+            fx: 2.0,
+            fy: 4.0,
+            cx: 2.5,
+            cy: 1.5,
+            pixel_center,
+            distortion,
+        }
     }
 
     #[test]
@@ -334,7 +403,10 @@ mod tests {
         assert_eq!(half.camera_direction(2.0, 1.0), Vec3::new(0.0, 0.0, -1.0));
         let integer = camera(PixelCenter::Integer, None);
         // (0 − 2.5)/2 = −1.25, −(0 − 1.5)/4 = 0.375.
-        assert_eq!(integer.camera_direction(0.0, 0.0), Vec3::new(-1.25, 0.375, -1.0));
+        assert_eq!(
+            integer.camera_direction(0.0, 0.0),
+            Vec3::new(-1.25, 0.375, -1.0)
+        );
         // With distortion: the normalised point (−1, −0.25) (y down) is undistorted, then y flips.
         let distorted = camera(PixelCenter::HalfPixel, Some(D));
         let dir = distorted.camera_direction(0.0, 0.0);
@@ -357,9 +429,14 @@ mod tests {
             cx: 110.9116,
             cy: 193.0536,
             pixel_center: PixelCenter::HalfPixel,
-            distortion: Some(OpenCvDistortion { k1: 0.0578421, k2: -0.0805099, p1: -0.000980296, p2: 0.00015575 }),
+            distortion: Some(OpenCvDistortion {
+                k1: 0.0578421,
+                k2: -0.0805099,
+                p1: -0.000980296,
+                p2: 0.00015575,
+            }),
         };
-        let cases = [
+        let cases: [((f32, f32), (f64, f64)); 4] = [
             ((0.0, 0.0), (-0.39941427, 0.69628246)),
             ((215.0, 383.0), (0.37869988, -0.69087819)),
             ((100.0, 17.0), (-0.03747789, 0.63097599)),
@@ -367,16 +444,26 @@ mod tests {
         ];
         for ((i, j), (x, y)) in cases {
             let d = fox.camera_direction(i, j);
-            assert!((d.x - x).abs() < 2e-6 && (d.y - y).abs() < 2e-6 && d.z == -1.0, "({i}, {j}): {d:?}");
+            let (dx, dy) = (d.x as f64, d.y as f64);
+            assert!(
+                (dx - x).abs() < 2e-6 && (dy - y).abs() < 2e-6 && d.z == -1.0,
+                "({i}, {j}): {d:?}"
+            );
         }
     }
 
     #[test]
     fn project_inverts_camera_direction() {
-        for c in [camera(PixelCenter::HalfPixel, Some(D)), camera(PixelCenter::Integer, None)] {
+        for c in [
+            camera(PixelCenter::HalfPixel, Some(D)),
+            camera(PixelCenter::Integer, None),
+        ] {
             for &(i, j) in &[(0.0, 0.0), (3.0, 1.0), (1.25, 0.5)] {
                 let (pi, pj) = c.project(c.camera_direction(i, j)).unwrap();
-                assert!((pi - i).abs() < 1e-4 && (pj - j).abs() < 1e-4, "({i}, {j}) → ({pi}, {pj})");
+                assert!(
+                    (pi - i).abs() < 1e-4 && (pj - j).abs() < 1e-4,
+                    "({i}, {j}) → ({pi}, {pj})"
+                );
             }
             assert_eq!(c.project(Vec3::new(0.0, 0.0, 1.0)), None);
         }
@@ -384,7 +471,11 @@ mod tests {
 
     #[test]
     fn intrinsics_round_trip_and_refusals() {
-        let k = Intrinsics { width: 400, height: 300, focal: 323.5 };
+        let k = Intrinsics {
+            width: 400,
+            height: 300,
+            focal: 323.5,
+        };
         let c = PinholeCamera::from_intrinsics(&k);
         assert_eq!((c.cx, c.cy, c.fx, c.fy), (200.0, 150.0, 323.5, 323.5));
         assert_eq!(c.to_intrinsics().unwrap(), k);
@@ -392,25 +483,68 @@ mod tests {
             assert_eq!(c.camera_direction(i, j), k.camera_direction(i, j));
         }
         // A half-pixel camera centred on (W/2 + 0.5, H/2 + 0.5) is the same camera.
-        let shifted = PinholeCamera { cx: 200.5, cy: 150.5, pixel_center: PixelCenter::HalfPixel, ..c };
+        let shifted = PinholeCamera {
+            cx: 200.5,
+            cy: 150.5,
+            pixel_center: PixelCenter::HalfPixel,
+            ..c
+        };
         assert_eq!(shifted.to_intrinsics().unwrap(), k);
-        assert_eq!(c.resized(100, 75).to_intrinsics().unwrap(), k.resized(100, 75));
+        assert_eq!(
+            c.resized(100, 75).to_intrinsics().unwrap(),
+            k.resized(100, 75)
+        );
         let msg = |c: PinholeCamera| c.to_intrinsics().unwrap_err().to_string();
         assert!(msg(PinholeCamera { fy: 300.0, ..c }).contains("fy = 300"));
         // The fox's principal point (edge convention) is not the centre in integer pixels.
-        let fox = PinholeCamera { cx: 110.9116, pixel_center: PixelCenter::HalfPixel, width: 216, ..c };
+        let fox = PinholeCamera {
+            cx: 110.9116,
+            pixel_center: PixelCenter::HalfPixel,
+            width: 216,
+            ..c
+        };
         assert!(msg(fox).contains("principal point"), "{}", msg(fox));
-        assert!(msg(PinholeCamera { distortion: Some(D), ..c }).contains("distortion"));
+        assert!(
+            msg(PinholeCamera {
+                distortion: Some(D),
+                ..c
+            })
+            .contains("distortion")
+        );
         // Zero coefficients are no distortion.
-        let zero = Some(OpenCvDistortion { k1: 0.0, k2: 0.0, p1: 0.0, p2: 0.0 });
-        assert!(PinholeCamera { distortion: zero, ..c }.to_intrinsics().is_ok());
+        let zero = Some(OpenCvDistortion {
+            k1: 0.0,
+            k2: 0.0,
+            p1: 0.0,
+            p2: 0.0,
+        });
+        assert!(
+            PinholeCamera {
+                distortion: zero,
+                ..c
+            }
+            .to_intrinsics()
+            .is_ok()
+        );
     }
 
     #[test]
     fn resizing_scales_focal_and_principal_point() {
-        let c = PinholeCamera { width: 1080, height: 1920, fx: 1375.52, fy: 1374.49, cx: 554.558, cy: 965.268, pixel_center: PixelCenter::HalfPixel, distortion: Some(D) };
+        let c = PinholeCamera {
+            width: 1080,
+            height: 1920,
+            fx: 1375.52,
+            fy: 1374.49,
+            cx: 554.558,
+            cy: 965.268,
+            pixel_center: PixelCenter::HalfPixel,
+            distortion: Some(D),
+        };
         let small = c.resized(216, 384);
-        assert!((small.fx - 275.104).abs() < 1e-3 && (small.cy - 193.0536).abs() < 1e-3, "{small:?}");
+        assert!(
+            (small.fx - 275.104).abs() < 1e-3 && (small.cy - 193.0536).abs() < 1e-3,
+            "{small:?}"
+        );
         assert_eq!(small.distortion, c.distortion);
         // In pixel-edge coordinates the same point of the scene keeps its relative position:
         // the ray through the original pixel edge 540 is the ray through the small one's 108.
@@ -422,7 +556,11 @@ mod tests {
     #[test]
     fn rays_rotate_into_the_world() {
         // c2w: camera x → world x, camera y → world z, camera z → world −y; centre (0.5, −4, 1).
-        let pose = Pose([[1.0, 0.0, 0.0, 0.5], [0.0, 0.0, -1.0, -4.0], [0.0, 1.0, 0.0, 1.0]]);
+        let pose = Pose([
+            [1.0, 0.0, 0.0, 0.5],
+            [0.0, 0.0, -1.0, -4.0],
+            [0.0, 1.0, 0.0, 1.0],
+        ]);
         let c = camera(PixelCenter::HalfPixel, None);
         let rays = c.rays(&pose, &[(0, 0), (2, 1)]);
         // Camera (−1, 0.25, −1) → world (−1, 1, 0.25); the axis (0, 0, −1) → (0, 1, 0).

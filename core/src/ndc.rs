@@ -28,7 +28,13 @@ pub struct Ndc {
 impl Ndc {
     /// nerf-pytorch's parameters: one focal length for both axes.
     pub fn new(width: u32, height: u32, focal: f32, near: f32) -> Self {
-        Ndc { width: width as f32, height: height as f32, fx: focal, fy: focal, near }
+        Ndc {
+            width: width as f32,
+            height: height as f32,
+            fx: focal,
+            fy: focal,
+            near,
+        }
     }
 
     /// A point in camera-aligned world space (z < 0 in front) to NDC.
@@ -93,9 +99,16 @@ mod tests {
         assert_close(o, Vec3::new(0.0, 0.0, -1.0), 0.0);
         assert_close(d, Vec3::new(0.0, 0.0, 2.0), 0.0);
         // A batch is converted ray by ray.
-        let rays = Rays { origins: vec![[0.5, -0.5, 0.0], [0.0; 3]], directions: vec![[1.0, 0.5, -2.0], [0.0, 0.0, -1.0]] };
+        let rays = Rays {
+            origins: vec![[0.5, -0.5, 0.0], [0.0; 3]],
+            directions: vec![[1.0, 0.5, -2.0], [0.0, 0.0, -1.0]],
+        };
         let out = ndc.rays(&rays);
-        assert_close(Vec3::from_array(out.directions[0]), Vec3::new(-0.5, 1.0, 2.0), 1e-6);
+        assert_close(
+            Vec3::from_array(out.directions[0]),
+            Vec3::new(-0.5, 1.0, 2.0),
+            1e-6,
+        );
         assert_eq!(out.origins[1], [0.0, 0.0, -1.0]);
     }
 
@@ -103,7 +116,13 @@ mod tests {
     fn ndc_ray_passes_through_the_projected_world_points() {
         // Separate focal lengths and an off-axis camera: every world point on the ray beyond
         // the near plane lands on the NDC ray at some t in [0, 1).
-        let ndc = Ndc { width: 400.0, height: 300.0, fx: 320.0, fy: 300.0, near: 1.0 };
+        let ndc = Ndc {
+            width: 400.0,
+            height: 300.0,
+            fx: 320.0,
+            fy: 300.0,
+            near: 1.0,
+        };
         let (o, d) = (Vec3::new(0.3, -0.2, 0.4), Vec3::new(0.2, 0.1, -1.0));
         let (on, dn) = ndc.ray(o, d);
         let mut last_t = -1.0;

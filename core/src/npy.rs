@@ -58,7 +58,11 @@ pub fn parse_npy(path: &Path, bytes: &[u8]) -> Result<NpyArray> {
         1 => (2, false),
         2 => (4, false),
         3 => (4, true),
-        v => return Err(bad(format!(".npy format version {v} is not supported (1, 2 or 3)"))),
+        v => {
+            return Err(bad(format!(
+                ".npy format version {v} is not supported (1, 2 or 3)"
+            )));
+        }
     };
     let start = 8 + len_bytes;
     if bytes.len() < start {
@@ -85,7 +89,8 @@ pub fn parse_npy(path: &Path, bytes: &[u8]) -> Result<NpyArray> {
         // v1/v2 headers are latin-1: every byte is one character.
         raw.iter().map(|&b| b as char).collect()
     };
-    let header = parse_header(&header).map_err(|p| bad(format!("header {:?}: {p}", header.trim_end())))?;
+    let header =
+        parse_header(&header).map_err(|p| bad(format!("header {:?}: {p}", header.trim_end())))?;
 
     let count = header
         .shape
@@ -114,8 +119,15 @@ pub fn parse_npy(path: &Path, bytes: &[u8]) -> Result<NpyArray> {
             .map(|c| f32::from_le_bytes(c.try_into().expect("chunks of 4")) as f64)
             .collect(),
     };
-    let data = if header.fortran_order { fortran_to_c(&values, &header.shape) } else { values };
-    Ok(NpyArray { shape: header.shape, data })
+    let data = if header.fortran_order {
+        fortran_to_c(&values, &header.shape)
+    } else {
+        values
+    };
+    Ok(NpyArray {
+        shape: header.shape,
+        data,
+    })
 }
 
 /// The fields of a `.npy` header dict.
@@ -146,7 +158,10 @@ enum Literal {
 /// Parses `{'descr': '<f8', 'fortran_order': False, 'shape': (3, 4), }`; the error is the
 /// problem alone (the caller adds the file).
 fn parse_header(text: &str) -> std::result::Result<Header, String> {
-    let mut p = Cursor { chars: text.trim().chars().collect(), at: 0 };
+    let mut p = Cursor {
+        chars: text.trim().chars().collect(),
+        at: 0,
+    };
     p.expect('{')?;
     let (mut descr, mut fortran, mut shape) = (None, None, None);
     loop {
@@ -180,9 +195,15 @@ fn parse_header(text: &str) -> std::result::Result<Header, String> {
         "<f8" => Dtype::F8,
         "<f4" => Dtype::F4,
         d if d.starts_with('>') => {
-            return Err(format!("dtype '{d}' is big-endian; only little-endian '<f8' and '<f4' are read"));
+            return Err(format!(
+                "dtype '{d}' is big-endian; only little-endian '<f8' and '<f4' are read"
+            ));
         }
-        d => return Err(format!("dtype '{d}' is not supported (only '<f8' and '<f4')")),
+        d => {
+            return Err(format!(
+                "dtype '{d}' is not supported (only '<f8' and '<f4')"
+            ));
+        }
     };
     Ok(Header {
         dtype,
@@ -222,7 +243,8 @@ impl Cursor {
     }
     fn string(&mut self) -> std::result::Result<String, String> {
         let quote = self.peek().filter(|&q| q == '\'' || q == '"');
-        let quote = quote.ok_or_else(|| format!("expected a quoted string at character {}", self.at))?;
+        let quote =
+            quote.ok_or_else(|| format!("expected a quoted string at character {}", self.at))?;
         self.at += 1;
         let begin = self.at;
         while self.peek().is_some_and(|c| c != quote) {
@@ -234,7 +256,10 @@ impl Cursor {
     }
     fn word(&mut self) -> String {
         let begin = self.at;
-        while self.peek().is_some_and(|c| c.is_ascii_alphanumeric() || c == '_') {
+        while self
+            .peek()
+            .is_some_and(|c| c.is_ascii_alphanumeric() || c == '_')
+        {
             self.at += 1;
         }
         self.chars[begin..self.at].iter().collect()
@@ -282,7 +307,13 @@ fn fortran_to_c(values: &[f64], shape: &[usize]) -> Vec<f64> {
     let mut index = vec![0usize; n];
     let mut out = Vec::with_capacity(values.len());
     for _ in 0..values.len() {
-        out.push(values[index.iter().zip(&strides).map(|(i, s)| i * s).sum::<usize>()]);
+        out.push(
+            values[index
+                .iter()
+                .zip(&strides)
+                .map(|(i, s)| i * s)
+                .sum::<usize>()],
+        );
         // Row-major walk: the last index varies fastest.
         for k in (0..n).rev() {
             index[k] += 1;
@@ -298,11 +329,22 @@ fn fortran_to_c(values: &[f64], shape: &[usize]) -> Vec<f64> {
 /// Encodes a row-major array as a `.npy` (v1 header unless `v2`), for tests and small outputs.
 /// `descr` is written as given so that tests can also produce files this reader rejects.
 #[cfg(test)]
-pub(crate) fn encode_npy(shape: &[usize], body: &[u8], descr: &str, fortran: bool, v2: bool) -> Vec<u8> {
+pub(crate) fn encode_npy(
+    shape: &[usize],
+    body: &[u8],
+    descr: &str,
+    fortran: bool,
+    v2: bool,
+) -> Vec<u8> {
     let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
-    let dims = if shape.len() == 1 { format!("{},", dims[0]) } else { dims.join(", ") };
+    let dims = if shape.len() == 1 {
+        format!("{},", dims[0])
+    } else {
+        dims.join(", ")
+    };
     let order = if fortran { "True" } else { "False" };
-    let mut header = format!("{{'descr': '{descr}', 'fortran_order': {order}, 'shape': ({dims}), }}");
+    let mut header =
+        format!("{{'descr': '{descr}', 'fortran_order': {order}, 'shape': ({dims}), }}");
     let prefix = if v2 { 12 } else { 10 };
     // Pad with spaces so that the data starts on a 64-byte boundary, ending in '\n'.
     while (prefix + header.len() + 1) % 64 != 0 {
@@ -356,7 +398,10 @@ mod tests {
             assert_eq!(a.shape, vec![2, 3]);
             assert_eq!(a.data, values);
         }
-        let f4: Vec<u8> = [0.5f32, -1.25, 3.0].iter().flat_map(|v| v.to_le_bytes()).collect();
+        let f4: Vec<u8> = [0.5f32, -1.25, 3.0]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
         let a = parse(&encode_npy(&[3], &f4, "<f4", false, false)).unwrap();
         assert_eq!((a.shape, a.data), (vec![3], vec![0.5, -1.25, 3.0]));
         // numpy's own v1 header for a (17, 17) array, byte for byte (LLFF's poses_bounds.npy).
@@ -397,8 +442,18 @@ mod tests {
                 }
             }
         }
-        let a = parse(&encode_npy(&[2, 2, 2], &f8_bytes(&fortran), "<f8", true, false)).unwrap();
-        assert_eq!(a.data, vec![0.0, 1.0, 10.0, 11.0, 100.0, 101.0, 110.0, 111.0]);
+        let a = parse(&encode_npy(
+            &[2, 2, 2],
+            &f8_bytes(&fortran),
+            "<f8",
+            true,
+            false,
+        ))
+        .unwrap();
+        assert_eq!(
+            a.data,
+            vec![0.0, 1.0, 10.0, 11.0, 100.0, 101.0, 110.0, 111.0]
+        );
     }
 
     #[test]
@@ -437,7 +492,9 @@ mod tests {
 
     #[test]
     fn read_npy_names_a_missing_file() {
-        let e = read_npy(Path::new("/nonexistent/poses_bounds.npy")).unwrap_err().to_string();
+        let e = read_npy(Path::new("/nonexistent/poses_bounds.npy"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("/nonexistent/poses_bounds.npy"), "{e}");
     }
 }

@@ -11,7 +11,9 @@ use nerf_core::dataset::{
 use nerf_core::{OpenCvDistortion, PixelCenter};
 
 fn real(scene: &str) -> Option<PathBuf> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/real").join(scene);
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/data/real")
+        .join(scene);
     if dir.is_dir() {
         Some(dir)
     } else {
@@ -22,20 +24,30 @@ fn real(scene: &str) -> Option<PathBuf> {
 
 /// The unit viewing direction (−z axis) of each view.
 fn view_dirs(c: &Capture) -> Vec<Vec3> {
-    c.views.iter().map(|v| (v.pose.rotation() * Vec3::NEG_Z).normalize()).collect()
+    c.views
+        .iter()
+        .map(|v| (v.pose.rotation() * Vec3::NEG_Z).normalize())
+        .collect()
 }
 
 /// cos of the angle between each camera's viewing direction and the direction to `target`.
 fn cos_to(c: &Capture, target: Vec3) -> Vec<f32> {
-    c.views.iter().zip(view_dirs(c)).map(|(v, d)| d.dot((target - v.pose.origin()).normalize())).collect()
+    c.views
+        .iter()
+        .zip(view_dirs(c))
+        .map(|(v, d)| d.dot((target - v.pose.origin()).normalize()))
+        .collect()
 }
 
 /// Asserts that the last view's pose matches `expected` (3×4 rows) to 1e-5 (relative for the
 /// translation, whose scale depends on the bounds).
-fn assert_last_pose(c: &Capture, expected: [[f32; 4]; 3]) {
+fn assert_last_pose(c: &Capture, expected: [[f64; 4]; 3]) {
     let got = c.views.last().unwrap().pose.0;
-    for (g, e) in got.iter().flatten().zip(expected.iter().flatten()) {
-        assert!((g - e).abs() <= 1e-5 * e.abs().max(1.0), "{got:?} vs {expected:?}");
+    for (&g, e) in got.iter().flatten().zip(expected.iter().flatten()) {
+        assert!(
+            (g as f64 - e).abs() <= 1e-5 * e.abs().max(1.0),
+            "{got:?} vs {expected:?}"
+        );
     }
 }
 
@@ -45,8 +57,14 @@ fn first_image_decodes(c: &Capture) {
     let pixels = view.load_rgba().unwrap();
     assert_eq!(pixels.len(), view.camera.num_pixels());
     // Real photos are not blank: the channels vary.
-    let (lo, hi) = pixels.iter().fold((1.0f32, 0.0f32), |(lo, hi), p| (lo.min(p[1]), hi.max(p[1])));
-    assert!(hi - lo > 0.2, "{}: green only spans {lo}..{hi}", view.image_path.display());
+    let (lo, hi) = pixels
+        .iter()
+        .fold((1.0f32, 0.0f32), |(lo, hi), p| (lo.min(p[1]), hi.max(p[1])));
+    assert!(
+        hi - lo > 0.2,
+        "{}: green only spans {lo}..{hi}",
+        view.image_path.display()
+    );
 }
 
 #[test]
@@ -58,21 +76,41 @@ fn fox_instant_ngp() {
     assert_eq!(c.views.len(), 45);
     assert_eq!(c.warnings.len(), 17, "{:#?}", c.warnings);
     for missing in ["0005", "0016", "0113"] {
-        assert!(c.warnings.iter().any(|w| w.contains(&format!("images/{missing}.jpg not found"))), "{missing}");
+        assert!(
+            c.warnings
+                .iter()
+                .any(|w| w.contains(&format!("images/{missing}.jpg not found"))),
+            "{missing}"
+        );
     }
     assert!(c.views.iter().all(|v| v.image_path.is_file()));
     let cam = c.views[0].camera;
     assert_eq!((cam.width, cam.height), (216, 384));
-    assert_eq!((cam.fx, cam.fy, cam.cx, cam.cy), (275.104, 274.898, 110.9116, 193.0536));
+    assert_eq!(
+        (cam.fx, cam.fy, cam.cx, cam.cy),
+        (275.104, 274.898, 110.9116, 193.0536)
+    );
     assert_eq!(cam.pixel_center, PixelCenter::HalfPixel);
-    assert_eq!(cam.distortion, Some(OpenCvDistortion { k1: 0.0578421, k2: -0.0805099, p1: -0.000980296, p2: 0.00015575 }));
+    assert_eq!(
+        cam.distortion,
+        Some(OpenCvDistortion {
+            k1: 0.0578421,
+            k2: -0.0805099,
+            p1: -0.000980296,
+            p2: 0.00015575
+        })
+    );
     assert!(c.views.iter().all(|v| v.camera == cam));
     // instant-ngp's default mapping (scale 0.33, offset 0.5) and aabb_scale 4.
     assert_eq!((c.aabb_scale, c.scale, c.offset), (Some(4.0), None, None));
     assert_eq!(c.transform.scale, 0.33);
     // The cameras look at the origin (instant-ngp's recentring), not at their own centroid.
     let cos = cos_to(&c, Vec3::ZERO);
-    assert!(cos.iter().all(|&x| x > 0.95), "min cos {:?}", cos.iter().fold(1.0f32, |a, &b| a.min(b)));
+    assert!(
+        cos.iter().all(|&x| x > 0.95),
+        "min cos {:?}",
+        cos.iter().fold(1.0f32, |a, &b| a.min(b))
+    );
     let focus = focus_point(&c.poses()).unwrap();
     assert!(focus.length() < 0.3, "focus {focus}");
     // A handheld arc, not forward-facing (views spread over more than 45° from their mean).
@@ -93,23 +131,41 @@ fn fern_llff_forward_facing() {
     assert_eq!(c.views.len(), n);
     assert_eq!(c.views[0].name, "image001");
     let cam = c.views[0].camera;
-    assert_eq!((cam.width, cam.height, cam.pixel_center, cam.distortion), (400, 300, PixelCenter::Integer, None));
-    assert!((cam.fx - 323.4649).abs() < 1e-3 && cam.fx == cam.fy && (cam.cx, cam.cy) == (200.0, 150.0));
+    assert_eq!(
+        (cam.width, cam.height, cam.pixel_center, cam.distortion),
+        (400, 300, PixelCenter::Integer, None)
+    );
+    assert!(
+        (cam.fx - 323.4649).abs() < 1e-3 && cam.fx == cam.fy && (cam.cx, cam.cy) == (200.0, 150.0)
+    );
     // Forward-facing: after recentring every camera looks within 25° of −z.
     assert!(c.forward_facing);
-    assert!(view_dirs(&c).iter().all(|d| d.dot(Vec3::NEG_Z) > 25f32.to_radians().cos()));
+    assert!(
+        view_dirs(&c)
+            .iter()
+            .all(|d| d.dot(Vec3::NEG_Z) > 25f32.to_radians().cos())
+    );
     // bd_factor: the nearest bound becomes 1/0.75; nerf-pytorch's no-NDC near = 0.9 × that.
     let (near, far) = c.near_far.unwrap();
-    assert!((near - 0.9 / 0.75).abs() < 1e-4 && far > 3.0 * near, "{near} {far}");
+    assert!(
+        (near - 0.9 / 0.75).abs() < 1e-4 && far > 3.0 * near,
+        "{near} {far}"
+    );
     // Recentred: the average camera sits at the origin.
     assert!(centroid(&c.poses()).length() < 1e-4);
-    assert_eq!(c.split_indices(CaptureSplit::Test), (0..n).step_by(8).collect::<Vec<_>>());
+    assert_eq!(
+        c.split_indices(CaptureSplit::Test),
+        (0..n).step_by(8).collect::<Vec<_>>()
+    );
     // nerf-pytorch's pipeline in numpy (`scripts/llff_reference.py ../shared/data/real/fern`).
-    assert_last_pose(&c, [
-        [0.98934262, 0.04736213, -0.13768839, -0.34887284],
-        [-0.05288937, 0.99792338, -0.03676361, -0.12545621],
-        [0.13566127, 0.04365406, 0.98979312, -0.03917920],
-    ]);
+    assert_last_pose(
+        &c,
+        [
+            [0.98934262, 0.04736213, -0.13768839, -0.34887284],
+            [-0.05288937, 0.99792338, -0.03676361, -0.12545621],
+            [0.13566127, 0.04365406, 0.98979312, -0.03917920],
+        ],
+    );
     assert!((far - 6.186652).abs() < 1e-4, "{far}");
     first_image_decodes(&c);
 }
@@ -130,18 +186,35 @@ fn bird_llff_360() {
     let focus = focus_point(&c.poses()).unwrap();
     // The ring sits above the bird: the point the axes meet is below the cameras' centroid,
     // by less than a third of the ring's radius, and the cameras look at it more exactly.
-    let mean_radius = c.views.iter().map(|v| (v.pose.origin() - centroid(&c.poses())).length()).sum::<f32>() / 161.0;
-    assert!((focus - centroid(&c.poses())).length() < mean_radius / 3.0, "focus {focus}, radius {mean_radius}");
+    let mean_radius = c
+        .views
+        .iter()
+        .map(|v| (v.pose.origin() - centroid(&c.poses())).length())
+        .sum::<f32>()
+        / 161.0;
+    assert!(
+        (focus - centroid(&c.poses())).length() < mean_radius / 3.0,
+        "focus {focus}, radius {mean_radius}"
+    );
     let cos_focus = cos_to(&c, focus);
-    assert!(cos_focus.iter().sum::<f32>() / 161.0 > mean, "{cos_focus:?}");
+    assert!(
+        cos_focus.iter().sum::<f32>() / 161.0 > mean,
+        "{cos_focus:?}"
+    );
     assert_eq!(c.split_indices(CaptureSplit::Train).len(), 161 - 21);
     // nerf-pytorch's pipeline in numpy (`scripts/llff_reference.py ../shared/data/real/bird`).
-    assert_last_pose(&c, [
-        [0.99164861, 0.09078091, -0.09160747, -0.64613488],
-        [-0.12824268, 0.76938118, -0.62578459, -6.50176981],
-        [0.01367178, 0.63230640, 0.77459777, 5.57915776],
-    ]);
+    assert_last_pose(
+        &c,
+        [
+            [0.99164861, 0.09078091, -0.09160747, -0.64613488],
+            [-0.12824268, 0.76938118, -0.62578459, -6.50176981],
+            [0.01367178, 0.63230640, 0.77459777, 5.57915776],
+        ],
+    );
     let (near, far) = c.near_far.unwrap();
-    assert!((near - 1.2).abs() < 1e-5 && (far - 167.24155).abs() < 1e-2, "{near} {far}");
+    assert!(
+        (near - 1.2).abs() < 1e-5 && (far - 167.24155).abs() < 1e-2,
+        "{near} {far}"
+    );
     first_image_decodes(&c);
 }

@@ -124,7 +124,9 @@ impl FromStr for CaptureSplit {
         match s {
             "all" => Ok(CaptureSplit::All),
             other => other.parse::<Split>().map(CaptureSplit::from).map_err(|_| {
-                Error::Argument(format!("unknown split {other:?} (expected train, val, test or all)"))
+                Error::Argument(format!(
+                    "unknown split {other:?} (expected train, val, test or all)"
+                ))
             }),
         }
     }
@@ -137,7 +139,7 @@ impl FromStr for CaptureSplit {
 /// Example: n = 17, every = 8 → test [0, 8, 16], train the other 14.
 pub fn holdout_split(n: usize, every: usize, split: CaptureSplit) -> Vec<usize> {
     let every = every.max(1);
-    let held = |k: &usize| k % every == 0;
+    let held = |k: &usize| k.is_multiple_of(every);
     match split {
         CaptureSplit::All => (0..n).collect(),
         CaptureSplit::Test | CaptureSplit::Val => (0..n).filter(held).collect(),
@@ -183,7 +185,10 @@ impl CaptureView {
         if (w, h) != (self.camera.width, self.camera.height) {
             return Err(Error::invalid(
                 &self.image_path,
-                format!("image is {w}×{h} but its camera is {}×{}", self.camera.width, self.camera.height),
+                format!(
+                    "image is {w}×{h} but its camera is {}×{}",
+                    self.camera.width, self.camera.height
+                ),
             ));
         }
         Ok(pixels)
@@ -282,7 +287,10 @@ pub fn focus_point(poses: &[Pose]) -> Option<Vec3> {
 /// normalised mean viewing direction; false for no poses or directions that cancel out (a
 /// 360° ring). LLFF fern: all within 19° of each other; a ring is far from it.
 pub fn is_forward_facing(poses: &[Pose], max_angle_deg: f32) -> bool {
-    let dirs: Vec<Vec3> = poses.iter().map(|p| (p.rotation() * Vec3::NEG_Z).normalize()).collect();
+    let dirs: Vec<Vec3> = poses
+        .iter()
+        .map(|p| (p.rotation() * Vec3::NEG_Z).normalize())
+        .collect();
     let mean = dirs.iter().sum::<Vec3>();
     if dirs.is_empty() || mean.length() < 1e-3 * dirs.len() as f32 {
         return false;
@@ -297,7 +305,9 @@ pub const FORWARD_FACING_MAX_DEG: f32 = 45.0;
 
 /// The file stem of a path as a view name.
 pub(crate) fn view_name(path: &Path) -> String {
-    path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default()
+    path.file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default()
 }
 
 #[cfg(test)]
@@ -318,14 +328,28 @@ mod tests {
 
     #[test]
     fn split_names_parse() {
-        for (s, v) in [("train", CaptureSplit::Train), ("val", CaptureSplit::Val), ("test", CaptureSplit::Test), ("all", CaptureSplit::All)] {
+        for (s, v) in [
+            ("train", CaptureSplit::Train),
+            ("val", CaptureSplit::Val),
+            ("test", CaptureSplit::Test),
+            ("all", CaptureSplit::All),
+        ] {
             assert_eq!(s.parse::<CaptureSplit>().unwrap(), v);
             assert_eq!(v.to_string(), s);
         }
-        let err = "everything".parse::<CaptureSplit>().unwrap_err().to_string();
-        assert!(err.contains("\"everything\"") && err.contains("all"), "{err}");
+        let err = "everything"
+            .parse::<CaptureSplit>()
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("\"everything\"") && err.contains("all"),
+            "{err}"
+        );
         assert_eq!(CaptureSplit::from(Split::Val), CaptureSplit::Val);
-        assert_eq!("nerfstudio".parse::<CaptureFormat>().unwrap(), CaptureFormat::InstantNgp);
+        assert_eq!(
+            "nerfstudio".parse::<CaptureFormat>().unwrap(),
+            CaptureFormat::InstantNgp
+        );
         assert!("colmap".parse::<CaptureFormat>().is_err());
     }
 
@@ -334,7 +358,10 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let d = dir.path();
         let err = detect_format(d).unwrap_err().to_string();
-        assert!(err.contains("no dataset found") && err.contains("poses_bounds.npy"), "{err}");
+        assert!(
+            err.contains("no dataset found") && err.contains("poses_bounds.npy"),
+            "{err}"
+        );
         std::fs::write(d.join("poses_bounds.npy"), b"").unwrap();
         assert_eq!(detect_format(d).unwrap(), CaptureFormat::Llff);
         std::fs::write(d.join("transforms.json"), b"{}").unwrap();
@@ -342,7 +369,10 @@ mod tests {
         std::fs::write(d.join("transforms_train.json"), b"{}").unwrap();
         assert_eq!(detect_format(d).unwrap(), CaptureFormat::Blender);
         let err = detect_format(&d.join("nope")).unwrap_err().to_string();
-        assert!(err.contains("nope") && err.contains("not a directory"), "{err}");
+        assert!(
+            err.contains("nope") && err.contains("not a directory"),
+            "{err}"
+        );
     }
 
     /// A camera at `origin` looking at `target`, +y roughly up.
@@ -359,7 +389,10 @@ mod tests {
         let ring: Vec<Pose> = (0..12)
             .map(|k| {
                 let a = k as f32 * std::f32::consts::TAU / 12.0;
-                look_at(target + Vec3::new(4.0 * a.cos(), 0.5, 4.0 * a.sin()), target)
+                look_at(
+                    target + Vec3::new(4.0 * a.cos(), 0.5, 4.0 * a.sin()),
+                    target,
+                )
             })
             .collect();
         assert!(!is_forward_facing(&ring, FORWARD_FACING_MAX_DEG));
@@ -377,13 +410,29 @@ mod tests {
         assert!(!is_forward_facing(&rig, 5.0));
         assert!(!is_forward_facing(&[], 45.0));
         // Parallel axes have no focus point.
-        let parallel: Vec<Pose> = (0..4).map(|k| look_at(Vec3::new(k as f32, 0.0, 0.0), Vec3::new(k as f32, 0.0, -1.0))).collect();
+        let parallel: Vec<Pose> = (0..4)
+            .map(|k| {
+                look_at(
+                    Vec3::new(k as f32, 0.0, 0.0),
+                    Vec3::new(k as f32, 0.0, -1.0),
+                )
+            })
+            .collect();
         assert_eq!(focus_point(&parallel), None);
     }
 
     #[test]
     fn explicit_splits_override_the_rule_and_renormalise_scales_bounds() {
-        let camera = PinholeCamera { width: 2, height: 2, fx: 1.0, fy: 1.0, cx: 1.0, cy: 1.0, pixel_center: PixelCenter::HalfPixel, distortion: None };
+        let camera = PinholeCamera {
+            width: 2,
+            height: 2,
+            fx: 1.0,
+            fy: 1.0,
+            cx: 1.0,
+            cy: 1.0,
+            pixel_center: PixelCenter::HalfPixel,
+            distortion: None,
+        };
         let view = |x: f32| CaptureView {
             name: "v".into(),
             image_path: PathBuf::from("v.png"),
@@ -406,14 +455,25 @@ mod tests {
         };
         assert_eq!(capture.split_indices(CaptureSplit::Test), vec![0, 8]);
         assert_eq!(capture.split_indices(CaptureSplit::Train).len(), 8);
-        capture.explicit_splits = Some(ExplicitSplits { train: vec![1, 2], val: vec![3], test: vec![4] });
+        capture.explicit_splits = Some(ExplicitSplits {
+            train: vec![1, 2],
+            val: vec![3],
+            test: vec![4],
+        });
         assert_eq!(capture.split_indices(CaptureSplit::Val), vec![3]);
         assert_eq!(capture.split_indices(CaptureSplit::All).len(), 10);
-        let t = SceneTransform { scale: 0.5, rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], translation: [-1.0, 0.0, 0.0] };
+        let t = SceneTransform {
+            scale: 0.5,
+            rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            translation: [-1.0, 0.0, 0.0],
+        };
         capture.renormalise(&t);
         assert_eq!(capture.views[3].pose.origin(), Vec3::new(1.0, 0.0, 0.0));
         assert_eq!(capture.views[3].bounds, Some((0.5, 2.0)));
-        assert_eq!((capture.near_far, capture.aabb_scale), (Some((0.5, 2.0)), Some(2.0)));
+        assert_eq!(
+            (capture.near_far, capture.aabb_scale),
+            (Some((0.5, 2.0)), Some(2.0))
+        );
         assert_eq!(capture.transform, t);
     }
 
@@ -421,13 +481,37 @@ mod tests {
     fn view_images_must_match_their_camera() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("a.png");
-        image::RgbImage::from_raw(2, 1, vec![255, 0, 0, 0, 0, 51]).unwrap().save(&path).unwrap();
-        let camera = PinholeCamera { width: 2, height: 1, fx: 1.0, fy: 1.0, cx: 1.0, cy: 0.5, pixel_center: PixelCenter::HalfPixel, distortion: None };
-        let mut view = CaptureView { name: view_name(&path), image_path: path, camera, pose: look_at(Vec3::Z, Vec3::ZERO), bounds: None };
+        image::RgbImage::from_raw(2, 1, vec![255, 0, 0, 0, 0, 51])
+            .unwrap()
+            .save(&path)
+            .unwrap();
+        let camera = PinholeCamera {
+            width: 2,
+            height: 1,
+            fx: 1.0,
+            fy: 1.0,
+            cx: 1.0,
+            cy: 0.5,
+            pixel_center: PixelCenter::HalfPixel,
+            distortion: None,
+        };
+        let mut view = CaptureView {
+            name: view_name(&path),
+            image_path: path,
+            camera,
+            pose: look_at(Vec3::Z, Vec3::ZERO),
+            bounds: None,
+        };
         assert_eq!(view.name, "a");
-        assert_eq!(view.load_rgba().unwrap(), vec![[1.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.2, 1.0]]);
+        assert_eq!(
+            view.load_rgba().unwrap(),
+            vec![[1.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.2, 1.0]]
+        );
         view.camera.width = 4;
         let err = view.load_rgba().unwrap_err().to_string();
-        assert!(err.contains("a.png: image is 2×1 but its camera is 4×1"), "{err}");
+        assert!(
+            err.contains("a.png: image is 2×1 but its camera is 4×1"),
+            "{err}"
+        );
     }
 }

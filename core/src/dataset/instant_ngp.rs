@@ -79,7 +79,10 @@ impl CameraFields {
             k4: pick(self.k4, own.k4),
             p1: pick(self.p1, own.p1),
             p2: pick(self.p2, own.p2),
-            camera_model: own.camera_model.clone().or_else(|| self.camera_model.clone()),
+            camera_model: own
+                .camera_model
+                .clone()
+                .or_else(|| self.camera_model.clone()),
         }
     }
 }
@@ -129,16 +132,23 @@ pub fn resolve_image(dir: &Path, file_path: &str) -> Option<PathBuf> {
     if direct.is_file() {
         return Some(direct);
     }
-    IMAGE_EXTENSIONS.iter().map(|ext| dir.join(format!("{rel}.{ext}"))).find(|p| p.is_file())
+    IMAGE_EXTENSIONS
+        .iter()
+        .map(|ext| dir.join(format!("{rel}.{ext}")))
+        .find(|p| p.is_file())
 }
 
 /// The pose of a frame: 3 or 4 rows of 4 finite numbers (a 4th row is ignored).
 fn frame_pose(matrix: &[Vec<f64>]) -> std::result::Result<Pose, String> {
     if !(matrix.len() == 3 || matrix.len() == 4) || matrix.iter().any(|r| r.len() != 4) {
         let shape: Vec<usize> = matrix.iter().map(Vec::len).collect();
-        return Err(format!("transform_matrix must be 4 rows of 4 numbers, got rows of {shape:?}"));
+        return Err(format!(
+            "transform_matrix must be 4 rows of 4 numbers, got rows of {shape:?}"
+        ));
     }
-    let pose = Pose(std::array::from_fn(|r| std::array::from_fn(|c| matrix[r][c] as f32)));
+    let pose = Pose(std::array::from_fn(|r| {
+        std::array::from_fn(|c| matrix[r][c] as f32)
+    }));
     // Checked in f32: a value beyond f32's range is as unusable as a NaN.
     if !pose.is_finite() {
         return Err("transform_matrix has a non-finite entry".into());
@@ -148,15 +158,23 @@ fn frame_pose(matrix: &[Vec<f64>]) -> std::result::Result<Pose, String> {
 
 /// The camera of a frame from its merged fields and the image's real size. The error is the
 /// problem alone (the caller names the file and the frame).
-pub fn camera_from_fields(f: &CameraFields, image_size: (u32, u32)) -> std::result::Result<PinholeCamera, String> {
+pub fn camera_from_fields(
+    f: &CameraFields,
+    image_size: (u32, u32),
+) -> std::result::Result<PinholeCamera, String> {
     if let Some(model) = &f.camera_model
         && !matches!(model.as_str(), "OPENCV" | "PINHOLE" | "SIMPLE_PINHOLE")
     {
-        return Err(format!("camera_model {model:?} is not supported (OPENCV or PINHOLE)"));
+        return Err(format!(
+            "camera_model {model:?} is not supported (OPENCV or PINHOLE)"
+        ));
     }
     for (name, v) in [("k3", f.k3), ("k4", f.k4)] {
         if v.is_some_and(|v| v != 0.0) {
-            return Err(format!("{name} = {} is not supported (only k1, k2, p1, p2)", v.unwrap_or(0.0)));
+            return Err(format!(
+                "{name} = {} is not supported (only k1, k2, p1, p2)",
+                v.unwrap_or(0.0)
+            ));
         }
     }
     let (iw, ih) = image_size;
@@ -175,7 +193,16 @@ pub fn camera_from_fields(f: &CameraFields, image_size: (u32, u32)) -> std::resu
     };
     let (cx, cy) = (f.cx.unwrap_or(0.5 * w), f.cy.unwrap_or(0.5 * h));
     let coeffs = [f.k1, f.k2, f.p1, f.p2].map(|c| c.unwrap_or(0.0));
-    let values = [("focal", fx), ("focal", fy), ("cx", cx), ("cy", cy), ("k1", coeffs[0]), ("k2", coeffs[1]), ("p1", coeffs[2]), ("p2", coeffs[3])];
+    let values = [
+        ("focal", fx),
+        ("focal", fy),
+        ("cx", cx),
+        ("cy", cy),
+        ("k1", coeffs[0]),
+        ("k2", coeffs[1]),
+        ("p1", coeffs[2]),
+        ("p2", coeffs[3]),
+    ];
     if let Some((name, v)) = values.iter().find(|(_, v)| !v.is_finite()) {
         return Err(format!("{name} = {v} is not finite"));
     }
@@ -203,7 +230,8 @@ pub fn camera_from_fields(f: &CameraFields, image_size: (u32, u32)) -> std::resu
 /// [`SceneTransform::instant_ngp`]; its defaults 0.33 and 0.5 when the file has `aabb_scale`
 /// but no `scale`/`offset`); a file with none of the three (nerfstudio) is centred on its
 /// cameras' centroid with the farthest camera at distance 1 (nerfstudio's `auto_scale_poses`
-/// uses the largest |coordinate| instead). nerfstudio's `*_filenames` lists become explicit
+/// uses the largest |coordinate| instead; a single camera is left as it is, with a warning).
+/// nerfstudio's `*_filenames` lists become explicit
 /// splits (val = test when only test is given, train = the rest when it is absent).
 ///
 /// Errors name the file and the frame: malformed JSON, no frames, a matrix that is not 4×4 or
@@ -213,7 +241,8 @@ pub fn camera_from_fields(f: &CameraFields, image_size: (u32, u32)) -> std::resu
 pub fn load_instant_ngp(dir: &Path) -> Result<Capture> {
     let path = dir.join("transforms.json");
     let text = std::fs::read_to_string(&path).map_err(|e| Error::io(&path, e))?;
-    let file: TransformsFile = serde_json::from_str(&text).map_err(|e| json_error(&path, &text, e))?;
+    let file: TransformsFile =
+        serde_json::from_str(&text).map_err(|e| json_error(&path, &text, e))?;
     if file.frames.is_empty() {
         return Err(Error::invalid(&path, "\"frames\" is empty"));
     }
@@ -222,37 +251,68 @@ pub fn load_instant_ngp(dir: &Path) -> Result<Capture> {
     // file_path (without "./") → view index, for explicit splits.
     let mut index_of: HashMap<String, Option<usize>> = HashMap::new();
     for (k, frame) in file.frames.iter().enumerate() {
-        let frame_err = |problem: String| Error::invalid(&path, format!("frame {k} ({}): {problem}", frame.file_path));
+        let frame_err = |problem: String| {
+            Error::invalid(&path, format!("frame {k} ({}): {problem}", frame.file_path))
+        };
         let pose = frame_pose(&frame.transform_matrix).map_err(frame_err)?;
-        let key = frame.file_path.strip_prefix("./").unwrap_or(&frame.file_path).to_string();
+        let key = frame
+            .file_path
+            .strip_prefix("./")
+            .unwrap_or(&frame.file_path)
+            .to_string();
         let Some(image_path) = resolve_image(dir, &frame.file_path) else {
-            warnings.push(format!("{}: frame {k}: image {} not found, skipped", path.display(), dir.join(&key).display()));
+            warnings.push(format!(
+                "{}: frame {k}: image {} not found, skipped",
+                path.display(),
+                dir.join(&key).display()
+            ));
             index_of.insert(key, None);
             continue;
         };
-        let size = image::image_dimensions(&image_path)
-            .map_err(|source| Error::Image { path: image_path.clone(), source })?;
+        let size = image::image_dimensions(&image_path).map_err(|source| Error::Image {
+            path: image_path.clone(),
+            source,
+        })?;
         let fields = file.camera.overridden_by(&frame.camera);
         let camera = camera_from_fields(&fields, size).map_err(frame_err)?;
         index_of.insert(key, Some(views.len()));
-        views.push(CaptureView { name: view_name(&image_path), image_path, camera, pose, bounds: None });
+        views.push(CaptureView {
+            name: view_name(&image_path),
+            image_path,
+            camera,
+            pose,
+            bounds: None,
+        });
     }
     if views.is_empty() {
-        return Err(Error::invalid(&path, format!("none of the {} frames has its image", file.frames.len())));
+        return Err(Error::invalid(
+            &path,
+            format!("no frame has its image ({} listed)", file.frames.len()),
+        ));
     }
-    let explicit_splits = explicit_splits(&file, &index_of, views.len(), &mut warnings).map_err(|p| Error::invalid(&path, p))?;
+    let explicit_splits = explicit_splits(&file, &index_of, views.len(), &mut warnings)
+        .map_err(|p| Error::invalid(&path, p))?;
 
     let poses: Vec<Pose> = views.iter().map(|v| v.pose).collect();
     let is_ngp = file.aabb_scale.is_some() || file.scale.is_some() || file.offset.is_some();
     let transform = if is_ngp {
         let scale = file.scale.map_or(NGP_DEFAULT_SCALE, |s| s as f32);
-        let offset = file.offset.map_or(NGP_DEFAULT_OFFSET, |o| o.map(|v| v as f32));
+        let offset = file
+            .offset
+            .map_or(NGP_DEFAULT_OFFSET, |o| o.map(|v| v as f32));
         if !(scale > 0.0 && scale.is_finite() && offset.iter().all(|o| o.is_finite())) {
-            return Err(Error::invalid(&path, format!("scale {scale} must be positive and offset {offset:?} finite")));
+            return Err(Error::invalid(
+                &path,
+                format!("scale {scale} must be positive and offset {offset:?} finite"),
+            ));
         }
         SceneTransform::instant_ngp(scale, offset)
     } else {
-        SceneTransform::fit_cameras(&poses, centroid(&poses), 1.0).map_err(|e| Error::invalid(&path, e.to_string()))?
+        // One camera (or all at one place) gives no scale: leave the poses as they are.
+        SceneTransform::fit_cameras(&poses, centroid(&poses), 1.0).unwrap_or_else(|e| {
+            warnings.push(format!("{}: poses left unnormalised: {e}", path.display()));
+            SceneTransform::identity()
+        })
     };
     for v in &mut views {
         v.pose = transform.apply_pose(&v.pose);
@@ -277,13 +337,22 @@ pub fn load_instant_ngp(dir: &Path) -> Result<Capture> {
 /// A JSON error; Python's `json.dump` writes non-finite numbers as `NaN`/`Infinity`, which
 /// JSON does not allow, so that case is named as what it is.
 fn json_error(path: &Path, text: &str, source: serde_json::Error) -> Error {
-    let line = text.lines().nth(source.line().saturating_sub(1)).unwrap_or("");
+    let line = text
+        .lines()
+        .nth(source.line().saturating_sub(1))
+        .unwrap_or("");
     match ["NaN", "Infinity"].iter().find(|t| line.contains(*t)) {
         Some(token) => Error::invalid(
             path,
-            format!("line {}: {token} is not a finite number (poses and camera values must be finite)", source.line()),
+            format!(
+                "line {}: {token} is not a finite number (poses and camera values must be finite)",
+                source.line()
+            ),
         ),
-        None => Error::Json { path: path.to_path_buf(), source },
+        None => Error::Json {
+            path: path.to_path_buf(),
+            source,
+        },
     }
 }
 
@@ -294,27 +363,43 @@ fn explicit_splits(
     n_views: usize,
     warnings: &mut Vec<String>,
 ) -> std::result::Result<Option<ExplicitSplits>, String> {
-    if file.train_filenames.is_none() && file.val_filenames.is_none() && file.test_filenames.is_none() {
+    if file.train_filenames.is_none()
+        && file.val_filenames.is_none()
+        && file.test_filenames.is_none()
+    {
         return Ok(None);
     }
-    let mut lookup = |list: &Option<Vec<String>>, which: &str| -> std::result::Result<Vec<usize>, String> {
-        let mut out = Vec::new();
-        for name in list.iter().flatten() {
-            let key = name.strip_prefix("./").unwrap_or(name);
-            match index_of.get(key) {
-                Some(Some(i)) => out.push(*i),
-                Some(None) => warnings.push(format!("{which}_filenames: {name} has no image, skipped")),
-                None => return Err(format!("{which}_filenames names {name:?}, which is not a frame")),
+    let mut lookup =
+        |list: &Option<Vec<String>>, which: &str| -> std::result::Result<Vec<usize>, String> {
+            let mut out = Vec::new();
+            for name in list.iter().flatten() {
+                let key = name.strip_prefix("./").unwrap_or(name);
+                match index_of.get(key) {
+                    Some(Some(i)) => out.push(*i),
+                    Some(None) => {
+                        warnings.push(format!("{which}_filenames: {name} has no image, skipped"))
+                    }
+                    None => {
+                        return Err(format!(
+                            "{which}_filenames names {name:?}, which is not a frame"
+                        ));
+                    }
+                }
             }
-        }
-        Ok(out)
-    };
+            Ok(out)
+        };
     let test = lookup(&file.test_filenames, "test")?;
-    let val = if file.val_filenames.is_some() { lookup(&file.val_filenames, "val")? } else { test.clone() };
+    let val = if file.val_filenames.is_some() {
+        lookup(&file.val_filenames, "val")?
+    } else {
+        test.clone()
+    };
     let train = if file.train_filenames.is_some() {
         lookup(&file.train_filenames, "train")?
     } else {
-        (0..n_views).filter(|i| !test.contains(i) && !val.contains(i)).collect()
+        (0..n_views)
+            .filter(|i| !test.contains(i) && !val.contains(i))
+            .collect()
     };
     Ok(Some(ExplicitSplits { train, val, test }))
 }
@@ -327,7 +412,9 @@ mod tests {
 
     fn write_image(path: &Path, w: u32, h: u32) {
         std::fs::create_dir_all(path.parent().unwrap()).unwrap();
-        image::RgbImage::from_pixel(w, h, image::Rgb([200, 100, 50])).save(path).unwrap();
+        image::RgbImage::from_pixel(w, h, image::Rgb([200, 100, 50]))
+            .save(path)
+            .unwrap();
     }
 
     /// A frame at x = `k` looking down −z, with extra JSON fields `extra`.
@@ -338,7 +425,11 @@ mod tests {
     }
 
     fn write_json(dir: &Path, top: &str, frames: &[String]) {
-        std::fs::write(dir.join("transforms.json"), format!(r#"{{{top} "frames": [{}]}}"#, frames.join(","))).unwrap();
+        std::fs::write(
+            dir.join("transforms.json"),
+            format!(r#"{{{top} "frames": [{}]}}"#, frames.join(",")),
+        )
+        .unwrap();
     }
 
     #[test]
@@ -355,7 +446,11 @@ mod tests {
                 frame("images/0001.jpg", 0, ""),
                 // No extension: resolved to .png.
                 frame("./images/0002", 1, r#", "fl_x": 20, "k1": 0"#),
-                frame("images/0003.png", 2, r#", "w": 4, "h": 2, "cx": 2, "cy": 1, "fl_x": 5, "fl_y": 5, "k1": 0, "p2": 0"#),
+                frame(
+                    "images/0003.png",
+                    2,
+                    r#", "w": 4, "h": 2, "cx": 2, "cy": 1, "fl_x": 5, "fl_y": 5, "k1": 0, "p2": 0"#,
+                ),
             ],
         );
         let c = load_instant_ngp(d).unwrap();
@@ -363,18 +458,40 @@ mod tests {
         assert_eq!(c.views.len(), 3);
         assert!(c.warnings.is_empty(), "{:?}", c.warnings);
         let cam = c.views[0].camera;
-        assert_eq!((cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy), (8, 6, 10.0, 11.0, 4.2, 3.1));
+        assert_eq!(
+            (cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy),
+            (8, 6, 10.0, 11.0, 4.2, 3.1)
+        );
         assert_eq!(cam.pixel_center, PixelCenter::HalfPixel);
-        assert_eq!(cam.distortion, Some(OpenCvDistortion { k1: 0.1, k2: 0.0, p1: 0.0, p2: 0.002 }));
+        assert_eq!(
+            cam.distortion,
+            Some(OpenCvDistortion {
+                k1: 0.1,
+                k2: 0.0,
+                p1: 0.0,
+                p2: 0.002
+            })
+        );
         // Frame 1 overrides fl_x and k1 only.
         let cam = c.views[1].camera;
         assert_eq!((cam.fx, cam.fy), (20.0, 11.0));
-        assert_eq!(cam.distortion, Some(OpenCvDistortion { k1: 0.0, k2: 0.0, p1: 0.0, p2: 0.002 }));
+        assert_eq!(
+            cam.distortion,
+            Some(OpenCvDistortion {
+                k1: 0.0,
+                k2: 0.0,
+                p1: 0.0,
+                p2: 0.002
+            })
+        );
         assert_eq!(c.views[1].name, "0002");
         assert!(c.views[1].image_path.ends_with("images/0002.png"));
         // Frame 2 has its own size and no distortion left.
         let cam = c.views[2].camera;
-        assert_eq!((cam.width, cam.height, cam.fx, cam.cx, cam.distortion), (4, 2, 5.0, 2.0, None));
+        assert_eq!(
+            (cam.width, cam.height, cam.fx, cam.cx, cam.distortion),
+            (4, 2, 5.0, 2.0, None)
+        );
         // aabb_scale without scale/offset: instant-ngp's defaults x·0.33 (+0.5 − 0.5).
         assert_eq!((c.aabb_scale, c.scale, c.offset), (Some(4.0), None, None));
         assert_eq!(c.transform, SceneTransform::instant_ngp(0.33, [0.5; 3]));
@@ -385,25 +502,58 @@ mod tests {
     fn camera_angle_fallback_and_image_size() {
         // No fl_x, w or h: focal from camera_angle_x at the image width; fy = fx without
         // camera_angle_y; principal point at the centre.
-        let fields = CameraFields { camera_angle_x: Some(2.0 * 0.5f64.atan()), ..Default::default() };
+        let fields = CameraFields {
+            camera_angle_x: Some(2.0 * 0.5f64.atan()),
+            ..Default::default()
+        };
         let cam = camera_from_fields(&fields, (40, 30)).unwrap();
         // 0.5·40 / tan(atan(0.5)) = 40.
         assert!((cam.fx - 40.0).abs() < 1e-4 && cam.fx == cam.fy, "{cam:?}");
         assert_eq!((cam.cx, cam.cy), (20.0, 15.0));
-        let fields = CameraFields { camera_angle_y: Some(2.0 * 0.25f64.atan()), ..fields };
+        let fields = CameraFields {
+            camera_angle_y: Some(2.0 * 0.25f64.atan()),
+            ..fields
+        };
         // 0.5·30 / 0.25 = 60.
         assert!((camera_from_fields(&fields, (40, 30)).unwrap().fy - 60.0).abs() < 1e-4);
         let err = camera_from_fields(&CameraFields::default(), (4, 4)).unwrap_err();
         assert!(err.contains("no focal length"), "{err}");
-        let f = CameraFields { fl_x: Some(5.0), w: Some(8.0), ..Default::default() };
+        let f = CameraFields {
+            fl_x: Some(5.0),
+            w: Some(8.0),
+            ..Default::default()
+        };
         let err = camera_from_fields(&f, (4, 4)).unwrap_err();
         assert!(err.contains("w, h = 8×4 but the image is 4×4"), "{err}");
-        let f = CameraFields { fl_x: Some(5.0), camera_model: Some("OPENCV_FISHEYE".into()), ..Default::default() };
-        assert!(camera_from_fields(&f, (4, 4)).unwrap_err().contains("OPENCV_FISHEYE"));
-        let f = CameraFields { fl_x: Some(5.0), k3: Some(0.1), ..Default::default() };
-        assert!(camera_from_fields(&f, (4, 4)).unwrap_err().contains("k3 = 0.1"));
-        let f = CameraFields { fl_x: Some(-5.0), ..Default::default() };
-        assert!(camera_from_fields(&f, (4, 4)).unwrap_err().contains("positive"));
+        let f = CameraFields {
+            fl_x: Some(5.0),
+            camera_model: Some("OPENCV_FISHEYE".into()),
+            ..Default::default()
+        };
+        assert!(
+            camera_from_fields(&f, (4, 4))
+                .unwrap_err()
+                .contains("OPENCV_FISHEYE")
+        );
+        let f = CameraFields {
+            fl_x: Some(5.0),
+            k3: Some(0.1),
+            ..Default::default()
+        };
+        assert!(
+            camera_from_fields(&f, (4, 4))
+                .unwrap_err()
+                .contains("k3 = 0.1")
+        );
+        let f = CameraFields {
+            fl_x: Some(-5.0),
+            ..Default::default()
+        };
+        assert!(
+            camera_from_fields(&f, (4, 4))
+                .unwrap_err()
+                .contains("positive")
+        );
     }
 
     #[test]
@@ -412,23 +562,48 @@ mod tests {
         let d = dir.path();
         write_image(&d.join("a.png"), 4, 4);
         write_image(&d.join("c.png"), 4, 4);
-        write_json(d, r#""fl_x": 4,"#, &[frame("a.png", 0, ""), frame("b.png", 1, ""), frame("c", 2, ""), frame("d", 3, "")]);
+        write_json(
+            d,
+            r#""fl_x": 4,"#,
+            &[
+                frame("a.png", 0, ""),
+                frame("b.png", 1, ""),
+                frame("c", 2, ""),
+                frame("d", 3, ""),
+            ],
+        );
         let c = load_instant_ngp(d).unwrap();
         let names: Vec<&str> = c.views.iter().map(|v| v.name.as_str()).collect();
         assert_eq!(names, ["a", "c"]);
         assert_eq!(c.warnings.len(), 2);
-        assert!(c.warnings[0].contains("frame 1") && c.warnings[0].contains("b.png not found"), "{:?}", c.warnings);
+        assert!(
+            c.warnings[0].contains("frame 1") && c.warnings[0].contains("b.png not found"),
+            "{:?}",
+            c.warnings
+        );
         // No aabb_scale/scale/offset: centroid (1, 0, 4) to the origin, farthest camera at 1.
         assert!((c.views[0].pose.origin() - Vec3::new(-1.0, 0.0, 0.0)).length() < 1e-6);
         assert!((c.views[1].pose.origin() - Vec3::new(1.0, 0.0, 0.0)).length() < 1e-6);
         assert_eq!(c.transform.scale, 1.0);
         // Two cameras looking the same way: forward-facing.
         assert!(c.forward_facing);
+        // A single camera cannot be scaled to fit: left as it is, with a warning.
+        write_json(d, r#""fl_x": 4,"#, &[frame("a.png", 3, "")]);
+        let c = load_instant_ngp(d).unwrap();
+        assert_eq!(
+            (c.transform, c.views[0].pose.origin()),
+            (SceneTransform::identity(), Vec3::new(3.0, 0.0, 4.0))
+        );
+        assert!(
+            c.warnings[0].contains("poses left unnormalised"),
+            "{:?}",
+            c.warnings
+        );
         // No image at all is an error.
         std::fs::remove_file(d.join("a.png")).unwrap();
         std::fs::remove_file(d.join("c.png")).unwrap();
         let err = load_instant_ngp(d).unwrap_err().to_string();
-        assert!(err.contains("none of the 4 frames has its image"), "{err}");
+        assert!(err.contains("no frame has its image (1 listed)"), "{err}");
     }
 
     #[test]
@@ -447,16 +622,24 @@ mod tests {
         let c = load_instant_ngp(d).unwrap();
         // x' = 0.5·x + offset − 0.5: frame 2 at (2, 0, 4) → (1, 0.5, 2).
         assert!((c.views[2].pose.origin() - Vec3::new(1.0, 0.5, 2.0)).length() < 1e-6);
-        assert_eq!((c.scale, c.offset, c.aabb_scale), (Some(0.5), Some([0.5, 1.0, 0.5]), None));
+        assert_eq!(
+            (c.scale, c.offset, c.aabb_scale),
+            (Some(0.5), Some([0.5, 1.0, 0.5]), None)
+        );
         // 4.png is missing: skipped in the split with a warning; val = test; train = the rest.
         assert_eq!(c.split_indices(CaptureSplit::Test), vec![1]);
         assert_eq!(c.split_indices(CaptureSplit::Val), vec![1]);
         assert_eq!(c.split_indices(CaptureSplit::Train), vec![0, 2, 3]);
         assert_eq!(c.warnings.len(), 2, "{:?}", c.warnings);
-        let bad = std::fs::read_to_string(d.join("transforms.json")).unwrap().replace("\"4.png\"]", "\"9.png\"]");
+        let bad = std::fs::read_to_string(d.join("transforms.json"))
+            .unwrap()
+            .replace("\"4.png\"]", "\"9.png\"]");
         std::fs::write(d.join("transforms.json"), bad).unwrap();
         let err = load_instant_ngp(d).unwrap_err().to_string();
-        assert!(err.contains("test_filenames names \"9.png\", which is not a frame"), "{err}");
+        assert!(
+            err.contains("test_filenames names \"9.png\", which is not a frame"),
+            "{err}"
+        );
     }
 
     #[test]
@@ -470,21 +653,38 @@ mod tests {
         assert!(msg().contains("invalid JSON"), "{}", msg());
         write_json(d, r#""fl_x": 4,"#, &[]);
         assert!(msg().contains("\"frames\" is empty"), "{}", msg());
-        let f = r#"{"file_path": "a.png", "transform_matrix": [[1,0,0],[0,1,0],[0,0,1]]}"#.to_string();
+        let f =
+            r#"{"file_path": "a.png", "transform_matrix": [[1,0,0],[0,1,0],[0,0,1]]}"#.to_string();
         write_json(d, r#""fl_x": 4,"#, &[f]);
-        assert!(msg().contains("frame 0 (a.png): transform_matrix must be 4 rows of 4"), "{}", msg());
+        assert!(
+            msg().contains("frame 0 (a.png): transform_matrix must be 4 rows of 4"),
+            "{}",
+            msg()
+        );
         // Python's json writes a NaN pose as NaN, which is not JSON.
         let f = frame("a.png", 0, "").replace("[0,1,0,0]", "[0,NaN,0,0]");
         write_json(d, r#""fl_x": 4,"#, &[f]);
-        assert!(msg().contains("transforms.json: line 1: NaN is not a finite number"), "{}", msg());
+        assert!(
+            msg().contains("transforms.json: line 1: NaN is not a finite number"),
+            "{}",
+            msg()
+        );
         // A finite but huge entry that overflows f32 is caught as non-finite.
         let f = frame("a.png", 0, "").replace("[0,1,0,0]", "[0,1e300,0,0]");
         write_json(d, r#""fl_x": 4,"#, &[f]);
-        assert!(msg().contains("frame 0 (a.png): transform_matrix has a non-finite entry"), "{}", msg());
+        assert!(
+            msg().contains("frame 0 (a.png): transform_matrix has a non-finite entry"),
+            "{}",
+            msg()
+        );
         write_json(d, r#""fl_x": 4, "w": 8,"#, &[frame("a.png", 0, "")]);
         assert!(msg().contains("frame 0 (a.png): w, h = 8×4"), "{}", msg());
         write_json(d, "", &[frame("a.png", 0, "")]);
-        assert!(msg().contains("frame 0 (a.png): no focal length"), "{}", msg());
+        assert!(
+            msg().contains("frame 0 (a.png): no focal length"),
+            "{}",
+            msg()
+        );
         std::fs::write(d.join("a.png"), b"not an image").unwrap();
         write_json(d, r#""fl_x": 4,"#, &[frame("a.png", 0, "")]);
         assert!(msg().contains("a.png"), "{}", msg());
@@ -494,8 +694,14 @@ mod tests {
     fn resolve_image_tries_extensions() {
         let dir = tempfile::tempdir().unwrap();
         write_image(&dir.path().join("x/a.JPG"), 2, 2);
-        assert_eq!(resolve_image(dir.path(), "./x/a"), Some(dir.path().join("x/a.JPG")));
-        assert_eq!(resolve_image(dir.path(), "x/a.JPG"), Some(dir.path().join("x/a.JPG")));
+        assert_eq!(
+            resolve_image(dir.path(), "./x/a"),
+            Some(dir.path().join("x/a.JPG"))
+        );
+        assert_eq!(
+            resolve_image(dir.path(), "x/a.JPG"),
+            Some(dir.path().join("x/a.JPG"))
+        );
         assert_eq!(resolve_image(dir.path(), "x/b"), None);
     }
 }

@@ -41,8 +41,14 @@ pub struct LlffRow {
 /// become the pose `[right, −down, back, centre]` (nerf-pytorch's column shuffle).
 pub fn llff_row(row: &[f64; 17]) -> LlffRow {
     let m = |r: usize, c: usize| row[r * 5 + c] as f32;
-    let pose = Pose(std::array::from_fn(|r| [m(r, 1), -m(r, 0), m(r, 2), m(r, 3)]));
-    LlffRow { pose, hwf: [m(0, 4), m(1, 4), m(2, 4)], bounds: (row[15] as f32, row[16] as f32) }
+    let pose = Pose(std::array::from_fn(|r| {
+        [m(r, 1), -m(r, 0), m(r, 2), m(r, 3)]
+    }));
+    LlffRow {
+        pose,
+        hwf: [m(0, 4), m(1, 4), m(2, 4)],
+        bounds: (row[15] as f32, row[16] as f32),
+    }
 }
 
 /// nerf-pytorch's `poses_avg` (without hwf): centre = mean of the camera centres, z = the
@@ -50,7 +56,11 @@ pub fn llff_row(row: &[f64; 17]) -> LlffRow {
 /// (`viewmatrix(z, up, centre)`: x = normalize(up × z), y = normalize(z × x)).
 pub fn poses_avg(poses: &[Pose]) -> Pose {
     let centre = poses.iter().map(Pose::origin).sum::<Vec3>() / poses.len().max(1) as f32;
-    let z = poses.iter().map(|p| p.rotation().z_axis).sum::<Vec3>().normalize();
+    let z = poses
+        .iter()
+        .map(|p| p.rotation().z_axis)
+        .sum::<Vec3>()
+        .normalize();
     let up = poses.iter().map(|p| p.rotation().y_axis).sum::<Vec3>();
     let x = up.cross(z).normalize();
     let y = z.cross(x).normalize();
@@ -61,13 +71,19 @@ pub fn poses_avg(poses: &[Pose]) -> Pose {
 /// [`poses_avg`], so that the average camera becomes the identity.
 pub fn recenter_poses(poses: &[Pose]) -> Vec<Pose> {
     let inv = poses_avg(poses).to_mat4().inverse();
-    poses.iter().map(|p| Pose::from_mat4(inv * p.to_mat4())).collect()
+    poses
+        .iter()
+        .map(|p| Pose::from_mat4(inv * p.to_mat4()))
+        .collect()
 }
 
 /// nerf-pytorch's scale `1/(min near bound · bd_factor)`; an error when the smallest bound is
 /// not positive and finite.
 pub fn bd_factor_scale(bounds: &[(f32, f32)], bd_factor: f32) -> Result<f32> {
-    let min = bounds.iter().map(|b| b.0.min(b.1)).fold(f32::INFINITY, f32::min);
+    let min = bounds
+        .iter()
+        .map(|b| b.0.min(b.1))
+        .fold(f32::INFINITY, f32::min);
     if !(min > 0.0 && min.is_finite() && bd_factor > 0.0) {
         return Err(Error::Argument(format!(
             "cannot rescale by the bounds: the smallest bound is {min} (must be positive)"
@@ -92,9 +108,17 @@ pub fn llff_images(images_dir: &Path) -> Result<Vec<PathBuf>> {
     let mut files = Vec::new();
     for entry in entries {
         let path = entry.map_err(|e| Error::io(images_dir, e))?.path();
-        let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-        let ext = path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase());
-        if !name.starts_with('.') && matches!(ext.as_deref(), Some("png" | "jpg" | "jpeg")) && path.is_file() {
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let ext = path
+            .extension()
+            .map(|e| e.to_string_lossy().to_ascii_lowercase());
+        if !name.starts_with('.')
+            && matches!(ext.as_deref(), Some("png" | "jpg" | "jpeg"))
+            && path.is_file()
+        {
             files.push(path);
         }
     }
@@ -117,7 +141,10 @@ pub fn load_llff(dir: &Path) -> Result<Capture> {
     if array.shape.len() != 2 || array.shape[1] != 17 {
         return Err(Error::invalid(
             &npy_path,
-            format!("shape {:?}: expected N×17 (a 3×5 pose and 2 bounds per image)", array.shape),
+            format!(
+                "shape {:?}: expected N×17 (a 3×5 pose and 2 bounds per image)",
+                array.shape
+            ),
         ));
     }
     let images = llff_images(&dir.join("images"))?;
@@ -125,22 +152,38 @@ pub fn load_llff(dir: &Path) -> Result<Capture> {
     if n != images.len() || n == 0 {
         return Err(Error::invalid(
             &npy_path,
-            format!("{n} poses but {} images in {}", images.len(), dir.join("images").display()),
+            format!(
+                "{n} poses but {} images in {}",
+                images.len(),
+                dir.join("images").display()
+            ),
         ));
     }
     let mut rows = Vec::with_capacity(n);
     for (k, (values, image)) in array.data.chunks_exact(17).zip(&images).enumerate() {
         let name = image.file_name().unwrap_or_default().to_string_lossy();
         if !values.iter().all(|v| v.is_finite()) {
-            return Err(Error::invalid(&npy_path, format!("row {k} ({name}) has a non-finite value")));
+            return Err(Error::invalid(
+                &npy_path,
+                format!("row {k} ({name}) has a non-finite value"),
+            ));
         }
         let row = llff_row(values.try_into().expect("chunks of 17"));
         let (near, far) = row.bounds;
         if !(near > 0.0 && far > near) {
-            return Err(Error::invalid(&npy_path, format!("row {k} ({name}): bounds ({near}, {far}) are not 0 < near < far")));
+            return Err(Error::invalid(
+                &npy_path,
+                format!("row {k} ({name}): bounds ({near}, {far}) are not 0 < near < far"),
+            ));
         }
         if !(row.hwf.iter().all(|&v| v > 0.0)) {
-            return Err(Error::invalid(&npy_path, format!("row {k} ({name}): [H, W, focal] = {:?} must be positive", row.hwf)));
+            return Err(Error::invalid(
+                &npy_path,
+                format!(
+                    "row {k} ({name}): [H, W, focal] = {:?} must be positive",
+                    row.hwf
+                ),
+            ));
         }
         rows.push(row);
     }
@@ -151,7 +194,12 @@ pub fn load_llff(dir: &Path) -> Result<Capture> {
         if size != (width, height) {
             return Err(Error::invalid(
                 path,
-                format!("image is {}×{} but {} is {width}×{height}", size.0, size.1, images[0].display()),
+                format!(
+                    "image is {}×{} but {} is {width}×{height}",
+                    size.0,
+                    size.1,
+                    images[0].display()
+                ),
             ));
         }
     }
@@ -159,6 +207,13 @@ pub fn load_llff(dir: &Path) -> Result<Capture> {
     let poses: Vec<Pose> = rows.iter().map(|r| r.pose).collect();
     let bounds: Vec<(f32, f32)> = rows.iter().map(|r| r.bounds).collect();
     let transform = llff_normalisation(&poses, bd_factor_scale(&bounds, BD_FACTOR)?);
+    let r = transform.rotation_matrix();
+    if !(r.is_finite() && Vec3::from_array(transform.translation).is_finite()) {
+        return Err(Error::invalid(
+            &npy_path,
+            "the average camera is degenerate (its up and back axes are parallel): cannot recentre",
+        ));
+    }
     let mut views = Vec::with_capacity(n);
     for (k, (row, path)) in rows.iter().zip(&images).enumerate() {
         let [h, w, f] = row.hwf;
@@ -168,7 +223,9 @@ pub fn load_llff(dir: &Path) -> Result<Capture> {
         if (h * s - height as f32).abs() > 1.0 {
             return Err(Error::invalid(
                 &npy_path,
-                format!("row {k}: [H, W] = [{h}, {w}] has another aspect ratio than the {width}×{height} images"),
+                format!(
+                    "row {k}: [H, W] = [{h}, {w}] has another aspect ratio than the {width}×{height} images"
+                ),
             ));
         }
         let camera = PinholeCamera {
@@ -186,11 +243,22 @@ pub fn load_llff(dir: &Path) -> Result<Capture> {
             image_path: path.clone(),
             camera,
             pose: transform.apply_pose(&row.pose),
-            bounds: Some((row.bounds.0 * transform.scale, row.bounds.1 * transform.scale)),
+            bounds: Some((
+                row.bounds.0 * transform.scale,
+                row.bounds.1 * transform.scale,
+            )),
         });
     }
-    let near = views.iter().filter_map(|v| v.bounds).map(|b| b.0).fold(f32::INFINITY, f32::min);
-    let far = views.iter().filter_map(|v| v.bounds).map(|b| b.1).fold(0.0, f32::max);
+    let near = views
+        .iter()
+        .filter_map(|v| v.bounds)
+        .map(|b| b.0)
+        .fold(f32::INFINITY, f32::min);
+    let far = views
+        .iter()
+        .filter_map(|v| v.bounds)
+        .map(|b| b.1)
+        .fold(0.0, f32::max);
     let poses: Vec<Pose> = views.iter().map(|v| v.pose).collect();
     Ok(Capture {
         format: CaptureFormat::Llff,
@@ -208,7 +276,10 @@ pub fn load_llff(dir: &Path) -> Result<Capture> {
 }
 
 fn image_size(path: &Path) -> Result<(u32, u32)> {
-    image::image_dimensions(path).map_err(|source| Error::Image { path: path.to_path_buf(), source })
+    image::image_dimensions(path).map_err(|source| Error::Image {
+        path: path.to_path_buf(),
+        source,
+    })
 }
 
 #[cfg(test)]
@@ -221,7 +292,14 @@ mod tests {
     }
 
     /// A row: LLFF columns down, right, back, centre given as world vectors.
-    fn row(down: [f64; 3], right: [f64; 3], back: [f64; 3], centre: [f64; 3], hwf: [f64; 3], bounds: [f64; 2]) -> [f64; 17] {
+    fn row(
+        down: [f64; 3],
+        right: [f64; 3],
+        back: [f64; 3],
+        centre: [f64; 3],
+        hwf: [f64; 3],
+        bounds: [f64; 2],
+    ) -> [f64; 17] {
         let mut r = [0.0; 17];
         for i in 0..3 {
             r[i * 5] = down[i];
@@ -238,10 +316,24 @@ mod tests {
     #[test]
     fn columns_become_opengl_as_in_nerf_pytorch() {
         // down = −y, right = x, back = z (a camera looking down −z, y up in LLFF terms).
-        let r = row([0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [1.0, 2.0, 3.0], [300.0, 400.0, 320.0], [2.0, 9.0]);
+        let r = row(
+            [0.0, -1.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0],
+            [1.0, 2.0, 3.0],
+            [300.0, 400.0, 320.0],
+            [2.0, 9.0],
+        );
         let c = llff_row(&r);
         // [right, −down, back] = [x, y, z]: the identity rotation.
-        assert_eq!(c.pose, Pose([[1.0, 0.0, 0.0, 1.0], [0.0, 1.0, 0.0, 2.0], [0.0, 0.0, 1.0, 3.0]]));
+        assert_eq!(
+            c.pose,
+            Pose([
+                [1.0, 0.0, 0.0, 1.0],
+                [0.0, 1.0, 0.0, 2.0],
+                [0.0, 0.0, 1.0, 3.0]
+            ])
+        );
         assert_eq!((c.hwf, c.bounds), ([300.0, 400.0, 320.0], (2.0, 9.0)));
         // A general row: 3×5 row-major values 0..15; new columns [c1, −c0, c2, c3].
         let mut r = [0.0; 17];
@@ -259,7 +351,13 @@ mod tests {
     fn poses_avg_and_recentering_match_hand_values() {
         // Two cameras looking down −z at x = 0 and x = 2 (identity rotations), and one turned
         // about y: the average centre is the mean, the average axes re-orthogonalised.
-        let p = |x: f32| Pose([[1.0, 0.0, 0.0, x], [0.0, 1.0, 0.0, 1.0], [0.0, 0.0, 1.0, 5.0]]);
+        let p = |x: f32| {
+            Pose([
+                [1.0, 0.0, 0.0, x],
+                [0.0, 1.0, 0.0, 1.0],
+                [0.0, 0.0, 1.0, 5.0],
+            ])
+        };
         let avg = poses_avg(&[p(0.0), p(2.0)]);
         assert_eq!(avg, p(1.0));
         let centred = recenter_poses(&[p(0.0), p(2.0)]);
@@ -273,19 +371,37 @@ mod tests {
         let base = Mat3::from_rotation_x(0.3);
         let pair: Vec<Pose> = [turned(30.0, 0.0), turned(-30.0, 4.0)]
             .iter()
-            .map(|q| pose_from(base * q.rotation(), base * q.origin() + Vec3::new(0.0, 0.0, 7.0)))
+            .map(|q| {
+                pose_from(
+                    base * q.rotation(),
+                    base * q.origin() + Vec3::new(0.0, 0.0, 7.0),
+                )
+            })
             .collect();
         let avg = poses_avg(&pair);
         assert_close(avg.rotation().z_axis, base * Vec3::Z, 1e-6);
-        assert_close(avg.origin(), base * Vec3::new(2.0, 0.0, 0.0) + Vec3::new(0.0, 0.0, 7.0), 1e-5);
+        assert_close(
+            avg.origin(),
+            base * Vec3::new(2.0, 0.0, 0.0) + Vec3::new(0.0, 0.0, 7.0),
+            1e-5,
+        );
         let again = poses_avg(&recenter_poses(&pair));
-        for (a, b) in again.0.iter().flatten().zip(Pose::from_mat4(glam::Mat4::IDENTITY).0.iter().flatten()) {
+        for (a, b) in again
+            .0
+            .iter()
+            .flatten()
+            .zip(Pose::from_mat4(glam::Mat4::IDENTITY).0.iter().flatten())
+        {
             assert!((a - b).abs() < 1e-5, "{again:?}");
         }
         // The recentred cameras sit at ∓2 on x, turned by ±30°.
         let c = recenter_poses(&pair);
         assert_close(c[0].origin(), Vec3::new(-2.0, 0.0, 0.0), 1e-5);
-        assert_close(c[0].rotation().z_axis, Vec3::new(0.5, 0.0, 0.75f32.sqrt()), 1e-5);
+        assert_close(
+            c[0].rotation().z_axis,
+            Vec3::new(0.5, 0.0, 0.75f32.sqrt()),
+            1e-5,
+        );
     }
 
     #[test]
@@ -293,7 +409,10 @@ mod tests {
         let poses: Vec<Pose> = (0..4)
             .map(|k| {
                 let r = Mat3::from_rotation_y(0.1 * k as f32) * Mat3::from_rotation_x(0.2);
-                pose_from(r, Vec3::new(k as f32, 2.0 - k as f32 * 0.5, 10.0 + k as f32))
+                pose_from(
+                    r,
+                    Vec3::new(k as f32, 2.0 - k as f32 * 0.5, 10.0 + k as f32),
+                )
             })
             .collect();
         let bounds = [(4.0, 20.0), (2.0, 18.0), (3.0, 30.0), (5.0, 25.0)];
@@ -319,14 +438,30 @@ mod tests {
 
     /// Writes an LLFF capture: forward-facing cameras along x looking down −z (LLFF columns
     /// down = −y, right = x, back = z), images of `w × h`, `[H, W, f]` = `hwf`.
-    fn write_capture(dir: &Path, names: &[&str], w: u32, h: u32, hwf: [f64; 3], v2: bool) -> Vec<[f64; 17]> {
+    fn write_capture(
+        dir: &Path,
+        names: &[&str],
+        w: u32,
+        h: u32,
+        hwf: [f64; 3],
+        v2: bool,
+    ) -> Vec<[f64; 17]> {
         std::fs::create_dir_all(dir.join("images")).unwrap();
         for name in names {
             let img = image::RgbImage::from_pixel(w, h, image::Rgb([10, 20, 30]));
             img.save(dir.join("images").join(name)).unwrap();
         }
         let rows: Vec<[f64; 17]> = (0..names.len())
-            .map(|k| row([0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [k as f64, 0.5, 0.0], hwf, [2.0 + k as f64, 40.0]))
+            .map(|k| {
+                row(
+                    [0.0, -1.0, 0.0],
+                    [1.0, 0.0, 0.0],
+                    [0.0, 0.0, 1.0],
+                    [k as f64, 0.5, 0.0],
+                    hwf,
+                    [2.0 + k as f64, 40.0],
+                )
+            })
             .collect();
         write_rows(dir, &rows, v2);
         rows
@@ -334,7 +469,11 @@ mod tests {
 
     fn write_rows(dir: &Path, rows: &[[f64; 17]], v2: bool) {
         let flat: Vec<f64> = rows.iter().flatten().copied().collect();
-        std::fs::write(dir.join("poses_bounds.npy"), encode_npy(&[rows.len(), 17], &f8_bytes(&flat), "<f8", false, v2)).unwrap();
+        std::fs::write(
+            dir.join("poses_bounds.npy"),
+            encode_npy(&[rows.len(), 17], &f8_bytes(&flat), "<f8", false, v2),
+        )
+        .unwrap();
     }
 
     #[test]
@@ -343,24 +482,41 @@ mod tests {
             let dir = tempfile::tempdir().unwrap();
             // Images 8×6, hwf for 16×12 with focal 20 → focal 10 at the images' size.
             // Names sort as a.png < b.jpg < c.PNG, whatever the directory order.
-            write_capture(dir.path(), &["c.PNG", "a.png", "b.jpg"], 8, 6, [12.0, 16.0, 20.0], v2);
+            write_capture(
+                dir.path(),
+                &["c.PNG", "a.png", "b.jpg"],
+                8,
+                6,
+                [12.0, 16.0, 20.0],
+                v2,
+            );
             std::fs::write(dir.path().join("images/notes.txt"), b"x").unwrap();
             let capture = load_llff(dir.path()).unwrap();
             assert_eq!(capture.format, CaptureFormat::Llff);
             let names: Vec<&str> = capture.views.iter().map(|v| v.name.as_str()).collect();
             assert_eq!(names, ["a", "b", "c"]);
             let cam = capture.views[0].camera;
-            assert_eq!((cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy), (8, 6, 10.0, 10.0, 4.0, 3.0));
+            assert_eq!(
+                (cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy),
+                (8, 6, 10.0, 10.0, 4.0, 3.0)
+            );
             assert_eq!(cam.pixel_center, PixelCenter::Integer);
             // Bounds: min near 2 → scale 1/(2·0.75) = 2/3; near_far = (0.9·4/3, 40·2/3).
             let s = 2.0 / 3.0;
             assert!((capture.transform.scale - s).abs() < 1e-6);
             let (near, far) = capture.near_far.unwrap();
             assert!((near - 0.9 * 2.0 * s).abs() < 1e-5 && (far - 40.0 * s).abs() < 1e-4);
-            assert_eq!(capture.views[1].bounds.map(|b| (b.0 / s).round()), Some(3.0));
+            assert_eq!(
+                capture.views[1].bounds.map(|b| (b.0 / s).round()),
+                Some(3.0)
+            );
             // Recentred: centres at x = (k − 1)·2/3, y = z = 0, looking down −z.
             for (k, v) in capture.views.iter().enumerate() {
-                assert_close(v.pose.origin(), Vec3::new((k as f32 - 1.0) * s, 0.0, 0.0), 1e-5);
+                assert_close(
+                    v.pose.origin(),
+                    Vec3::new((k as f32 - 1.0) * s, 0.0, 0.0),
+                    1e-5,
+                );
                 assert_close(v.pose.rotation() * Vec3::NEG_Z, Vec3::NEG_Z, 1e-6);
             }
             assert!(capture.forward_facing);
@@ -382,13 +538,25 @@ mod tests {
         let mut bad = rows[1];
         bad[3] = f64::NAN;
         write_rows(d, &[rows[0], bad], false);
-        assert!(msg().contains("row 1 (b.png) has a non-finite value"), "{}", msg());
+        assert!(
+            msg().contains("row 1 (b.png) has a non-finite value"),
+            "{}",
+            msg()
+        );
         let mut bad = rows[0];
         bad[15] = -1.0;
         write_rows(d, &[bad, rows[1]], false);
-        assert!(msg().contains("row 0 (a.png): bounds (-1, 40)"), "{}", msg());
+        assert!(
+            msg().contains("row 0 (a.png): bounds (-1, 40)"),
+            "{}",
+            msg()
+        );
         // Wrong shape.
-        std::fs::write(d.join("poses_bounds.npy"), encode_npy(&[2, 15], &f8_bytes(&[1.0; 30]), "<f8", false, false)).unwrap();
+        std::fs::write(
+            d.join("poses_bounds.npy"),
+            encode_npy(&[2, 15], &f8_bytes(&[1.0; 30]), "<f8", false, false),
+        )
+        .unwrap();
         assert!(msg().contains("shape [2, 15]: expected N×17"), "{}", msg());
         // Another aspect ratio in [H, W].
         let mut wide = rows.clone();
@@ -399,7 +567,9 @@ mod tests {
         assert!(msg().contains("another aspect ratio"), "{}", msg());
         // Images of different sizes.
         write_rows(d, &rows, false);
-        image::RgbImage::new(4, 4).save(d.join("images/b.png")).unwrap();
+        image::RgbImage::new(4, 4)
+            .save(d.join("images/b.png"))
+            .unwrap();
         assert!(msg().contains("b.png: image is 4×4 but"), "{}", msg());
         // No images folder.
         std::fs::remove_dir_all(d.join("images")).unwrap();
