@@ -240,6 +240,18 @@ impl Capture {
         self.views.iter().map(|v| v.pose).collect()
     }
 
+    /// Centres the cameras on the point their axes meet ([`focus_point`]; their [`centroid`]
+    /// when the axes are parallel) and scales so that the farthest is `radius` away, through
+    /// [`Capture::renormalise`]. An error when no camera is away from that centre.
+    pub fn fit_cameras(&mut self, radius: f32) -> Result<()> {
+        let poses = self.poses();
+        let centre = focus_point(&poses).unwrap_or_else(|| centroid(&poses));
+        let fit = SceneTransform::fit_cameras(&poses, centre, radius)
+            .map_err(|e| Error::invalid(&self.source, e.to_string()))?;
+        self.renormalise(&fit);
+        Ok(())
+    }
+
     /// Maps every pose and bound through `next` as well, and records it in `transform`.
     pub fn renormalise(&mut self, next: &SceneTransform) {
         for v in &mut self.views {
@@ -421,8 +433,8 @@ mod tests {
         assert_eq!(focus_point(&parallel), None);
     }
 
-    #[test]
-    fn explicit_splits_override_the_rule_and_renormalise_scales_bounds() {
+    /// A capture of `poses` with bounds (1, 4) everywhere and aabb_scale 4.
+    fn capture_of(poses: &[Pose]) -> Capture {
         let camera = PinholeCamera {
             width: 2,
             height: 2,
@@ -433,17 +445,17 @@ mod tests {
             pixel_center: PixelCenter::HalfPixel,
             distortion: None,
         };
-        let view = |x: f32| CaptureView {
+        let view = |pose: &Pose| CaptureView {
             name: "v".into(),
             image_path: PathBuf::from("v.png"),
             camera,
-            pose: look_at(Vec3::new(x, 0.0, 0.0), Vec3::new(x, 0.0, -1.0)),
+            pose: *pose,
             bounds: Some((1.0, 4.0)),
         };
-        let mut capture = Capture {
+        Capture {
             format: CaptureFormat::InstantNgp,
             source: PathBuf::from("transforms.json"),
-            views: (0..10).map(|k| view(k as f32)).collect(),
+            views: poses.iter().map(view).collect(),
             transform: SceneTransform::identity(),
             near_far: Some((1.0, 4.0)),
             forward_facing: true,
@@ -452,7 +464,67 @@ mod tests {
             offset: None,
             explicit_splits: None,
             warnings: vec![],
-        };
+        }
+    }
+
+    #[test]
+    fn fit_cameras_centres_on_the_focus_point() {
+        // A ring of radius 4 around (1, 2, 3), 0.5 above it, looking at it.
+        let target = Vec3::new(1.0, 2.0, 3.0);
+        let ring: Vec<Pose> = (0..8)
+            .map(|k| {
+                let a = k as f32 * std::f32::consts::TAU / 8.0;
+                look_at(
+                    target + Vec3::new(4.0 * a.cos(), 0.5, 4.0 * a.sin()),
+                    target,
+                )
+            })
+            .collect();
+        let mut capture = capture_of(&ring);
+        capture.fit_cameras(2.0).unwrap();
+        // Centred on the target (not the centroid 0.5 above it); every camera at distance
+        // √(16 + 0.25) = 4.03 → 2: scale 2/4.03.
+        let s = 2.0 / 16.25f32.sqrt();
+        assert!((capture.transform.scale - s).abs() < 1e-5);
+        for (v, p) in capture.views.iter().zip(&ring) {
+            let expected = (p.origin() - target) * s;
+            assert!(
+                (v.pose.origin() - expected).length() < 1e-4,
+                "{:?}",
+                v.pose.origin()
+            );
+        }
+        // Bounds scale with the poses: (1, 4) → (s, 4s).
+        let (near, far) = capture.views[0].bounds.unwrap();
+        assert!((near - s).abs() < 1e-6 && (far - 4.0 * s).abs() < 1e-6);
+        // The recorded transform maps the file's target to the origin.
+        assert!(capture.transform.apply_point(target).length() < 1e-4);
+        // Parallel cameras (no focus point) are centred on their centroid.
+        let line: Vec<Pose> = (0..3)
+            .map(|k| {
+                look_at(
+                    Vec3::new(k as f32, 0.0, 0.0),
+                    Vec3::new(k as f32, 0.0, -1.0),
+                )
+            })
+            .collect();
+        let mut capture = capture_of(&line);
+        capture.fit_cameras(1.0).unwrap();
+        assert!((capture.views[2].pose.origin() - Vec3::X).length() < 1e-6);
+        assert!(capture_of(&line[..1]).fit_cameras(1.0).is_err());
+    }
+
+    #[test]
+    fn explicit_splits_override_the_rule_and_renormalise_scales_bounds() {
+        let line: Vec<Pose> = (0..10)
+            .map(|k| {
+                look_at(
+                    Vec3::new(k as f32, 0.0, 0.0),
+                    Vec3::new(k as f32, 0.0, -1.0),
+                )
+            })
+            .collect();
+        let mut capture = capture_of(&line);
         assert_eq!(capture.split_indices(CaptureSplit::Test), vec![0, 8]);
         assert_eq!(capture.split_indices(CaptureSplit::Train).len(), 8);
         capture.explicit_splits = Some(ExplicitSplits {
