@@ -231,8 +231,9 @@ pub fn camera_from_fields(
 /// but no `scale`/`offset`); a file with none of the three (nerfstudio) is centred on its
 /// cameras' centroid with the farthest camera at distance 1 (nerfstudio's `auto_scale_poses`
 /// uses the largest |coordinate| instead; a single camera is left as it is, with a warning).
-/// nerfstudio's `*_filenames` lists become explicit
-/// splits (val = test when only test is given, train = the rest when it is absent).
+/// [`Capture::fit_cameras`] can refit either to the field's bounds. nerfstudio's
+/// `*_filenames` lists become explicit splits (val = test when only test is given, train =
+/// the rest when it is absent).
 ///
 /// Errors name the file and the frame: malformed JSON, no frames, a matrix that is not 4×4 or
 /// 3×4 or has a non-finite entry, no focal length, `w`/`h` that differ from the image, an
