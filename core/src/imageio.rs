@@ -1,4 +1,4 @@
-//! Image input and output: PNG decoding to `f32` RGBA, PNG/GIF encoding (written atomically),
+//! Image input and output: PNG and JPEG decoding to `f32` RGBA, PNG/GIF encoding (written atomically),
 //! and a viewable colouring of depth maps.
 //!
 //! Pixel buffers are row-major: pixel (column `i`, row `j`) is at index `j·W + i`.
@@ -83,8 +83,9 @@ pub fn save_png_rgba(path: &Path, width: u32, height: u32, rgba: &[[f32; 4]]) ->
     )
 }
 
-/// Decodes an image file (any PNG: gray, gray+alpha, RGB, RGBA, 8 or 16 bits; or a GIF's first
-/// frame) to straight RGBA in `[0, 1]`, returning `(width, height, pixels)`. Gray is replicated
+/// Decodes an image file (any PNG: gray, gray+alpha, RGB, RGBA, 8 or 16 bits; a baseline or
+/// progressive JPEG, gray or RGB; or a GIF's first frame; the format is read from the content,
+/// not the extension) to straight RGBA in `[0, 1]`, returning `(width, height, pixels)`. Gray is replicated
 /// to RGB; a missing alpha channel reads as 1. Values are not colour-managed (raw code values
 /// divided by 255 or 65535, as the reference loaders do).
 pub fn load_rgba(path: &Path) -> Result<(u32, u32, Vec<[f32; 4]>)> {
@@ -333,6 +334,36 @@ mod tests {
         std::fs::write(&junk, b"not a png").unwrap();
         let err = load_rgba(&junk).unwrap_err().to_string();
         assert!(err.contains("junk.png"), "{err}");
+    }
+
+    #[test]
+    fn load_rgba_reads_jpeg_rgb_and_grey() {
+        let dir = tempfile::tempdir().unwrap();
+        // Flat colours survive JPEG at quality 100 to within a couple of code values.
+        let rgb = dir.path().join("photo.jpg");
+        let img = image::RgbImage::from_pixel(16, 8, image::Rgb([200, 100, 50]));
+        let mut bytes = Vec::new();
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut bytes, 100).encode_image(&img).unwrap();
+        std::fs::write(&rgb, &bytes).unwrap();
+        let (w, h, px) = load_rgba(&rgb).unwrap();
+        assert_eq!((w, h, px.len()), (16, 8, 128));
+        for (c, v) in [200.0f32, 100.0, 50.0].iter().enumerate() {
+            assert!((px[37][c] * 255.0 - v).abs() <= 2.0, "{:?}", px[37]);
+        }
+        assert_eq!(px[37][3], 1.0);
+        // A grey JPEG under a .png name: decoded by content, grey replicated to RGB.
+        let grey = dir.path().join("grey.png");
+        let mut bytes = Vec::new();
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut bytes, 100)
+            .encode_image(&image::GrayImage::from_pixel(4, 4, image::Luma([51])))
+            .unwrap();
+        std::fs::write(&grey, &bytes).unwrap();
+        let (_, _, px) = load_rgba(&grey).unwrap();
+        assert!((px[5][0] - 0.2).abs() < 0.01 && px[5][0] == px[5][2], "{:?}", px[5]);
+        // A truncated JPEG is an error naming the file.
+        std::fs::write(&rgb, &bytes[..bytes.len() / 3]).unwrap();
+        let err = load_rgba(&rgb).unwrap_err().to_string();
+        assert!(err.contains("photo.jpg"), "{err}");
     }
 
     #[test]

@@ -1,13 +1,29 @@
-//! Datasets: the Blender (`transforms_{split}.json`) format, a generated test scene, and the
-//! random pixel batcher used in training.
+//! Datasets: the Blender (`transforms_{split}.json`) format, real captures (instant-ngp /
+//! nerfstudio `transforms.json`, LLFF `poses_bounds.npy`) parsed into a format-free
+//! [`Capture`], a generated test scene, and the random pixel batcher used in training.
 //!
 //! Images are row-major RGB (pixel (column `i`, row `j`) at index `j·W + i`), in `[0, 1]`,
 //! already composited on a white background.
 
 mod blender;
+mod capture;
+mod instant_ngp;
+mod llff;
 mod synthetic;
 
 pub use blender::{Frame, Transforms, image_path, load_split, transforms_path};
+pub use capture::{
+    Capture, CaptureFormat, CaptureSplit, CaptureView, ExplicitSplits, FORWARD_FACING_MAX_DEG,
+    HOLDOUT_EVERY, centroid, detect_format, focus_point, holdout_split, is_forward_facing,
+};
+pub use instant_ngp::{
+    CameraFields, NGP_DEFAULT_OFFSET, NGP_DEFAULT_SCALE, NgpFrame, TransformsFile,
+    camera_from_fields, load_instant_ngp, resolve_image,
+};
+pub use llff::{
+    BD_FACTOR, LlffRow, bd_factor_scale, llff_images, llff_normalisation, llff_row, load_llff,
+    poses_avg, recenter_poses,
+};
 pub use synthetic::{
     CAMERA_ANGLE_X, SyntheticSceneConfig, generate_scene, render_reference, split_poses,
 };

@@ -1,0 +1,589 @@
+//! The format-free result of parsing a real capture (instant-ngp/nerfstudio `transforms.json`,
+//! LLFF `poses_bounds.npy`): per-view images, full cameras and OpenGL poses, the scene
+//! normalisation that was applied, bounds, and the split rule shared by every format.
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+
+use glam::{Mat3, Vec3};
+use serde::{Deserialize, Serialize};
+
+use super::Split;
+use crate::camera::Pose;
+use crate::camera_model::PinholeCamera;
+use crate::error::{Error, Result};
+use crate::imageio::load_rgba;
+use crate::scene_transform::SceneTransform;
+
+/// Every how-many-th frame is held out for testing (LLFF's `llffhold`, nerf-pytorch's default).
+pub const HOLDOUT_EVERY: usize = 8;
+
+/// The dataset formats `nerf --data DIR` understands.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CaptureFormat {
+    /// NeRF synthetic: `transforms_{train,val,test}.json`.
+    Blender,
+    /// instant-ngp / nerfstudio: a single `transforms.json`.
+    InstantNgp,
+    /// LLFF: `poses_bounds.npy` and `images/`.
+    Llff,
+}
+
+impl CaptureFormat {
+    /// `"blender"`, `"instant_ngp"` or `"llff"`.
+    pub fn name(self) -> &'static str {
+        match self {
+            CaptureFormat::Blender => "blender",
+            CaptureFormat::InstantNgp => "instant_ngp",
+            CaptureFormat::Llff => "llff",
+        }
+    }
+}
+
+impl fmt::Display for CaptureFormat {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for CaptureFormat {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "blender" => Ok(CaptureFormat::Blender),
+            "instant_ngp" | "instant-ngp" | "nerfstudio" => Ok(CaptureFormat::InstantNgp),
+            "llff" => Ok(CaptureFormat::Llff),
+            other => Err(Error::Argument(format!(
+                "unknown format {other:?} (expected blender, instant-ngp or llff)"
+            ))),
+        }
+    }
+}
+
+/// Which format `dir` holds, by its files: `transforms_train.json` → Blender, else
+/// `transforms.json` → instant-ngp, else `poses_bounds.npy` → LLFF; otherwise an error that
+/// names the directory and the files looked for.
+pub fn detect_format(dir: &Path) -> Result<CaptureFormat> {
+    if !dir.is_dir() {
+        let source = std::io::Error::new(std::io::ErrorKind::NotFound, "not a directory");
+        return Err(Error::io(dir, source));
+    }
+    let candidates = [
+        ("transforms_train.json", CaptureFormat::Blender),
+        ("transforms.json", CaptureFormat::InstantNgp),
+        ("poses_bounds.npy", CaptureFormat::Llff),
+    ];
+    candidates.iter().find(|(file, _)| dir.join(file).is_file()).map(|&(_, f)| f).ok_or_else(|| {
+        Error::invalid(
+            dir,
+            "no dataset found: expected transforms_train.json (Blender), transforms.json (instant-ngp/nerfstudio) or poses_bounds.npy (LLFF)",
+        )
+    })
+}
+
+/// A split of a capture: `--split train|val|test|all`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CaptureSplit {
+    /// Everything not held out.
+    Train,
+    /// The test views unless the file names its own.
+    Val,
+    /// Every 8th view (0, 8, 16, …) unless the file names its own.
+    Test,
+    /// Every view.
+    All,
+}
+
+impl From<Split> for CaptureSplit {
+    fn from(s: Split) -> Self {
+        match s {
+            Split::Train => CaptureSplit::Train,
+            Split::Val => CaptureSplit::Val,
+            Split::Test => CaptureSplit::Test,
+        }
+    }
+}
+
+impl fmt::Display for CaptureSplit {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            CaptureSplit::Train => "train",
+            CaptureSplit::Val => "val",
+            CaptureSplit::Test => "test",
+            CaptureSplit::All => "all",
+        })
+    }
+}
+
+impl FromStr for CaptureSplit {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "all" => Ok(CaptureSplit::All),
+            other => other.parse::<Split>().map(CaptureSplit::from).map_err(|_| {
+                Error::Argument(format!(
+                    "unknown split {other:?} (expected train, val, test or all)"
+                ))
+            }),
+        }
+    }
+}
+
+/// The indices of `split` among `n` views by the LLFF rule: test = every `every`-th view
+/// starting with the first (nerf-pytorch's `np.arange(N)[::llffhold]`), val = test, train =
+/// the rest, all = every view.
+///
+/// Example: n = 17, every = 8 → test [0, 8, 16], train the other 14.
+pub fn holdout_split(n: usize, every: usize, split: CaptureSplit) -> Vec<usize> {
+    let every = every.max(1);
+    let held = |k: &usize| k.is_multiple_of(every);
+    match split {
+        CaptureSplit::All => (0..n).collect(),
+        CaptureSplit::Test | CaptureSplit::Val => (0..n).filter(held).collect(),
+        CaptureSplit::Train => (0..n).filter(|k| !held(k)).collect(),
+    }
+}
+
+/// Splits named by the file itself (nerfstudio's `train_filenames`, `val_filenames`,
+/// `test_filenames`), as view indices.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct ExplicitSplits {
+    /// Training views.
+    pub train: Vec<usize>,
+    /// Validation views (the test views when the file names none).
+    pub val: Vec<usize>,
+    /// Test views.
+    pub test: Vec<usize>,
+}
+
+/// One view of a capture.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CaptureView {
+    /// The image's file stem (`images/0001.jpg` → `0001`).
+    pub name: String,
+    /// The image file (it existed when the capture was parsed).
+    pub image_path: PathBuf,
+    /// Its camera, at the image's resolution.
+    pub camera: PinholeCamera,
+    /// Camera-to-world, OpenGL axes, in the capture's normalised frame.
+    pub pose: Pose,
+    /// Near and far scene depth seen by this view (LLFF), in the normalised frame.
+    pub bounds: Option<(f32, f32)>,
+}
+
+impl CaptureView {
+    /// Decodes the image (PNG or JPEG, grey/RGB/RGBA, 8 or 16 bits) to straight RGBA in
+    /// `[0, 1]`, row-major; an error names the file if its size differs from the camera's.
+    ///
+    /// # Shapes
+    /// Returns `[camera.height · camera.width]` pixels.
+    pub fn load_rgba(&self) -> Result<Vec<[f32; 4]>> {
+        let (w, h, pixels) = load_rgba(&self.image_path)?;
+        if (w, h) != (self.camera.width, self.camera.height) {
+            return Err(Error::invalid(
+                &self.image_path,
+                format!(
+                    "image is {w}×{h} but its camera is {}×{}",
+                    self.camera.width, self.camera.height
+                ),
+            ));
+        }
+        Ok(pixels)
+    }
+}
+
+/// A parsed capture: views in file order and what the file says about the scene.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Capture {
+    /// Which parser produced it.
+    pub format: CaptureFormat,
+    /// The file the cameras came from (`transforms.json`, `poses_bounds.npy`).
+    pub source: PathBuf,
+    /// The views whose images exist, in file order.
+    pub views: Vec<CaptureView>,
+    /// The mapping from the file's world to the frame of `views[..].pose` (already applied).
+    pub transform: SceneTransform,
+    /// Near and far for rays without NDC, in the normalised frame, when the format gives them.
+    pub near_far: Option<(f32, f32)>,
+    /// Whether all cameras look the same way (see [`is_forward_facing`]): NDC rays by default.
+    pub forward_facing: bool,
+    /// instant-ngp's `aabb_scale`: the scene box is `[−a/2, a/2]³` in the normalised frame.
+    pub aabb_scale: Option<f32>,
+    /// instant-ngp's `scale`, when the file gives it.
+    pub scale: Option<f32>,
+    /// instant-ngp's `offset`, when the file gives it.
+    pub offset: Option<[f32; 3]>,
+    /// Splits the file names itself; `None` means the every-8th rule.
+    pub explicit_splits: Option<ExplicitSplits>,
+    /// Things skipped or guessed while parsing (missing images...), for the CLI to print.
+    pub warnings: Vec<String>,
+}
+
+impl Capture {
+    /// The view indices of `split`: the file's own lists when it has them, else
+    /// [`holdout_split`] with [`HOLDOUT_EVERY`].
+    pub fn split_indices(&self, split: CaptureSplit) -> Vec<usize> {
+        match (&self.explicit_splits, split) {
+            (_, CaptureSplit::All) => (0..self.views.len()).collect(),
+            (Some(s), CaptureSplit::Train) => s.train.clone(),
+            (Some(s), CaptureSplit::Val) => s.val.clone(),
+            (Some(s), CaptureSplit::Test) => s.test.clone(),
+            (None, split) => holdout_split(self.views.len(), HOLDOUT_EVERY, split),
+        }
+    }
+
+    /// The poses of all views, in order.
+    pub fn poses(&self) -> Vec<Pose> {
+        self.views.iter().map(|v| v.pose).collect()
+    }
+
+    /// Centres the cameras on the point their axes meet ([`focus_point`]; their [`centroid`]
+    /// when the axes are parallel) and scales so that the farthest is `radius` away, through
+    /// [`Capture::renormalise`]. An error when no camera is away from that centre.
+    pub fn fit_cameras(&mut self, radius: f32) -> Result<()> {
+        let poses = self.poses();
+        let centre = focus_point(&poses).unwrap_or_else(|| centroid(&poses));
+        let fit = SceneTransform::fit_cameras(&poses, centre, radius)
+            .map_err(|e| Error::invalid(&self.source, e.to_string()))?;
+        self.renormalise(&fit);
+        Ok(())
+    }
+
+    /// Maps every pose and bound through `next` as well, and records it in `transform`.
+    pub fn renormalise(&mut self, next: &SceneTransform) {
+        for v in &mut self.views {
+            v.pose = next.apply_pose(&v.pose);
+            v.bounds = v.bounds.map(|(n, f)| (n * next.scale, f * next.scale));
+        }
+        self.near_far = self.near_far.map(|(n, f)| (n * next.scale, f * next.scale));
+        self.aabb_scale = self.aabb_scale.map(|a| a * next.scale);
+        self.transform = self.transform.then(next);
+    }
+}
+
+/// The mean of the camera centres (the origin for no poses).
+pub fn centroid(poses: &[Pose]) -> Vec3 {
+    if poses.is_empty() {
+        return Vec3::ZERO;
+    }
+    poses.iter().map(Pose::origin).sum::<Vec3>() / poses.len() as f32
+}
+
+/// The point closest to all optical axes in the least-squares sense (instant-ngp's "centre of
+/// attention"): solves `Σ (I − d·dᵀ)·p = Σ (I − d·dᵀ)·o` over the cameras' centres `o` and
+/// viewing directions `d`. `None` when the axes are (nearly) parallel, as in a forward-facing
+/// capture, where no such point is defined.
+pub fn focus_point(poses: &[Pose]) -> Option<Vec3> {
+    let mut a = Mat3::ZERO;
+    let mut b = Vec3::ZERO;
+    for p in poses {
+        let d = (p.rotation() * Vec3::NEG_Z).normalize();
+        let m = Mat3::IDENTITY - Mat3::from_cols(d * d.x, d * d.y, d * d.z);
+        a += m;
+        b += m * p.origin();
+    }
+    // Well-conditioned only when the directions span more than a thin cone: compare the
+    // smallest "eigenvalue" proxy, det / trace², with a tolerance.
+    let det = a.determinant();
+    let trace = a.x_axis.x + a.y_axis.y + a.z_axis.z;
+    if !(det.is_finite() && trace > 0.0 && det / (trace * trace * trace) > 1e-4) {
+        return None;
+    }
+    Some(a.inverse() * b)
+}
+
+/// Whether every camera's viewing direction (−z axis) lies within `max_angle_deg` of the
+/// normalised mean viewing direction; false for no poses or directions that cancel out (a
+/// 360° ring). LLFF fern: all within 19° of each other; a ring is far from it.
+pub fn is_forward_facing(poses: &[Pose], max_angle_deg: f32) -> bool {
+    let dirs: Vec<Vec3> = poses
+        .iter()
+        .map(|p| (p.rotation() * Vec3::NEG_Z).normalize())
+        .collect();
+    let mean = dirs.iter().sum::<Vec3>();
+    if dirs.is_empty() || mean.length() < 1e-3 * dirs.len() as f32 {
+        return false;
+    }
+    let mean = mean.normalize();
+    let min_cos = max_angle_deg.to_radians().cos();
+    dirs.iter().all(|d| d.dot(mean) >= min_cos)
+}
+
+/// The angle within which [`is_forward_facing`] wants all views for NDC rays by default.
+pub const FORWARD_FACING_MAX_DEG: f32 = 45.0;
+
+/// The file stem of a path as a view name.
+pub(crate) fn view_name(path: &Path) -> String {
+    path.file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera_model::PixelCenter;
+
+    #[test]
+    fn holdout_is_every_eighth_from_the_first() {
+        assert_eq!(holdout_split(17, 8, CaptureSplit::Test), vec![0, 8, 16]);
+        assert_eq!(holdout_split(17, 8, CaptureSplit::Val), vec![0, 8, 16]);
+        let train = holdout_split(17, 8, CaptureSplit::Train);
+        assert_eq!(train.len(), 14);
+        assert!(!train.contains(&8) && train.contains(&1) && train.contains(&15));
+        assert_eq!(holdout_split(3, 8, CaptureSplit::All), vec![0, 1, 2]);
+        assert_eq!(holdout_split(0, 8, CaptureSplit::Test), Vec::<usize>::new());
+    }
+
+    #[test]
+    fn split_names_parse() {
+        for (s, v) in [
+            ("train", CaptureSplit::Train),
+            ("val", CaptureSplit::Val),
+            ("test", CaptureSplit::Test),
+            ("all", CaptureSplit::All),
+        ] {
+            assert_eq!(s.parse::<CaptureSplit>().unwrap(), v);
+            assert_eq!(v.to_string(), s);
+        }
+        let err = "everything"
+            .parse::<CaptureSplit>()
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("\"everything\"") && err.contains("all"),
+            "{err}"
+        );
+        assert_eq!(CaptureSplit::from(Split::Val), CaptureSplit::Val);
+        assert_eq!(
+            "nerfstudio".parse::<CaptureFormat>().unwrap(),
+            CaptureFormat::InstantNgp
+        );
+        assert!("colmap".parse::<CaptureFormat>().is_err());
+    }
+
+    #[test]
+    fn detects_formats_by_their_files() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let err = detect_format(d).unwrap_err().to_string();
+        assert!(
+            err.contains("no dataset found") && err.contains("poses_bounds.npy"),
+            "{err}"
+        );
+        std::fs::write(d.join("poses_bounds.npy"), b"").unwrap();
+        assert_eq!(detect_format(d).unwrap(), CaptureFormat::Llff);
+        std::fs::write(d.join("transforms.json"), b"{}").unwrap();
+        assert_eq!(detect_format(d).unwrap(), CaptureFormat::InstantNgp);
+        std::fs::write(d.join("transforms_train.json"), b"{}").unwrap();
+        assert_eq!(detect_format(d).unwrap(), CaptureFormat::Blender);
+        let err = detect_format(&d.join("nope")).unwrap_err().to_string();
+        assert!(
+            err.contains("nope") && err.contains("not a directory"),
+            "{err}"
+        );
+    }
+
+    /// A camera at `origin` looking at `target`, +y roughly up.
+    pub(crate) fn look_at(origin: Vec3, target: Vec3) -> Pose {
+        let back = (origin - target).normalize();
+        let right = Vec3::Y.cross(back).normalize();
+        let up = back.cross(right);
+        crate::scene_transform::pose_from(Mat3::from_cols(right, up, back), origin)
+    }
+
+    #[test]
+    fn ring_is_not_forward_facing_and_has_a_focus() {
+        let target = Vec3::new(1.0, 2.0, 3.0);
+        let ring: Vec<Pose> = (0..12)
+            .map(|k| {
+                let a = k as f32 * std::f32::consts::TAU / 12.0;
+                look_at(
+                    target + Vec3::new(4.0 * a.cos(), 0.5, 4.0 * a.sin()),
+                    target,
+                )
+            })
+            .collect();
+        assert!(!is_forward_facing(&ring, FORWARD_FACING_MAX_DEG));
+        let f = focus_point(&ring).unwrap();
+        assert!((f - target).length() < 1e-3, "{f}");
+        assert!((centroid(&ring) - (target + Vec3::new(0.0, 0.5, 0.0))).length() < 1e-4);
+        // A forward-facing rig: small spread of centres, all looking down −z within 10°.
+        let rig: Vec<Pose> = (0..5)
+            .map(|k| {
+                let o = Vec3::new(k as f32 * 0.2, 0.0, 0.0);
+                look_at(o, o + Vec3::new(0.1 * (k as f32 - 2.0), 0.0, -1.0))
+            })
+            .collect();
+        assert!(is_forward_facing(&rig, FORWARD_FACING_MAX_DEG));
+        assert!(!is_forward_facing(&rig, 5.0));
+        assert!(!is_forward_facing(&[], 45.0));
+        // Parallel axes have no focus point.
+        let parallel: Vec<Pose> = (0..4)
+            .map(|k| {
+                look_at(
+                    Vec3::new(k as f32, 0.0, 0.0),
+                    Vec3::new(k as f32, 0.0, -1.0),
+                )
+            })
+            .collect();
+        assert_eq!(focus_point(&parallel), None);
+    }
+
+    /// A capture of `poses` with bounds (1, 4) everywhere and aabb_scale 4.
+    fn capture_of(poses: &[Pose]) -> Capture {
+        let camera = PinholeCamera {
+            width: 2,
+            height: 2,
+            fx: 1.0,
+            fy: 1.0,
+            cx: 1.0,
+            cy: 1.0,
+            pixel_center: PixelCenter::HalfPixel,
+            distortion: None,
+        };
+        let view = |pose: &Pose| CaptureView {
+            name: "v".into(),
+            image_path: PathBuf::from("v.png"),
+            camera,
+            pose: *pose,
+            bounds: Some((1.0, 4.0)),
+        };
+        Capture {
+            format: CaptureFormat::InstantNgp,
+            source: PathBuf::from("transforms.json"),
+            views: poses.iter().map(view).collect(),
+            transform: SceneTransform::identity(),
+            near_far: Some((1.0, 4.0)),
+            forward_facing: true,
+            aabb_scale: Some(4.0),
+            scale: None,
+            offset: None,
+            explicit_splits: None,
+            warnings: vec![],
+        }
+    }
+
+    #[test]
+    fn fit_cameras_centres_on_the_focus_point() {
+        // A ring of radius 4 around (1, 2, 3), 0.5 above it, looking at it.
+        let target = Vec3::new(1.0, 2.0, 3.0);
+        let ring: Vec<Pose> = (0..8)
+            .map(|k| {
+                let a = k as f32 * std::f32::consts::TAU / 8.0;
+                look_at(
+                    target + Vec3::new(4.0 * a.cos(), 0.5, 4.0 * a.sin()),
+                    target,
+                )
+            })
+            .collect();
+        let mut capture = capture_of(&ring);
+        capture.fit_cameras(2.0).unwrap();
+        // Centred on the target (not the centroid 0.5 above it); every camera at distance
+        // √(16 + 0.25) = 4.03 → 2: scale 2/4.03.
+        let s = 2.0 / 16.25f32.sqrt();
+        assert!((capture.transform.scale - s).abs() < 1e-5);
+        for (v, p) in capture.views.iter().zip(&ring) {
+            let expected = (p.origin() - target) * s;
+            assert!(
+                (v.pose.origin() - expected).length() < 1e-4,
+                "{:?}",
+                v.pose.origin()
+            );
+        }
+        // Bounds scale with the poses: (1, 4) → (s, 4s).
+        let (near, far) = capture.views[0].bounds.unwrap();
+        assert!((near - s).abs() < 1e-6 && (far - 4.0 * s).abs() < 1e-6);
+        // The recorded transform maps the file's target to the origin.
+        assert!(capture.transform.apply_point(target).length() < 1e-4);
+        // Parallel cameras (no focus point) are centred on their centroid.
+        let line: Vec<Pose> = (0..3)
+            .map(|k| {
+                look_at(
+                    Vec3::new(k as f32, 0.0, 0.0),
+                    Vec3::new(k as f32, 0.0, -1.0),
+                )
+            })
+            .collect();
+        let mut capture = capture_of(&line);
+        capture.fit_cameras(1.0).unwrap();
+        assert!((capture.views[2].pose.origin() - Vec3::X).length() < 1e-6);
+        assert!(capture_of(&line[..1]).fit_cameras(1.0).is_err());
+    }
+
+    #[test]
+    fn explicit_splits_override_the_rule_and_renormalise_scales_bounds() {
+        let line: Vec<Pose> = (0..10)
+            .map(|k| {
+                look_at(
+                    Vec3::new(k as f32, 0.0, 0.0),
+                    Vec3::new(k as f32, 0.0, -1.0),
+                )
+            })
+            .collect();
+        let mut capture = capture_of(&line);
+        assert_eq!(capture.split_indices(CaptureSplit::Test), vec![0, 8]);
+        assert_eq!(capture.split_indices(CaptureSplit::Train).len(), 8);
+        capture.explicit_splits = Some(ExplicitSplits {
+            train: vec![1, 2],
+            val: vec![3],
+            test: vec![4],
+        });
+        assert_eq!(capture.split_indices(CaptureSplit::Val), vec![3]);
+        assert_eq!(capture.split_indices(CaptureSplit::All).len(), 10);
+        let t = SceneTransform {
+            scale: 0.5,
+            rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            translation: [-1.0, 0.0, 0.0],
+        };
+        capture.renormalise(&t);
+        assert_eq!(capture.views[3].pose.origin(), Vec3::new(1.0, 0.0, 0.0));
+        assert_eq!(capture.views[3].bounds, Some((0.5, 2.0)));
+        assert_eq!(
+            (capture.near_far, capture.aabb_scale),
+            (Some((0.5, 2.0)), Some(2.0))
+        );
+        assert_eq!(capture.transform, t);
+    }
+
+    #[test]
+    fn view_images_must_match_their_camera() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("a.png");
+        image::RgbImage::from_raw(2, 1, vec![255, 0, 0, 0, 0, 51])
+            .unwrap()
+            .save(&path)
+            .unwrap();
+        let camera = PinholeCamera {
+            width: 2,
+            height: 1,
+            fx: 1.0,
+            fy: 1.0,
+            cx: 1.0,
+            cy: 0.5,
+            pixel_center: PixelCenter::HalfPixel,
+            distortion: None,
+        };
+        let mut view = CaptureView {
+            name: view_name(&path),
+            image_path: path,
+            camera,
+            pose: look_at(Vec3::Z, Vec3::ZERO),
+            bounds: None,
+        };
+        assert_eq!(view.name, "a");
+        assert_eq!(
+            view.load_rgba().unwrap(),
+            vec![[1.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.2, 1.0]]
+        );
+        view.camera.width = 4;
+        let err = view.load_rgba().unwrap_err().to_string();
+        assert!(
+            err.contains("a.png: image is 2×1 but its camera is 4×1"),
+            "{err}"
+        );
+    }
+}
