@@ -90,6 +90,17 @@ fn coarse_only_legacy_checkpoint_without_viewdirs_imports() {
     }
 }
 
+#[test]
+fn paper_size_checkpoint_imports() {
+    // The paper's 8×256 network (skip after layer 4, L = 10 / 4, view-dependent), untrained
+    // (seed 0), coarse only (N_importance 0) so that the fixture stays at 2.4 MB; 64 samples.
+    for a in import_and_compare("paper-coarse", "000000.tar", 32, &["r_0"]) {
+        assert!(a.rgb_std > 0.05, "nerf-pytorch's render is nearly flat: the comparison would mean little");
+        assert!(a.psnr_db >= 50.0, "{:.1} dB", a.psnr_db);
+        assert!(a.max_acc < 1e-3, "acc differs by {}", a.max_acc);
+    }
+}
+
 /// Run an import expected to fail: the message must contain `expect`, and nothing may be
 /// written next to `out` (no bundle, no temporary directory).
 fn import_fails(checkpoint: &Path, args: Option<&Path>, data: Option<&Path>, expect: &str) {
