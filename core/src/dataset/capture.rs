@@ -395,18 +395,23 @@ mod tests {
         crate::scene_transform::pose_from(Mat3::from_cols(right, up, back), origin)
     }
 
-    #[test]
-    fn ring_is_not_forward_facing_and_has_a_focus() {
-        let target = Vec3::new(1.0, 2.0, 3.0);
-        let ring: Vec<Pose> = (0..12)
+    /// `n` cameras on a circle of radius 4 about `target`, 0.5 above it, looking at it.
+    fn ring(n: usize, target: Vec3) -> Vec<Pose> {
+        (0..n)
             .map(|k| {
-                let a = k as f32 * std::f32::consts::TAU / 12.0;
+                let a = k as f32 * std::f32::consts::TAU / n as f32;
                 look_at(
                     target + Vec3::new(4.0 * a.cos(), 0.5, 4.0 * a.sin()),
                     target,
                 )
             })
-            .collect();
+            .collect()
+    }
+
+    #[test]
+    fn ring_is_not_forward_facing_and_has_a_focus() {
+        let target = Vec3::new(1.0, 2.0, 3.0);
+        let ring = ring(12, target);
         assert!(!is_forward_facing(&ring, FORWARD_FACING_MAX_DEG));
         let f = focus_point(&ring).unwrap();
         assert!((f - target).length() < 1e-3, "{f}");
@@ -469,17 +474,8 @@ mod tests {
 
     #[test]
     fn fit_cameras_centres_on_the_focus_point() {
-        // A ring of radius 4 around (1, 2, 3), 0.5 above it, looking at it.
         let target = Vec3::new(1.0, 2.0, 3.0);
-        let ring: Vec<Pose> = (0..8)
-            .map(|k| {
-                let a = k as f32 * std::f32::consts::TAU / 8.0;
-                look_at(
-                    target + Vec3::new(4.0 * a.cos(), 0.5, 4.0 * a.sin()),
-                    target,
-                )
-            })
-            .collect();
+        let ring = ring(8, target);
         let mut capture = capture_of(&ring);
         capture.fit_cameras(2.0).unwrap();
         // Centred on the target (not the centroid 0.5 above it); every camera at distance
