@@ -110,8 +110,11 @@ pub fn load_split(dir: &Path, split: Split, downscale: u32, images: bool) -> Res
             .collect();
         let mut size = None;
         let mut pixels = Vec::with_capacity(decoded.len());
-        for (frame, result) in transforms.frames.iter().zip(decoded) {
-            let (w, h, rgb) = result?;
+        for (k, (frame, result)) in transforms.frames.iter().zip(decoded).enumerate() {
+            // The image's own error names the image; say which frame of which file wants it.
+            let (w, h, rgb) = result.map_err(|e| {
+                Error::invalid(&json_path, format!("frame {k} (file_path {:?}): {e}", frame.file_path))
+            })?;
             match size {
                 None => size = Some((w, h, frame.file_path.clone())),
                 Some((fw, fh, ref first)) if (w, h) != (fw, fh) => {
@@ -495,6 +498,7 @@ mod tests {
         write_rgba8(&d.join("train/r_2.png"), 4, 4, |_, _| [0, 0, 0, 255]);
         let err = msg(load_split(d, Split::Train, 1, true));
         assert!(err.contains("r_1.png"), "{err}");
+        assert!(err.contains("transforms_train.json: frame 1 (file_path \"./train/r_1\")"), "the frame that names it: {err}");
 
         write_rgba8(&d.join("train/r_1.png"), 2, 2, |_, _| [0, 0, 0, 255]);
         let err = msg(load_split(d, Split::Train, 1, true));
