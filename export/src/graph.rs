@@ -142,17 +142,22 @@ pub fn compile(net: &PlainNetwork, name: &str, opset: i64, metadata: &[(String, 
         output: contract_outputs("Volume density (ReLU applied), float32 [N, 1]."),
         value_info: vec![],
     };
-    Ok(ModelProto {
+    Ok(model_proto(graph, opset, "A neural radiance field network compiled by nerf-rs (nerf export).", props))
+}
+
+/// A model around `graph` for `opset` (with the IR version to match), carrying `metadata`.
+pub(crate) fn model_proto(graph: GraphProto, opset: i64, doc: &str, metadata: Vec<(String, String)>) -> ModelProto {
+    ModelProto {
         ir_version: ir_version_for(opset),
         opset_import: vec![OperatorSetIdProto { domain: String::new(), version: opset }],
         producer_name: "nerf-rs".into(),
         producer_version: env!("CARGO_PKG_VERSION").into(),
         domain: "rs.nerf".into(),
         model_version: 1,
-        doc_string: "A neural radiance field network compiled by nerf-rs (nerf export).".into(),
+        doc_string: doc.into(),
         graph: Some(graph),
-        metadata_props: props.into_iter().map(|(key, value)| StringStringEntryProto { key, value }).collect(),
-    })
+        metadata_props: metadata.into_iter().map(|(key, value)| StringStringEntryProto { key, value }).collect(),
+    }
 }
 
 fn encoding_text(e: &EncodingSpec) -> String {

@@ -32,7 +32,7 @@
 //! one of its nodes on the GPU was not checked here (no GPU, and its kernel list not read).
 
 use crate::ExportError;
-use crate::graph::{Builder, OPSETS, int_attribute, ir_version_for, value_info};
+use crate::graph::{Builder, OPSETS, int_attribute, model_proto, value_info};
 use crate::proto::*;
 use nerf_core::hash_grid::{GridBound, HashGrid};
 use nerf_core::spherical_harmonics::{SH4_CONSTANTS, SH4_DIM};
@@ -103,21 +103,11 @@ pub fn compile_encodings(grid: &HashGrid, bound: &GridBound, ops: HashOps, opset
 
 /// The model around `graph`, with the grid and bound in the metadata.
 pub(crate) fn model(graph: GraphProto, opset: i64, grid: &HashGrid, bound: &GridBound) -> ModelProto {
-    let props = [
+    let props = vec![
         (GRID_KEY.to_string(), serde_json::to_string(grid.config()).expect("a config serialises")),
         (BOUND_KEY.to_string(), serde_json::to_string(bound).expect("a bound serialises")),
     ];
-    ModelProto {
-        ir_version: ir_version_for(opset),
-        opset_import: vec![OperatorSetIdProto { domain: String::new(), version: opset }],
-        producer_name: "nerf-rs".into(),
-        producer_version: env!("CARGO_PKG_VERSION").into(),
-        domain: "rs.nerf".into(),
-        model_version: 1,
-        doc_string: "A hash-grid radiance field compiled by nerf-rs.".into(),
-        graph: Some(graph),
-        metadata_props: props.into_iter().map(|(key, value)| StringStringEntryProto { key, value }).collect(),
-    }
+    model_proto(graph, opset, "A hash-grid radiance field compiled by nerf-rs.", props)
 }
 
 fn tensor(g: &mut Builder, name: &str, dims: &[i64], data_type: i32, raw_data: Vec<u8>) -> String {
