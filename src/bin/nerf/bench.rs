@@ -8,6 +8,7 @@ use nerf::bench::{FrameBench, MlpBench, best_of, bench_view, burn_frame, paper_m
 use nerf::export::model_bundle;
 use nerf::train::Preset;
 use nerf_core::dataset::{Split, load_split};
+use nerf_core::hash_grid::{HashGridConfig, SampleOrder, measure_throughput};
 use nerf_core::metrics::psnr;
 use nerf_export::write_bundle;
 use nerf_runtime::{OpenOptions, OrtNetwork, OrtScene};
@@ -105,6 +106,27 @@ pub fn run(
             }
             None => println!("\nskipping: needs the lego data (--data) for ground truth; not measured"),
         }
+    }
+    if wanted(BenchPart::Grid) {
+        println!("\nhash-grid encoding on {points} points along rays, 2 threads, median of 3 (no MLPs)");
+        println!("{:>3} {:>3} {:>5} {:>10} {:>12} {:>18}", "L", "F", "log T", "table MiB", "forward M/s", "bwd + update M/s");
+        let mut results = Vec::new();
+        for (levels, features_per_level, log2_table_size) in [(16, 2, 19), (16, 2, 17), (8, 4, 17), (8, 2, 17)] {
+            let config = HashGridConfig { levels, features_per_level, log2_table_size, ..Default::default() };
+            let t = measure_throughput(&config, points, 2, SampleOrder::Rays, 3)?;
+            println!(
+                "{levels:>3} {features_per_level:>3} {log2_table_size:>5} {:>10.1} {:>12.3} {:>18.3}",
+                t.table_mib,
+                t.forward_samples_per_s / 1e6,
+                t.backward_update_samples_per_s / 1e6
+            );
+            if config == HashGridConfig::default() {
+                report.insert("grid_forward_samples_per_s".into(), t.forward_samples_per_s.into());
+                report.insert("grid_backward_update_samples_per_s".into(), t.backward_update_samples_per_s.into());
+            }
+            results.push(t);
+        }
+        report.insert("grid".into(), serde_json::to_value(results)?);
     }
     if let Some(path) = json {
         let text = serde_json::to_string_pretty(&serde_json::Value::Object(report))?;

@@ -204,6 +204,8 @@ enum BenchPart {
     Render,
     /// Empty-space skipping and early termination against the dense path (onnxruntime).
     Skip,
+    /// The hash-grid encoding: forward, backward and sparse Adam update (no MLPs).
+    Grid,
 }
 
 fn main() -> Result<()> {
