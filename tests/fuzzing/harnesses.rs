@@ -119,7 +119,7 @@ fn image(work: &Path) -> Result<Box<dyn Harness>, String> {
     let dir = small_scene(work)?;
     let target = dir.join("train/r_0.png");
     let rgba = read(&target)?;
-    // The same 8×8 picture in the other layouts the loader accepts, and as a GIF.
+    // The same 8×8 picture in the other layouts the loader accepts, as a GIF and as a JPEG.
     let decoded = image::open(&target).map_err(|e| e.to_string())?;
     let mut seeds = vec![rgba];
     let encode = |img: image::DynamicImage| -> Result<Vec<u8>, String> {
@@ -135,6 +135,10 @@ fn image(work: &Path) -> Result<Box<dyn Harness>, String> {
     let rgb: Vec<[f32; 3]> = decoded.to_rgb32f().pixels().map(|p| p.0).collect();
     save_gif(&gif, 8, 8, &[rgb], 40).map_err(|e| e.to_string())?;
     seeds.push(read(&gif)?);
+    // And as a JPEG (real captures are JPEGs; the loader sniffs the format from the bytes).
+    let mut jpeg = std::io::Cursor::new(Vec::new());
+    image::DynamicImage::ImageRgb8(decoded.to_rgb8()).write_to(&mut jpeg, image::ImageFormat::Jpeg).map_err(|e| e.to_string())?;
+    seeds.push(jpeg.into_inner());
     Ok(boxed(target.clone(), seeds, Format::Binary, move || {
         load_rgba(&target).map_err(|e| e.to_string())?;
         load_split(&dir, Split::Train, 2, true).map(drop).map_err(|e| e.to_string())
