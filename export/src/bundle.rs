@@ -228,30 +228,30 @@ pub fn write_bundle(dir: &Path, bundle: &Bundle, opset: i64) -> Result<Vec<Writt
 pub const MAX_GRAPH_BYTES: u64 = 2 << 30;
 
 /// Decode an ONNX file (a regular file of at most [`MAX_GRAPH_BYTES`]).
-pub fn read_model(path: &Path) -> Result<ModelProto, String> {
-    let bytes = limits::read_bounded(path, MAX_GRAPH_BYTES).map_err(|e| e.to_string())?;
-    ModelProto::decode(bytes.as_slice()).map_err(|e| format!("{}: not a valid ONNX file (truncated?): {e}", path.display()))
+pub fn read_model(path: &Path) -> nerf_core::Result<ModelProto> {
+    let bytes = limits::read_bounded(path, MAX_GRAPH_BYTES)?;
+    ModelProto::decode(bytes.as_slice()).map_err(|e| nerf_core::Error::invalid(path, format!("not a valid ONNX file (truncated?): {e}")))
 }
 
 /// The path of the bundle file `name` that `scene.json`'s `field` names: a plain file name
 /// inside `dir` (no absolute path, no `..`, no separator; a symbolic link must stay inside).
-pub fn bundle_file(dir: &Path, name: &str, field: &str) -> Result<PathBuf, String> {
+pub fn bundle_file(dir: &Path, name: &str, field: &str) -> nerf_core::Result<PathBuf> {
     let scene = dir.join(SCENE_FILE);
-    limits::file_in_dir(dir, name, Origin::Field(&scene, field)).map_err(|e| e.to_string())
+    limits::file_in_dir(dir, name, Origin::Field(&scene, field))
 }
 
 /// The plain network stored in a bundle's graph file `file` (`coarse.onnx`, `fine.onnx`).
-pub fn read_bundle_network(dir: &Path, file: &str) -> Result<PlainNetwork, String> {
+pub fn read_bundle_network(dir: &Path, file: &str) -> nerf_core::Result<PlainNetwork> {
     let path = bundle_file(dir, file, "networks")?;
-    read_network(&read_model(&path)?).map_err(|e| format!("{}: {e}", path.display()))
+    read_network(&read_model(&path)?).map_err(|e| nerf_core::Error::invalid(&path, e))
 }
 
 /// Read and check a bundle's `scene.json` (see [`SceneDescription::check`]).
-pub fn read_scene(dir: &Path) -> Result<SceneDescription, String> {
+pub fn read_scene(dir: &Path) -> nerf_core::Result<SceneDescription> {
     let path = dir.join(SCENE_FILE);
-    let text = limits::read_json_text(&path).map_err(|e| e.to_string())?;
-    let scene: SceneDescription = serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
-    scene.check(&path).map_err(|e| e.to_string())?;
+    let text = limits::read_json_text(&path)?;
+    let scene: SceneDescription = serde_json::from_str(&text).map_err(|e| nerf_core::Error::invalid(&path, e.to_string()))?;
+    scene.check(&path)?;
     Ok(scene)
 }
 
@@ -294,11 +294,12 @@ impl SceneDescription {
 }
 
 /// The bundle's occupancy grid, if `scene.json` names one.
-pub fn read_occupancy(dir: &Path, scene: &SceneDescription) -> Result<Option<OccupancyGrid>, String> {
+pub fn read_occupancy(dir: &Path, scene: &SceneDescription) -> nerf_core::Result<Option<OccupancyGrid>> {
     let Some(o) = &scene.occupancy else { return Ok(None) };
-    let grid = OccupancyGrid::load(&bundle_file(dir, &o.file, "occupancy.file")?).map_err(|e| e.to_string())?;
+    let grid = OccupancyGrid::load(&bundle_file(dir, &o.file, "occupancy.file")?)?;
     if grid.resolution() != o.resolution || grid.bound() != o.bound {
-        return Err(format!("{}: occupancy: the grid file is {}³ over ±{}, scene.json says {}³ over ±{}", dir.join(SCENE_FILE).display(), grid.resolution(), grid.bound(), o.resolution, o.bound));
+        let problem = format!("occupancy: the grid file is {}³ over ±{}, scene.json says {}³ over ±{}", grid.resolution(), grid.bound(), o.resolution, o.bound);
+        return Err(nerf_core::Error::invalid(dir.join(SCENE_FILE), problem));
     }
     Ok(Some(grid))
 }

@@ -53,20 +53,19 @@ impl OrtScene {
         if !dir.is_dir() {
             return Err(RuntimeError::bundle(dir, "no such bundle directory (write one with `nerf export --run <run> --out <dir>`)"));
         }
-        let scene_error = |e: String| RuntimeError::Other(e);
-        let description = read_scene(dir).map_err(scene_error)?;
+        let description = read_scene(dir)?;
         let s = &description.sampling;
         let samples_per_ray = (s.n_coarse + s.n_fine).max(nerf_core::render::DEFAULT_MARCH_STEPS);
-        limits::check_chunk(options.chunk, samples_per_ray, Origin::Option("--chunk")).map_err(|e| RuntimeError::Other(e.to_string()))?;
+        limits::check_chunk(options.chunk, samples_per_ray, Origin::Option("--chunk"))?;
         if let Some(n) = options.threads {
-            limits::check_count(n, limits::MAX_THREADS, "threads", Origin::Option("--threads")).map_err(|e| RuntimeError::Other(e.to_string()))?;
+            limits::check_count(n, limits::MAX_THREADS, "threads", Origin::Option("--threads"))?;
         }
-        let coarse = OrtNetwork::load(&bundle_file(dir, &description.networks.coarse, "networks.coarse").map_err(scene_error)?, options.threads)?;
+        let coarse = OrtNetwork::load(&bundle_file(dir, &description.networks.coarse, "networks.coarse")?, options.threads)?;
         let fine = match &description.networks.fine {
-            Some(file) => Some(OrtNetwork::load(&bundle_file(dir, file, "networks.fine").map_err(scene_error)?, options.threads)?),
+            Some(file) => Some(OrtNetwork::load(&bundle_file(dir, file, "networks.fine")?, options.threads)?),
             None => None,
         };
-        let occupancy = if options.skip_empty_space { read_occupancy(dir, &description).map_err(scene_error)? } else { None };
+        let occupancy = if options.skip_empty_space { read_occupancy(dir, &description)? } else { None };
         let render_options =
             RenderOptions::new(description.sampling.clone(), description.white_background, options.chunk, options.skip_empty_space);
         Ok(OrtScene { dir: dir.to_path_buf(), description, field: OrtField { coarse, fine }, occupancy, options: render_options })

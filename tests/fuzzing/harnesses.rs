@@ -189,14 +189,17 @@ fn checkpoint_optim(work: &Path) -> Result<Box<dyn Harness>, String> {
 /// Reads a bundle as `nerf-render` does before onnxruntime sees it: `scene.json`, the grid,
 /// and each graph decoded, contract-checked and read back as a network.
 fn read_bundle(dir: &Path) -> Result<(), String> {
-    let scene = read_scene(dir)?;
-    read_occupancy(dir, &scene)?;
-    for file in std::iter::once(&scene.networks.coarse).chain(&scene.networks.fine) {
-        let path = dir.join(file);
-        check_contract(&read_model(&path)?).map_err(|e| format!("{}: {e}", path.display()))?;
-        read_bundle_network(dir, file)?;
-    }
-    Ok(())
+    let read = || -> nerf_core::Result<()> {
+        let scene = read_scene(dir)?;
+        read_occupancy(dir, &scene)?;
+        for file in std::iter::once(&scene.networks.coarse).chain(&scene.networks.fine) {
+            let path = dir.join(file);
+            check_contract(&read_model(&path)?).map_err(|e| nerf_core::Error::invalid(&path, e))?;
+            read_bundle_network(dir, file)?;
+        }
+        Ok(())
+    };
+    read().map_err(|e| e.to_string())
 }
 
 fn scene(work: &Path) -> Result<Box<dyn Harness>, String> {
