@@ -53,8 +53,8 @@ impl RayAccumulator {
     /// Add the next sample (opacity `alpha`, colour `rgb`, distance `t`); returns its weight.
     pub fn add(&mut self, alpha: f32, rgb: [f32; 3], t: f32) -> f32 {
         let w = alpha * self.transmittance;
-        for ch in 0..3 {
-            self.out.rgb[ch] += w * rgb[ch];
+        for (out, c) in self.out.rgb.iter_mut().zip(rgb) {
+            *out += w * c;
         }
         self.out.depth += w * t;
         self.out.acc += w;

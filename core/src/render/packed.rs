@@ -27,8 +27,8 @@ impl PackedSamples {
     pub fn from_dense(samples: &DenseSamples, directions: &[[f32; 3]]) -> Self {
         let mut packed = PackedSamples { t: samples.t.clone(), delta: Vec::with_capacity(samples.t.len()), offsets: vec![0] };
         let mut ray_deltas = Vec::new();
-        for r in 0..samples.n_rays {
-            deltas(samples.ray(r), length(directions[r]), &mut ray_deltas);
+        for (r, &d) in directions.iter().enumerate().take(samples.n_rays) {
+            deltas(samples.ray(r), length(d), &mut ray_deltas);
             packed.delta.extend_from_slice(&ray_deltas);
             packed.offsets.push(packed.delta.len());
         }
