@@ -6,7 +6,7 @@
 use crate::error::{Error, Result};
 use crate::field::{NerfMlp, NerfModel};
 use crate::inference::{BurnField, vec3_tensor};
-use crate::train::{Preset, StepTiming, TrainConfig, Trainer};
+use crate::train::{Preset, StepTiming, TrainConfig, field_trainer};
 use nerf_core::Rng;
 use nerf_core::camera::{Intrinsics, Pose, length};
 use nerf_core::dataset::{Split, SyntheticSceneConfig, generate_scene, load_split};
@@ -32,10 +32,18 @@ pub struct StepBench {
     pub backward_s: f64,
     /// Mean seconds in the Adam update.
     pub update_s: f64,
+    /// Mean seconds of the step in the hash grid (forward, gradient scatter, sparse Adam).
+    pub grid_s: f64,
+    /// Mean samples per step (field evaluations, forward and backward).
+    pub samples: f64,
+    /// Training throughput: samples per second of forward + backward + update.
+    pub samples_per_s: f64,
 }
 
 /// Time `steps` training steps of `preset` (after `warmup` untimed ones) on the scene in `data`,
 /// or on a generated scene when `data` is `None`. Precrop is off so every step is full-size.
+/// For the hash-grid field, warm up past the occupancy grid's first updates: its samples per
+/// step only settle once the grid is tight.
 pub fn bench_train_step(preset: Preset, data: Option<&Path>, downscale: u32, warmup: usize, steps: usize) -> Result<StepBench> {
     let generated;
     let dir = match data {
@@ -50,19 +58,27 @@ pub fn bench_train_step(preset: Preset, data: Option<&Path>, downscale: u32, war
     let mut config = preset.config();
     config.precrop_iters = 0;
     let batch_rays = config.batch_rays;
-    let mut trainer = Trainer::new(config, train, crate::backend::cpu_autodiff())?;
+    let mut trainer = field_trainer(config, train)?;
     for _ in 0..warmup {
         trainer.step();
     }
     let mut total = StepTiming::default();
+    let mut samples = 0;
     for _ in 0..steps {
-        let t = trainer.step().timing;
+        let stats = trainer.step();
+        let t = stats.timing;
         total.forward_s += t.forward_s;
         total.backward_s += t.backward_s;
         total.update_s += t.update_s;
+        total.grid_s += t.grid_s;
+        samples += stats.samples;
     }
     let n = steps.max(1) as f64;
+    let seconds = total.forward_s + total.backward_s + total.update_s;
     Ok(StepBench {
+        grid_s: total.grid_s / n,
+        samples: samples as f64 / n,
+        samples_per_s: samples as f64 / seconds.max(f64::MIN_POSITIVE),
         preset: preset.name().to_string(),
         batch_rays,
         steps,

@@ -2,8 +2,7 @@
 //! renderer and frame writer (`nerf_core::frames`), the same ones `nerf-render` uses.
 
 use crate::error::{Error, Result};
-use crate::field::NerfModel;
-use crate::inference::BurnField;
+use crate::field::TrainedField;
 use crate::run_dir::RunDir;
 use crate::train::TrainConfig;
 use nerf_core::camera::{Intrinsics, Pose};
@@ -11,7 +10,7 @@ use nerf_core::dataset::{Split, load_split};
 use nerf_core::frames::{FrameOutput, FrameSpec, FramesReport, render_frames};
 use nerf_core::metrics::EvalReport;
 use nerf_core::occupancy::OccupancyGrid;
-use nerf_core::render::{RenderedImage, render_image};
+use nerf_core::render::RenderedImage;
 use std::path::{Path, PathBuf};
 
 /// A trained run loaded for rendering.
@@ -19,7 +18,7 @@ pub struct LoadedRun {
     /// Its configuration.
     pub config: TrainConfig,
     /// Its networks (no autodiff).
-    pub model: NerfModel,
+    pub model: TrainedField,
     /// The training camera.
     pub camera: Intrinsics,
     /// Steps it was trained for.
@@ -40,10 +39,7 @@ impl LoadedRun {
     /// Render one view deterministically (test-time sampling, skipping empty space when the
     /// run has a grid), reporting `progress(done, total)` pixels.
     pub fn render(&self, intrinsics: &Intrinsics, pose: &Pose, progress: &mut dyn FnMut(usize, usize)) -> RenderedImage {
-        let mut field = BurnField { model: &self.model, device: crate::backend::cpu() };
-        let options = self.config.render_options();
-        let Ok(image) = render_image(&mut field, self.occupancy.as_ref(), intrinsics, pose, &options, progress);
-        image
+        self.model.render(&crate::backend::cpu(), self.occupancy.as_ref(), intrinsics, pose, &self.config.render_options(), progress)
     }
 
     /// Render `frames` into `out` (PNG + depth map each, `.npy` with `raw`; metrics when they

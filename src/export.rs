@@ -3,14 +3,15 @@
 
 use crate::error::Result;
 use crate::evaluate::LoadedRun;
-use crate::field::NerfModel;
+use crate::field::{NerfModel, NgpField, TrainedField};
 use crate::run_dir::RunDir;
 use crate::train::TrainConfig;
 use nerf_core::camera::{Intrinsics, Pose};
 use nerf_core::dataset::{Split, load_split};
 use nerf_core::occupancy::OccupancyGrid;
 use nerf_export::bundle::{NamedPose, WrittenFile, pose_matrix};
-use nerf_export::{Bundle, SceneDescription, write_bundle};
+use nerf_core::network::FieldKind;
+use nerf_export::{Bundle, NgpBundle, SceneDescription, write_bundle, write_ngp_bundle};
 use std::path::Path;
 
 /// Frames of the orbit stored in `scene.json`.
@@ -35,10 +36,39 @@ pub fn model_bundle(model: &NerfModel, config: &TrainConfig, camera: &Intrinsics
     Bundle { coarse, fine, scene, occupancy }
 }
 
-/// Compile the latest checkpoint of `run` into a bundle at `out`.
-pub fn export_run(run: &Path, out: &Path, opset: i64) -> Result<Vec<WrittenFile>> {
+/// The bundle of a hash-grid `field` trained with `config` (orbit poses included, no test
+/// poses), marched through `occupancy`.
+pub fn ngp_bundle(field: &NgpField, config: &TrainConfig, camera: &Intrinsics, occupancy: OccupancyGrid) -> NgpBundle {
+    let mut scene = SceneDescription::ngp(camera, &config.sampling, config.white_background, config.march_steps);
+    scene.poses.orbit = Pose::orbit(ORBIT_FRAMES).iter().map(pose_matrix).collect();
+    NgpBundle { field: field.to_plain(), scene, occupancy }
+}
+
+/// The opset `nerf export` uses when none is given: [`nerf_export::DEFAULT_OPSET`] for the
+/// NeRF MLPs, 18 for the hash-grid field (its hash uses BitwiseXor; 17 lowers it without).
+pub fn default_opset(kind: FieldKind) -> i64 {
+    match kind {
+        FieldKind::Mlp => nerf_export::DEFAULT_OPSET,
+        FieldKind::Ngp => nerf_export::hash_grid::HashOps::Bitwise.min_opset(),
+    }
+}
+
+/// Compile the latest checkpoint of `run` into a bundle at `out` (`opset`: see [`default_opset`]).
+pub fn export_run(run: &Path, out: &Path, opset: Option<i64>) -> Result<Vec<WrittenFile>> {
     let loaded = LoadedRun::open(run)?;
-    let mut bundle = model_bundle(&loaded.model, &loaded.config, &loaded.camera, loaded.occupancy);
-    bundle.scene.poses.test = test_poses(&RunDir::open(run)?);
-    Ok(write_bundle(out, &bundle, opset)?)
+    let test = test_poses(&RunDir::open(run)?);
+    let opset = opset.unwrap_or(default_opset(loaded.model.kind()));
+    match &loaded.model {
+        TrainedField::Mlp(model) => {
+            let mut bundle = model_bundle(model, &loaded.config, &loaded.camera, loaded.occupancy);
+            bundle.scene.poses.test = test;
+            Ok(write_bundle(out, &bundle, opset)?)
+        }
+        TrainedField::Ngp(field) => {
+            let grid = loaded.occupancy.clone().unwrap_or_else(|| field.whole_box());
+            let mut bundle = ngp_bundle(field, &loaded.config, &loaded.camera, grid);
+            bundle.scene.poses.test = test;
+            Ok(write_ngp_bundle(out, &bundle, opset)?)
+        }
+    }
 }

@@ -1,6 +1,6 @@
 //! Evaluating a trained burn model through the shared renderer ([`nerf_core::render`]).
 
-use crate::field::{NerfMlp, NerfModel};
+use crate::field::{NerfMlp, NerfModel, NgpField};
 use burn::tensor::{Device, Tensor, TensorData};
 use nerf_core::network::EncodingSpec;
 use nerf_core::render::{Field, FieldOutput, Stage};
@@ -49,6 +49,26 @@ impl Field for BurnField<'_> {
             encoded_tensor(&spec.direction_encoding, viewdirs, &self.device),
             1,
         );
+        Ok(FieldOutput { rgb: tensor_vec3(rgb), sigma: sigma.into_data().try_to_vec::<f32>().expect("f32 tensor") })
+    }
+}
+
+/// A hash-grid field as a [`Field`] (no autodiff; one network, whatever the stage).
+pub struct BurnNgpField<'a> {
+    /// The field.
+    pub field: &'a NgpField,
+    /// Where its MLPs run.
+    pub device: Device,
+}
+
+impl Field for BurnNgpField<'_> {
+    type Error = std::convert::Infallible;
+
+    fn evaluate(&mut self, _: Stage, points: &[[f32; 3]], viewdirs: &[[f32; 3]]) -> Result<FieldOutput, Self::Error> {
+        if points.is_empty() {
+            return Ok(FieldOutput::default());
+        }
+        let (rgb, sigma) = self.field.forward(points, viewdirs, &self.device);
         Ok(FieldOutput { rgb: tensor_vec3(rgb), sigma: sigma.into_data().try_to_vec::<f32>().expect("f32 tensor") })
     }
 }

@@ -11,12 +11,13 @@
 //! | `checkpoints/latest` | after each checkpoint | the name of the newest complete checkpoint |
 
 use crate::error::{Error, Result};
-use crate::field::NerfModel;
+use crate::field::{NerfModel, NgpField, TrainedField};
 use crate::train::{Checkpoint, CheckpointState, TrainConfig};
 use burn::tensor::Device;
 use nerf_core::atomic::write_atomic;
 use nerf_core::camera::Intrinsics;
 use nerf_core::limits;
+use nerf_core::network::FieldKind;
 use nerf_core::occupancy::OccupancyGrid;
 use serde::{Deserialize, Serialize};
 use std::io::Write;
@@ -42,7 +43,7 @@ pub struct RunCheckpoint {
     /// The run's configuration.
     pub config: TrainConfig,
     /// Its networks.
-    pub model: NerfModel,
+    pub model: TrainedField,
     /// Step, RNG and elapsed time.
     pub state: CheckpointState,
     /// The occupancy grid, for runs that skip empty space.
@@ -164,8 +165,19 @@ impl RunDir {
             .latest_checkpoint()?
             .ok_or_else(|| Error::invalid(&self.checkpoints_dir(), "the run has no checkpoint yet"))?;
         let state = checkpoint.state()?;
-        let mut model = NerfModel::new(&config.network, config.sampling.n_fine > 0, device);
-        checkpoint.load_model(&mut model)?;
+        let model = match config.field {
+            FieldKind::Mlp => {
+                let mut model = NerfModel::new(&config.network, config.sampling.n_fine > 0, device);
+                checkpoint.load_model(&mut model)?;
+                TrainedField::Mlp(model)
+            }
+            FieldKind::Ngp => {
+                let mut field = NgpField::new(config.ngp, config.seed, device).map_err(Error::Config)?;
+                checkpoint.load_model(&mut field.mlps)?;
+                field.grid = checkpoint.load_grid(&config.ngp.grid, Default::default())?.0;
+                TrainedField::Ngp(field)
+            }
+        };
         let occupancy = if config.skip_empty_space { checkpoint.load_occupancy()? } else { None };
         Ok(RunCheckpoint { config, model, state, occupancy })
     }

@@ -166,6 +166,7 @@ fn killed_training_resumes_from_the_last_complete_checkpoint() {
     let load = |run: &Path| RunDir::open(run).unwrap().load_latest(&nerf::backend::cpu()).unwrap();
     let RunCheckpoint { model: got, state: got_state, occupancy: got_grid, .. } = load(&run);
     let RunCheckpoint { model: want, state: want_state, occupancy: want_grid, .. } = load(&reference);
+    let (got, want) = (got.as_mlp().unwrap(), want.as_mlp().unwrap());
     assert!(got.coarse.to_plain() == want.coarse.to_plain(), "coarse weights differ from the uninterrupted run's");
     assert!(got.fine.as_ref().map(|f| f.to_plain()) == want.fine.as_ref().map(|f| f.to_plain()), "fine weights differ");
     assert!(got_grid == want_grid, "occupancy grids differ");

@@ -41,10 +41,10 @@ fn export_writes_a_bundle_that_onnx_and_onnxruntime_accept() {
     assert_eq!((scene.sampling.near, scene.sampling.far), (2.0, 6.0));
     assert_eq!(scene.poses.test.len(), 2, "the generated scene's test poses");
     assert_eq!(scene.poses.orbit.len(), nerf::export::ORBIT_FRAMES);
-    assert_eq!(scene.position_encoding.output_dim, 63);
+    assert_eq!(scene.position_encoding.as_ref().unwrap().output_dim, 63);
 
     // The graphs carry exactly the trained weights.
-    let model = RunDir::open(&run).unwrap().load_latest(&nerf::backend::cpu()).unwrap().model;
+    let model = RunDir::open(&run).unwrap().load_latest(&nerf::backend::cpu()).unwrap().model.as_mlp().unwrap().clone();
     let coarse = nerf_export::read_bundle_network(&bundle, "coarse.onnx").unwrap();
     let fine = nerf_export::read_bundle_network(&bundle, "fine.onnx").unwrap();
     assert_eq!(coarse, model.coarse.to_plain());

@@ -125,7 +125,7 @@ fn resume_continues_exactly_and_runs_are_deterministic() {
     let load = |run: &str| {
         let nerf::run_dir::RunCheckpoint { model, state, occupancy: grid, .. } =
             nerf::run_dir::RunDir::open(&dir.path().join(run)).unwrap().load_latest(&nerf::backend::cpu()).unwrap();
-        (model_weights(&model), state, grid.expect("the run skips empty space"))
+        (model_weights(model.as_mlp().unwrap()), state, grid.expect("the run skips empty space"))
     };
     let (a, sa, grid_a) = load("a");
     let (b, _, _) = load("b");

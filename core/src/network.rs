@@ -56,6 +56,29 @@ impl EncodingSpec {
     }
 }
 
+/// Which kind of radiance field a run trains and a bundle holds: the one description the
+/// training config, checkpoints, graph metadata (`nerf.field`) and `scene.json` carry.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum FieldKind {
+    /// The NeRF MLPs (coarse and fine, positional encoding; [`NetworkSpec`]).
+    #[default]
+    Mlp,
+    /// The instant-ngp field (hash grid and tiny MLPs; [`crate::ngp::NgpSpec`]), rendered by
+    /// marching through the occupancy grid.
+    Ngp,
+}
+
+impl FieldKind {
+    /// The kind as written in configs and metadata.
+    pub fn name(self) -> &'static str {
+        match self {
+            FieldKind::Mlp => "mlp",
+            FieldKind::Ngp => "ngp",
+        }
+    }
+}
+
 /// The shape of a NeRF MLP (nerf-pytorch's `NeRF(D, W, skips, input_ch, input_ch_views, use_viewdirs)`).
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

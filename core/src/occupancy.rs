@@ -44,11 +44,15 @@ pub struct OccupancyConfig {
     pub update_every: usize,
     /// Steps of dense training before the first update.
     pub warmup_steps: usize,
+    /// After each update, lower the threshold to the grid's mean density when that is smaller
+    /// (instant-ngp's rule: a young field that is faint everywhere still has occupied cells).
+    #[serde(default)]
+    pub threshold_at_most_mean: bool,
 }
 
 impl Default for OccupancyConfig {
     fn default() -> Self {
-        OccupancyConfig { resolution: 64, bound: 1.5, threshold: 0.05, decay: 0.95, update_every: 16, warmup_steps: 256 }
+        OccupancyConfig { resolution: 64, bound: 1.5, threshold: 0.05, decay: 0.95, update_every: 16, warmup_steps: 256, threshold_at_most_mean: false }
     }
 }
 
@@ -131,6 +135,14 @@ impl OccupancyGrid {
     /// Fraction of cells that are occupied.
     pub fn occupied_fraction(&self) -> f32 {
         self.density.iter().filter(|d| **d > self.threshold).count() as f32 / self.len().max(1) as f32
+    }
+
+    /// Mean of the cells' density estimates (cells not measured yet count as 0). instant-ngp
+    /// caps the occupancy threshold at this, so a young field that is faint everywhere still
+    /// has occupied cells.
+    pub fn mean_density(&self) -> f32 {
+        let sum: f64 = self.density.iter().filter(|d| d.is_finite()).map(|&d| d as f64).sum();
+        (sum / self.len().max(1) as f64) as f32
     }
 
     /// One uniformly random point inside every cell, in cell order.

@@ -1,4 +1,5 @@
-//! Scene bundles: `coarse.onnx`, `fine.onnx` and `scene.json` in one directory, written whole
+//! Scene bundles: `coarse.onnx` and `fine.onnx` (NeRF MLPs) or `field.onnx` (a hash-grid
+//! field), `occupancy.bin` and `scene.json` in one directory, written whole
 //! or not at all ([`nerf_core::atomic::write_dir_atomic`]): a failed or killed export leaves
 //! the previous bundle as it was.
 
@@ -7,7 +8,10 @@ use crate::graph::{compile, read_network};
 use crate::proto::ModelProto;
 use nerf_core::camera::{Intrinsics, Pose};
 use nerf_core::limits::{self, MAX_FRAMES, Origin};
-use nerf_core::network::{EncodingSpec, PlainNetwork};
+use crate::hash_grid::HashOps;
+use crate::ngp::compile_ngp;
+use nerf_core::network::{EncodingSpec, FieldKind, PlainNetwork};
+use nerf_core::ngp::PlainNgp;
 use nerf_core::occupancy::{self, OccupancyGrid};
 use nerf_core::sampling::SamplingConfig;
 use prost::Message;
@@ -23,6 +27,9 @@ pub const CAMERA_CONVENTION: &str = "OpenGL camera-to-world (Blender/NeRF): +x r
      ray through pixel (i, j): d = c2w[:3,:3] @ ((i - W/2)/focal, -(j - H/2)/focal, -1), not normalised, no half-pixel offset; \
      origin c2w[:3,3]; samples at t in [near, far] along d; viewdirs = d/|d|";
 
+/// The graph file of a hash-grid bundle.
+pub const NGP_FILE: &str = "field.onnx";
+
 /// Everything a renderer needs besides the networks (`scene.json`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SceneDescription {
@@ -34,10 +41,23 @@ pub struct SceneDescription {
     pub sampling: SamplingConfig,
     /// Composite over white: `rgb + (1 − acc)`.
     pub white_background: bool,
-    /// Positional encoding of points (inside the graphs; stated for other implementations).
-    pub position_encoding: EncodingDescription,
-    /// Positional encoding of view directions.
-    pub direction_encoding: EncodingDescription,
+    /// What the graphs hold: `mlp` (coarse/fine NeRF networks, sampled densely or marched)
+    /// or `ngp` (one hash-grid field graph in `networks.coarse`, only ever marched through the
+    /// occupancy grid: the field is defined inside the grid's box alone). Absent: `mlp`.
+    #[serde(default)]
+    pub field: FieldKind,
+    /// Positional encoding of points (inside the graphs; stated for other implementations;
+    /// absent for `ngp`, whose encoding is the hash grid in the graph's metadata `nerf.ngp`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub position_encoding: Option<EncodingDescription>,
+    /// Positional encoding of view directions (absent for `ngp`: spherical harmonics of
+    /// degree 4 inside the graph).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub direction_encoding: Option<EncodingDescription>,
+    /// Marching: equal intervals over [near, far], a sample at each middle where the occupancy
+    /// grid is occupied. Absent: 256.
+    #[serde(default = "default_march_steps")]
+    pub march_steps: usize,
     /// Graph files, relative to the bundle.
     pub networks: NetworkFiles,
     /// Camera-to-world poses to render.
@@ -46,6 +66,10 @@ pub struct SceneDescription {
     /// renderers without it sample densely.
     #[serde(default)]
     pub occupancy: Option<OccupancyDescription>,
+}
+
+fn default_march_steps() -> usize {
+    nerf_core::render::DEFAULT_MARCH_STEPS
 }
 
 /// Where the occupancy grid is and what it covers (also in the file's header).
@@ -136,9 +160,29 @@ impl SceneDescription {
             camera: CameraDescription { width: camera.width, height: camera.height, focal: camera.focal, convention: CAMERA_CONVENTION.into() },
             sampling: sampling.clone(),
             white_background,
-            position_encoding: (&coarse.spec.position_encoding).into(),
-            direction_encoding: (&coarse.spec.direction_encoding).into(),
+            field: FieldKind::Mlp,
+            position_encoding: Some((&coarse.spec.position_encoding).into()),
+            direction_encoding: Some((&coarse.spec.direction_encoding).into()),
+            march_steps: default_march_steps(),
             networks: NetworkFiles { coarse: "coarse.onnx".into(), fine: has_fine.then(|| "fine.onnx".into()) },
+            poses: ScenePoses::default(),
+            occupancy: None,
+        }
+    }
+
+    /// A description for a hash-grid field marched with `march_steps` intervals over
+    /// `sampling`'s [near, far] (`networks.coarse` = `field.onnx`, no fine network).
+    pub fn ngp(camera: &Intrinsics, sampling: &SamplingConfig, white_background: bool, march_steps: usize) -> Self {
+        SceneDescription {
+            format: SCENE_FORMAT.into(),
+            camera: CameraDescription { width: camera.width, height: camera.height, focal: camera.focal, convention: CAMERA_CONVENTION.into() },
+            sampling: SamplingConfig { n_fine: 0, ..sampling.clone() },
+            white_background,
+            field: FieldKind::Ngp,
+            position_encoding: None,
+            direction_encoding: None,
+            march_steps,
+            networks: NetworkFiles { coarse: NGP_FILE.into(), fine: None },
             poses: ScenePoses::default(),
             occupancy: None,
         }
@@ -164,6 +208,17 @@ pub struct Bundle {
 }
 
 
+
+/// A hash-grid field and its description: one graph, the occupancy grid it is marched through.
+#[derive(Debug, Clone)]
+pub struct NgpBundle {
+    /// The field.
+    pub field: PlainNgp,
+    /// `scene.json` (made by [`SceneDescription::ngp`]; `occupancy` filled in when writing).
+    pub scene: SceneDescription,
+    /// The grid (required: the field is only marched).
+    pub occupancy: OccupancyGrid,
+}
 
 /// A file written into a bundle and its size.
 #[derive(Debug, Clone, PartialEq)]
@@ -213,7 +268,30 @@ pub fn write_bundle(dir: &Path, bundle: &Bundle, opset: i64) -> Result<Vec<Writt
         files.push((occupancy::FILE_NAME.into(), grid.to_bytes()));
     }
     files.push((SCENE_FILE.into(), serde_json::to_vec_pretty(scene).expect("a scene serialises")));
+    write_files(dir, files)
+}
 
+/// Compile a hash-grid field and write its bundle to `dir` (as [`write_bundle`]): `field.onnx`
+/// with BitwiseXor/And at opset ≥ 18, the bitwise-free lowering at opset 17.
+pub fn write_ngp_bundle(dir: &Path, bundle: &NgpBundle, opset: i64) -> Result<Vec<WrittenFile>, ExportError> {
+    let mut scene = bundle.scene.clone();
+    let grid = &bundle.occupancy;
+    scene.occupancy = Some(OccupancyDescription { file: occupancy::FILE_NAME.into(), resolution: grid.resolution(), bound: grid.bound() });
+    if scene.field != FieldKind::Ngp || scene.networks.fine.is_some() {
+        return Err(ExportError::Network("a hash-grid bundle's scene.json must say field \"ngp\" and name no fine network".into()));
+    }
+    let ops = if opset >= HashOps::Bitwise.min_opset() { HashOps::Bitwise } else { HashOps::Arithmetic };
+    let model = compile_ngp(&bundle.field, "field", opset, ops, &scene_metadata(&scene, "field"))?;
+    let files = vec![
+        (scene.networks.coarse.clone(), model.encode_to_vec()),
+        (occupancy::FILE_NAME.into(), grid.to_bytes()),
+        (SCENE_FILE.into(), serde_json::to_vec_pretty(&scene).expect("a scene serialises")),
+    ];
+    write_files(dir, files)
+}
+
+/// Write `files` (name, bytes) as the directory `dir`, whole or not at all.
+fn write_files(dir: &Path, files: Vec<(String, Vec<u8>)>) -> Result<Vec<WrittenFile>, ExportError> {
     nerf_core::atomic::write_dir_atomic(dir, |tmp| {
         for (file, bytes) in &files {
             let p = tmp.join(file);
@@ -270,6 +348,10 @@ impl SceneDescription {
         if (self.sampling.n_fine > 0) != self.networks.fine.is_some() {
             return Err(at("networks.fine").error("must be given exactly when sampling.n_fine > 0"));
         }
+        if self.field == FieldKind::Ngp && self.occupancy.is_none() {
+            return Err(at("occupancy").error("a hash-grid field (field \"ngp\") is marched through its occupancy grid: the bundle needs one"));
+        }
+        limits::check_count(self.march_steps, limits::MAX_SAMPLES_PER_RAY, "steps", at("march_steps"))?;
         limits::check_plain_file_name(&self.networks.coarse, at("networks.coarse"))?;
         if let Some(fine) = &self.networks.fine {
             limits::check_plain_file_name(fine, at("networks.fine"))?;

@@ -297,24 +297,7 @@ pub fn read_network(model: &ModelProto) -> Result<PlainNetwork, String> {
     let spec: NetworkSpec = serde_json::from_str(&spec_json.value).map_err(|e| format!("{NETWORK_KEY}: {e}"))?;
     spec.validate()?;
     let graph = model.graph.as_ref().ok_or("the model has no graph")?;
-    let tensor = |name: &str, dims: &[usize]| -> Result<Vec<f32>, String> {
-        let t = graph.initializer.iter().find(|t| t.name == name).ok_or_else(|| format!("initializer {name} is missing"))?;
-        let want: Vec<i64> = dims.iter().map(|&d| d as i64).collect();
-        if t.dims != want || t.data_type != data_type::FLOAT {
-            return Err(format!("initializer {name}: dims {:?} type {}, expected {want:?} float", t.dims, t.data_type));
-        }
-        let n: usize = dims.iter().product();
-        if !t.raw_data.is_empty() {
-            if t.raw_data.len() != 4 * n {
-                return Err(format!("initializer {name}: {} bytes, expected {}", t.raw_data.len(), 4 * n));
-            }
-            Ok(t.raw_data.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
-        } else if t.float_data.len() == n {
-            Ok(t.float_data.clone())
-        } else {
-            Err(format!("initializer {name}: {} values, expected {n}", t.float_data.len()))
-        }
-    };
+    let tensor = |name: &str, dims: &[usize]| float_initializer(graph, name, dims);
     let layers = spec
         .layer_shapes()
         .into_iter()
@@ -402,5 +385,25 @@ mod tests {
         let mut broken = net.clone();
         broken.layers[2].bias.pop();
         assert!(matches!(compile(&broken, "x", 17, &[]), Err(ExportError::Network(_))));
+    }
+}
+
+/// The float initializer `name` of `graph`, checked to have exactly `dims` (raw or typed data).
+pub(crate) fn float_initializer(graph: &GraphProto, name: &str, dims: &[usize]) -> Result<Vec<f32>, String> {
+    let t = graph.initializer.iter().find(|t| t.name == name).ok_or_else(|| format!("initializer {name} is missing"))?;
+    let want: Vec<i64> = dims.iter().map(|&d| d as i64).collect();
+    if t.dims != want || t.data_type != data_type::FLOAT {
+        return Err(format!("initializer {name}: dims {:?} type {}, expected {want:?} float", t.dims, t.data_type));
+    }
+    let n: usize = dims.iter().product();
+    if !t.raw_data.is_empty() {
+        if t.raw_data.len() != 4 * n {
+            return Err(format!("initializer {name}: {} bytes, expected {} (truncated?)", t.raw_data.len(), 4 * n));
+        }
+        Ok(t.raw_data.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
+    } else if t.float_data.len() == n {
+        Ok(t.float_data.clone())
+    } else {
+        Err(format!("initializer {name}: {} values, expected {n} (truncated?)", t.float_data.len()))
     }
 }

@@ -13,7 +13,7 @@ pub mod import;
 pub mod ngp;
 pub mod proto;
 
-pub use bundle::{Bundle, SceneDescription, read_bundle_network, read_occupancy, read_scene, write_bundle};
+pub use bundle::{Bundle, NgpBundle, SceneDescription, read_bundle_network, read_occupancy, read_scene, write_bundle, write_ngp_bundle};
 pub use graph::{DEFAULT_OPSET, check_contract, compile, read_network};
 
 /// Why a network could not be compiled or a bundle written.

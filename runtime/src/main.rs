@@ -20,7 +20,8 @@ use std::time::Instant;
                   under ~/.cache/nerf-rs/venv (override the root with $NERF_HOME)."
 )]
 struct Cli {
-    /// Bundle directory: scene.json, coarse.onnx, fine.onnx[, occupancy.bin].
+    /// Bundle directory: scene.json, coarse.onnx and fine.onnx (NeRF MLPs) or field.onnx (a
+    /// hash-grid field), [occupancy.bin].
     #[arg(long)]
     bundle: PathBuf,
     /// Render the bundle's 360° orbit (scene.json poses.orbit) and orbit.gif.
@@ -58,7 +59,8 @@ struct Cli {
     /// Render at this height (needs --width).
     #[arg(long, requires = "width")]
     height: Option<u32>,
-    /// Ignore the bundle's occupancy grid: evaluate every sample (the dense 64 + 128 path).
+    /// Ignore the bundle's occupancy grid: evaluate every sample (the dense 64 + 128 path; a
+    /// hash-grid field marches every interval of its box).
     #[arg(long)]
     dense: bool,
     /// Also write <name>.npy per frame: float32 [H, W, 5] = r, g, b, depth, acc.

@@ -17,6 +17,8 @@ pub struct OrtNetwork {
     path: PathBuf,
     /// Points evaluated so far (for benchmarks: how much work skipping saves).
     pub evaluated: usize,
+    /// Seconds spent in onnxruntime so far (for benchmarks: the graph's share of a frame).
+    pub seconds: f64,
 }
 
 impl OrtNetwork {
@@ -28,13 +30,17 @@ impl OrtNetwork {
         let model = ModelProto::decode(bytes.as_slice())
             .map_err(|e| RuntimeError::bundle(path, format!("not a valid ONNX file (truncated?): {e}")))?;
         check_contract(&model).map_err(|e| RuntimeError::bundle(path, e))?;
+        if nerf_export::ngp::is_ngp(&model) {
+            // Check the table and layers against the spec before onnxruntime indexes into them.
+            nerf_export::ngp::read_ngp(&model).map_err(|e| RuntimeError::bundle(path, e))?;
+        }
         let ort_err = |e: &dyn std::fmt::Display| RuntimeError::Ort { path: path.to_path_buf(), message: e.to_string() };
         let mut builder = Session::builder(environment()?).map_err(|e| ort_err(&e))?;
         if let Some(n) = threads {
             builder = builder.with_intra_threads(n).map_err(|e| ort_err(&e))?;
         }
         let session = builder.commit_from_memory(&bytes).map_err(|e| ort_err(&e))?;
-        Ok(OrtNetwork { session, path: path.to_path_buf(), evaluated: 0 })
+        Ok(OrtNetwork { session, path: path.to_path_buf(), evaluated: 0, seconds: 0.0 })
     }
 
     /// The graph file.
@@ -54,7 +60,9 @@ impl OrtNetwork {
         let ort_err = |e: &dyn std::fmt::Display| RuntimeError::Ort { path: path.clone(), message: e.to_string() };
         let p = TensorRef::from_array_view(([n, 3], points.as_flattened())).map_err(|e| ort_err(&e))?;
         let d = TensorRef::from_array_view(([n, 3], viewdirs.as_flattened())).map_err(|e| ort_err(&e))?;
+        let start = std::time::Instant::now();
         let outputs = self.session.run(ort::inputs!["points" => p, "viewdirs" => d]).map_err(|e| ort_err(&e))?;
+        self.seconds += start.elapsed().as_secs_f64();
         let column = |name: &str, cols: usize| -> Result<&[f32]> {
             let value = outputs.get(name).ok_or_else(|| RuntimeError::bundle(&path, format!("no output {name}")))?;
             let (shape, data) = value.try_extract_tensor::<f32>().map_err(|e| ort_err(&e))?;

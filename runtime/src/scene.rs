@@ -6,6 +6,7 @@ use crate::field::OrtField;
 use crate::network::OrtNetwork;
 use nerf_core::camera::{Intrinsics, Pose};
 use nerf_core::limits::{self, Origin};
+use nerf_core::network::FieldKind;
 use nerf_core::occupancy::OccupancyGrid;
 use nerf_core::render::{RenderOptions, RenderedImage, render_image};
 use nerf_export::bundle::{SCENE_FILE, SceneDescription, bundle_file, read_occupancy, read_scene};
@@ -55,7 +56,7 @@ impl OrtScene {
         }
         let description = read_scene(dir)?;
         let s = &description.sampling;
-        let samples_per_ray = (s.n_coarse + s.n_fine).max(nerf_core::render::DEFAULT_MARCH_STEPS);
+        let samples_per_ray = (s.n_coarse + s.n_fine).max(description.march_steps);
         limits::check_chunk(options.chunk, samples_per_ray, Origin::Option("--chunk"))?;
         if let Some(n) = options.threads {
             limits::check_count(n, limits::MAX_THREADS, "threads", Origin::Option("--threads"))?;
@@ -65,9 +66,16 @@ impl OrtScene {
             Some(file) => Some(OrtNetwork::load(&bundle_file(dir, file, "networks.fine")?, options.threads)?),
             None => None,
         };
-        let occupancy = if options.skip_empty_space { read_occupancy(dir, &description)? } else { None };
-        let render_options =
+        let mut occupancy = if options.skip_empty_space { read_occupancy(dir, &description)? } else { None };
+        if description.field == FieldKind::Ngp && occupancy.is_none() {
+            // A hash-grid field is defined inside its box only: without skipping, march the
+            // whole box (one occupied cell of the grid's extent).
+            let bound = description.occupancy.as_ref().map_or(1.5, |o| o.bound);
+            occupancy = Some(OccupancyGrid::new(1, bound, 0.0));
+        }
+        let mut render_options =
             RenderOptions::new(description.sampling.clone(), description.white_background, options.chunk, options.skip_empty_space);
+        render_options.march_steps = description.march_steps;
         Ok(OrtScene { dir: dir.to_path_buf(), description, field: OrtField { coarse, fine }, occupancy, options: render_options })
     }
 

@@ -47,6 +47,18 @@ impl NgpMlps {
     }
 }
 
+impl NgpMlps {
+    /// σ alone (the density MLP), for the occupancy grid's updates.
+    ///
+    /// # Shapes
+    /// `features`: `[n, L·F]` → σ `[n]`.
+    pub fn density(&self, features: Tensor<2>) -> Tensor<1> {
+        let n = features.dims()[0];
+        let out = self.density[1].forward(relu(self.density[0].forward(features)));
+        out.narrow(1, 0, 1).reshape([n]).exp()
+    }
+}
+
 /// `exp(x)` whose gradient is `exp(clamp(x, −15, 15))` (instant-ngp's `trunc_exp`: a large raw
 /// density cannot blow the gradient up). Written with detached factors: the value is
 /// `exp(x) + slope·(x − x)`, whose derivative is the detached slope.
@@ -72,6 +84,8 @@ pub struct NgpField {
 pub struct GridInputs {
     unit: Vec<[f32; 3]>,
     features: Tensor<2>,
+    /// Seconds the grid's forward pass took (for the step's timing).
+    pub encode_s: f64,
 }
 
 impl NgpField {
@@ -100,14 +114,31 @@ impl NgpField {
         self.mlps.forward(features, sh)
     }
 
+    /// σ at world points (the density MLP only; no gradient).
+    pub fn density(&self, points: &[[f32; 3]], device: &Device) -> Vec<f32> {
+        let unit: Vec<[f32; 3]> = points.iter().map(|&p| self.spec.bound.to_unit(p)).collect();
+        let features = Tensor::<2>::from_data(TensorData::new(self.grid.forward(&unit), [points.len(), self.grid.output_dim()]), device);
+        self.mlps.density(features).into_data().try_to_vec::<f32>().expect("f32 densities")
+    }
+
+    /// An occupancy grid of one occupied cell over the field's box: marching through it
+    /// evaluates every interval inside the box (the field is undefined outside).
+    pub fn whole_box(&self) -> nerf_core::occupancy::OccupancyGrid {
+        let b = &self.spec.bound;
+        let half = (0..3).map(|k| b.max[k].abs().max(b.min[k].abs())).fold(0.0f32, f32::max);
+        nerf_core::occupancy::OccupancyGrid::new(1, half, 0.0)
+    }
+
     /// [`forward`](Self::forward) on an autodiff device, the grid features a leaf that requires a
     /// gradient; pass the returned [`GridInputs`] to
     /// [`accumulate_grid_gradient`](Self::accumulate_grid_gradient) after `backward`.
     pub fn forward_train(&self, points: &[[f32; 3]], viewdirs: &[[f32; 3]], device: &Device) -> (Tensor<2>, Tensor<1>, GridInputs) {
+        let start = std::time::Instant::now();
         let (unit, features, sh) = self.encode(points, viewdirs, device);
+        let encode_s = start.elapsed().as_secs_f64();
         let features = features.require_grad();
         let (rgb, sigma) = self.mlps.forward(features.clone(), sh);
-        (rgb, sigma, GridInputs { unit, features })
+        (rgb, sigma, GridInputs { unit, features, encode_s })
     }
 
     /// Take the features' gradient out of `grads` and add its scatter into the table to `grad`.

@@ -1,20 +1,22 @@
-//! Checkpoints: `<run>/checkpoints/step-NNNNNNN/{model.bpk, optim.bpk, state.json[, occupancy.bin]}` plus a
+//! Checkpoints: `<run>/checkpoints/step-NNNNNNN/{model.bpk, optim.bpk, state.json[, occupancy.bin][, grid.bin]}` plus a
 //! `latest` file naming the newest. Each checkpoint directory is written whole or not at all
 //! ([`write_dir_atomic`]) before `latest` is replaced atomically, so a crash never leaves a
 //! checkpoint that `latest` points to half-written.
 
 use crate::error::{Error, Result};
-use crate::field::NerfModel;
 use crate::run_dir::RunDir;
 use burn::optim::ModuleOptimizer;
 use burn::store::{BurnpackStore, ModuleSnapshot};
 use burn::tensor::Bytes;
 use nerf_core::Rng;
+use nerf_core::hash_grid::{HashGrid, HashGridConfig, SparseAdam, SparseAdamConfig};
 use nerf_core::atomic::{remove_stale_temporaries, write_atomic, write_dir_atomic};
 use nerf_core::occupancy::{self, OccupancyGrid};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
+/// The hash grid's table and Adam state in a checkpoint ([`nerf_core::hash_grid::state`]).
+pub const GRID_FILE: &str = "grid.bin";
 const FORMAT: &str = "nerf-rs-checkpoint-1";
 const PREFIX: &str = "step-";
 
@@ -29,12 +31,16 @@ pub struct CheckpointState {
     pub rng: Rng,
     /// Training seconds spent so far (for time budgets across resumes).
     pub elapsed_s: f64,
+    /// The hash-grid trainer's samples per ray in its last step, which sets the next step's
+    /// ray count (absent for the NeRF MLPs).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub samples_per_ray: Option<f32>,
 }
 
 impl CheckpointState {
     /// The state after `step` steps.
     pub fn new(step: usize, rng: Rng, elapsed_s: f64) -> Self {
-        CheckpointState { format: FORMAT.into(), step, rng, elapsed_s }
+        CheckpointState { format: FORMAT.into(), step, rng, elapsed_s, samples_per_ray: None }
     }
 }
 
@@ -55,19 +61,22 @@ impl Checkpoint {
         name.strip_prefix(PREFIX).is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
     }
 
-    /// Write model, optimizer and state for `state.step` (the directory whole or not at all),
-    /// then point `latest` at it and remove all but the previous checkpoint.
-    pub fn save(
-        run: &RunDir,
-        model: &NerfModel,
-        optim: &ModuleOptimizer,
-        occupancy: Option<&OccupancyGrid>,
-        state: &CheckpointState,
-    ) -> Result<Checkpoint> {
+    /// The weights of `model` as a checkpoint's `model.bpk`.
+    pub fn model_bytes<M: ModuleSnapshot>(model: &M) -> Result<Vec<u8>> {
         let mut store = BurnpackStore::from_bytes(None);
         model.save_into(&mut store).map_err(|e| Error::Network(format!("saving the model: {e}")))?;
-        let model_bytes = store.get_bytes().map_err(|e| Error::Network(format!("saving the model: {e}")))?;
-        let optim_bytes = optim.into_bytes().map_err(|e| Error::Network(format!("saving the optimizer: {e}")))?;
+        Ok(store.get_bytes().map_err(|e| Error::Network(format!("saving the model: {e}")))?.to_vec())
+    }
+
+    /// The optimizer's state as a checkpoint's `optim.bpk`.
+    pub fn optimizer_bytes(optim: &ModuleOptimizer) -> Result<Vec<u8>> {
+        Ok(optim.into_bytes().map_err(|e| Error::Network(format!("saving the optimizer: {e}")))?.to_vec())
+    }
+
+    /// Write `files` (name, content: `model.bpk`, `optim.bpk`, the field's extras) and the state
+    /// for `state.step` (the directory whole or not at all), then point `latest` at it and
+    /// remove all but the previous checkpoint.
+    pub fn save(run: &RunDir, files: &[(&str, Vec<u8>)], occupancy: Option<&OccupancyGrid>, state: &CheckpointState) -> Result<Checkpoint> {
         let name = format!("{PREFIX}{:07}", state.step);
         let dir = run.checkpoints_dir().join(&name);
         write_dir_atomic(&dir, |tmp| {
@@ -75,8 +84,9 @@ impl Checkpoint {
                 let p = tmp.join(file);
                 std::fs::write(&p, bytes).map_err(|e| nerf_core::Error::io(&p, e))
             };
-            write("model.bpk", &model_bytes)?;
-            write("optim.bpk", &optim_bytes)?;
+            for (file, bytes) in files {
+                write(file, bytes)?;
+            }
             if let Some(grid) = occupancy {
                 write(occupancy::FILE_NAME, &grid.to_bytes())?;
             }
@@ -113,7 +123,7 @@ impl Checkpoint {
     }
 
     /// Load the weights into `model` (which must have the checkpoint's shapes).
-    pub fn load_model(&self, model: &mut NerfModel) -> Result<()> {
+    pub fn load_model<M: ModuleSnapshot>(&self, model: &mut M) -> Result<()> {
         let path = self.dir.join("model.bpk");
         let bytes = read(&path)?;
         let mut store = BurnpackStore::from_bytes(Some(Bytes::from_bytes_vec(bytes)));
@@ -134,6 +144,13 @@ impl Checkpoint {
             return Ok(None);
         }
         Ok(Some(OccupancyGrid::load(&path)?))
+    }
+
+    /// The hash grid and its Adam state (`grid.bin`, runs of the hash-grid field).
+    pub fn load_grid(&self, config: &HashGridConfig, adam: SparseAdamConfig) -> Result<(HashGrid, SparseAdam)> {
+        let path = self.dir.join(GRID_FILE);
+        let bytes = read(&path)?;
+        Ok(nerf_core::hash_grid::state::state_from_bytes(&bytes, config, adam, &path)?)
     }
 
     /// Load the optimizer state into `optim`.

@@ -2,10 +2,12 @@
 
 use crate::error::{Error, Result};
 use nerf_core::SamplingConfig;
-use nerf_core::network::{EncodingSpec, NetworkSpec};
+use nerf_core::hash_grid::GridBound;
+use nerf_core::network::{EncodingSpec, FieldKind, NetworkSpec};
+use nerf_core::ngp::NgpSpec;
 use nerf_core::occupancy::OccupancyConfig;
 use nerf_core::limits::{self, Origin};
-use nerf_core::render::RenderOptions;
+use nerf_core::render::{DEFAULT_MARCH_STEPS, RenderOptions};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -25,6 +27,10 @@ pub enum Preset {
     /// the 4th layer), 32 + 64 samples, 256 rays per step (many cheap steps beat few big ones
     /// on a CPU), lr 1e-3 decaying 10× per 5k steps.
     CpuFast,
+    /// The instant-ngp field: a multiresolution hash grid and two tiny MLPs, trained on packed
+    /// samples marched through the occupancy grid (2¹⁶ samples per step, 1024 intervals over
+    /// [near, far]), lr 1e-2 (table and MLPs) decaying 10× per 10k steps.
+    Ngp,
 }
 
 impl Preset {
@@ -33,6 +39,7 @@ impl Preset {
         match self {
             Preset::Paper => "paper",
             Preset::CpuFast => "cpu-fast",
+            Preset::Ngp => "ngp",
         }
     }
 
@@ -62,6 +69,10 @@ impl Preset {
                 concurrent_passes: 2,
                 skip_empty_space: false,
                 occupancy: OccupancyConfig::default(),
+                field: FieldKind::Mlp,
+                ngp: NgpSpec::default(),
+                target_samples: DEFAULT_TARGET_SAMPLES,
+                march_steps: DEFAULT_MARCH_STEPS,
             },
             Preset::CpuFast => TrainConfig {
                 preset: *self,
@@ -81,6 +92,36 @@ impl Preset {
                 checkpoint_every: 500,
                 eval_every_min: 5.0,
                 skip_empty_space: true,
+                ..Preset::Paper.config()
+            },
+            Preset::Ngp => TrainConfig {
+                preset: *self,
+                field: FieldKind::Ngp,
+                sampling: SamplingConfig { near: 2.0, far: 6.0, n_coarse: 64, n_fine: 0, lindisp: false },
+                batch_rays: 256,
+                iters: 100_000,
+                lr: 1e-2,
+                lr_decay_ksteps: 10.0,
+                adam_beta1: 0.9,
+                adam_beta2: 0.99,
+                adam_epsilon: 1e-15,
+                precrop_iters: 0,
+                // A checkpoint holds the table and its Adam moments (≈ 190 MB at T = 2¹⁹).
+                checkpoint_every: 1000,
+                eval_every_min: 5.0,
+                chunk: 4096,
+                skip_empty_space: true,
+                occupancy: OccupancyConfig {
+                    resolution: 64,
+                    bound: 1.5,
+                    // σ at which one marching interval (≈ 4/1024 world units) is 1% opaque.
+                    threshold: 2.5,
+                    decay: 0.95,
+                    update_every: 16,
+                    warmup_steps: 64,
+                    threshold_at_most_mean: true,
+                },
+                march_steps: 1024,
                 ..Preset::Paper.config()
             },
         }
@@ -139,6 +180,31 @@ pub struct TrainConfig {
     pub skip_empty_space: bool,
     /// The occupancy grid's size and update schedule (used with `skip_empty_space`).
     pub occupancy: OccupancyConfig,
+    /// Which field to train: `mlp` (coarse/fine `network`) or `ngp` (the hash-grid `ngp`).
+    #[serde(default)]
+    pub field: FieldKind,
+    /// The hash-grid field's shape (with `field = "ngp"`).
+    #[serde(default)]
+    pub ngp: NgpSpec,
+    /// Samples per step of the hash-grid field: the rays of a step are as many as fit, judged
+    /// by the samples per ray of the previous step (with `field = "ngp"`).
+    #[serde(default = "default_target_samples")]
+    pub target_samples: usize,
+    /// Intervals over [near, far] when marching through the occupancy grid (training the
+    /// hash-grid field, and rendering any field with a grid).
+    #[serde(default = "default_march_steps")]
+    pub march_steps: usize,
+}
+
+/// Default [`TrainConfig::target_samples`].
+pub const DEFAULT_TARGET_SAMPLES: usize = 1 << 16;
+
+fn default_target_samples() -> usize {
+    DEFAULT_TARGET_SAMPLES
+}
+
+fn default_march_steps() -> usize {
+    DEFAULT_MARCH_STEPS
 }
 
 impl Default for TrainConfig {
@@ -178,7 +244,9 @@ impl TrainConfig {
 
     /// How the run's networks are rendered at test time (`nerf eval`/`render`, validation views).
     pub fn render_options(&self) -> RenderOptions {
-        RenderOptions::new(self.sampling.clone(), self.white_background, self.chunk, self.skip_empty_space)
+        let mut options = RenderOptions::new(self.sampling.clone(), self.white_background, self.chunk, self.skip_empty_space);
+        options.march_steps = self.march_steps;
+        options
     }
 
     /// Rejects values the trainer cannot run with.
@@ -207,6 +275,19 @@ impl TrainConfig {
         }
         if !(self.precrop_fraction > 0.0 && self.precrop_fraction <= 1.0) {
             return Err("precrop_fraction must be in (0, 1]".into());
+        }
+        limits::check_count(self.march_steps, limits::MAX_SAMPLES_PER_RAY, "steps", Origin::Key("march_steps")).map_err(|e| e.to_string())?;
+        if self.field == FieldKind::Ngp {
+            self.ngp.validate().map_err(|e| format!("ngp: {e}"))?;
+            if !self.skip_empty_space || s.n_fine > 0 {
+                return Err("field = \"ngp\" marches through the occupancy grid: it needs skip_empty_space = true and sampling.n_fine = 0".into());
+            }
+            if self.ngp.bound != GridBound::cube(o.bound) {
+                return Err(format!("ngp.bound {:?} must be the occupancy grid's cube ±{} (occupancy.bound)", self.ngp.bound, o.bound));
+            }
+            if self.target_samples == 0 || self.target_samples > limits::MAX_POINTS_PER_CALL {
+                return Err(format!("target_samples must be in 1..={}", limits::MAX_POINTS_PER_CALL));
+            }
         }
         Ok(())
     }

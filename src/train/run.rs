@@ -1,7 +1,7 @@
 //! The run loop: start or resume a run directory, then step until the iteration count or the
 //! time budget is reached, with checkpoints, the PSNR curve and a progress bar.
 
-use super::{TrainConfig, Trainer};
+use super::{FieldTrainer, TrainConfig, field_trainer};
 use crate::error::{Error, Result};
 use crate::run_dir::{RunDir, RunSource};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -48,32 +48,32 @@ const RECENT_STEPS: usize = 50;
 pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
     let run = RunDir::create(&options.run)?;
     let (mut trainer, val_data, elapsed_before) = start_or_resume(&run, options)?;
-    let config = trainer.config.clone();
+    let config = trainer.config().clone();
     let clock = Clock { before_s: elapsed_before, start: Instant::now() };
     let budget_s = options.time_budget_min.map(|m| m * 60.0);
-    let bar = progress_bar(options.progress, config.iters, trainer.step);
+    let bar = progress_bar(options.progress, config.iters, trainer.steps_done());
     let mut curve = run.open_curve()?;
     let mut recent = RecentPsnr::default();
     let mut next_eval_s = if config.eval_every_min > 0.0 { clock.seconds() + config.eval_every_min * 60.0 } else { f64::INFINITY };
     let mut val_psnr = None;
-    while trainer.step < config.iters && !budget_s.is_some_and(|b| clock.seconds() >= b) {
+    while trainer.steps_done() < config.iters && !budget_s.is_some_and(|b| clock.seconds() >= b) {
         let stats = trainer.step();
         if !stats.loss.is_finite() {
             trainer.save(&run, clock.seconds())?;
-            return Err(Error::Diverged { step: trainer.step, loss: stats.loss });
+            return Err(Error::Diverged { step: trainer.steps_done(), loss: stats.loss });
         }
         recent.push(stats.psnr);
-        bar.set_position(trainer.step as u64);
+        bar.set_position(trainer.steps_done() as u64);
         let budget = budget_s.map(|b| format!(" | {:.1}/{:.0} min", clock.seconds() / 60.0, b / 60.0)).unwrap_or_default();
         bar.set_message(format!("loss {:.4} psnr {:.2}{budget}", stats.loss, recent.mean()));
-        if trainer.step % config.checkpoint_every == 0 {
+        if trainer.steps_done() % config.checkpoint_every == 0 {
             trainer.save(&run, clock.seconds())?;
         }
         if clock.seconds() >= next_eval_s {
             if let Some(val) = &val_data {
-                val_psnr = Some(validate(&trainer, val, &bar));
+                val_psnr = Some(validate(trainer.as_ref(), val, &bar));
             }
-            curve.record(trainer.step, clock.minutes(), recent.mean(), val_psnr)?;
+            curve.record(trainer.steps_done(), clock.minutes(), recent.mean(), val_psnr)?;
             next_eval_s += config.eval_every_min * 60.0;
         }
     }
@@ -82,14 +82,14 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
     if let Some(val) = &val_data {
         val_psnr = Some(trainer.view_psnr(val, 0));
     }
-    curve.record(trainer.step, clock.minutes(), recent.mean(), val_psnr)?;
-    Ok(TrainSummary { steps: trainer.step, train_psnr: recent.mean(), val_psnr, minutes: clock.minutes() })
+    curve.record(trainer.steps_done(), clock.minutes(), recent.mean(), val_psnr)?;
+    Ok(TrainSummary { steps: trainer.steps_done(), train_psnr: recent.mean(), val_psnr, minutes: clock.minutes() })
 }
 
 /// Set up `run` (configuration, camera, data source) and a trainer on its training split,
 /// restored from the latest checkpoint if there is one; also the validation split, if any,
 /// and the minutes already trained.
-fn start_or_resume(run: &RunDir, options: &TrainOptions) -> Result<(Trainer, Option<SplitData>, f64)> {
+fn start_or_resume(run: &RunDir, options: &TrainOptions) -> Result<(Box<dyn FieldTrainer>, Option<SplitData>, f64)> {
     let checkpoint = run.latest_checkpoint()?;
     let mut config = match &checkpoint {
         // A resumed run keeps the configuration it started with.
@@ -114,20 +114,20 @@ fn start_or_resume(run: &RunDir, options: &TrainOptions) -> Result<(Trainer, Opt
             None
         }
     };
-    let mut trainer = Trainer::new(config, train_data, crate::backend::cpu_autodiff())?;
+    let mut trainer = field_trainer(config, train_data)?;
     let mut elapsed_before = 0.0;
     if let Some(c) = &checkpoint {
         elapsed_before = trainer.resume(c)?;
-        eprintln!("resuming {} at step {}", run.root().display(), trainer.step);
+        eprintln!("resuming {} at step {}", run.root().display(), trainer.steps_done());
     }
     Ok((trainer, val_data, elapsed_before))
 }
 
 /// PSNR of the first validation view, printed above the progress bar.
-fn validate(trainer: &Trainer, val: &SplitData, bar: &ProgressBar) -> f32 {
+fn validate(trainer: &dyn FieldTrainer, val: &SplitData, bar: &ProgressBar) -> f32 {
     let p = trainer.view_psnr(val, 0);
     let occupied = trainer.occupancy().map(|g| format!(", {:.1}% of the grid occupied", 100.0 * g.occupied_fraction())).unwrap_or_default();
-    bar.println(format!("step {}: val {} PSNR {p:.2} dB{occupied}", trainer.step, val.views[0].name));
+    bar.println(format!("step {}: val {} PSNR {p:.2} dB{occupied}", trainer.steps_done(), val.views[0].name));
     p
 }
 

@@ -2,7 +2,7 @@
 //! + fine networks rendered differentiably, MSE on both, one Adam update.
 
 use super::checkpoint::{Checkpoint, CheckpointState};
-use super::{TrainConfig, learning_rate};
+use super::{FieldTrainer, TrainConfig, learning_rate};
 use crate::error::Result;
 use crate::field::{NerfMlp, NerfModel};
 use crate::inference::{BurnField, encoded_tensor, vec3_tensor};
@@ -27,6 +27,8 @@ pub struct StepStats {
     pub loss: f32,
     /// PSNR of the fine (or only) output on the batch.
     pub psnr: f32,
+    /// Samples the field was evaluated on (forward and backward), all passes together.
+    pub samples: usize,
     /// Where the step's time went.
     pub timing: StepTiming,
 }
@@ -41,6 +43,9 @@ pub struct StepTiming {
     pub backward_s: f64,
     /// The Adam update.
     pub update_s: f64,
+    /// Of all three, the hash grid's share: its forward pass, the scatter of its gradient and
+    /// its sparse Adam update (0 for the NeRF MLPs).
+    pub grid_s: f64,
 }
 
 /// A model, its optimizer and the data it learns from.
@@ -94,7 +99,8 @@ impl Trainer {
     /// Save a checkpoint of the current state into `run`.
     pub fn save(&self, run: &RunDir, elapsed_s: f64) -> Result<Checkpoint> {
         let state = CheckpointState::new(self.step, self.rng.clone(), elapsed_s);
-        Checkpoint::save(run, self.model(), &self.optim, self.occupancy.as_ref(), &state)
+        let files = [("model.bpk", Checkpoint::model_bytes(self.model())?), ("optim.bpk", Checkpoint::optimizer_bytes(&self.optim)?)];
+        Checkpoint::save(run, &files, self.occupancy.as_ref(), &state)
     }
 
     /// The occupancy grid, when empty-space skipping is on.
@@ -196,7 +202,7 @@ impl Trainer {
         self.model = Some(self.optim.step(lr, model, accumulated.grads()));
         self.step += 1;
         timing.update_s = mark.elapsed().as_secs_f64();
-        StepStats { loss: loss_value, psnr: psnr_from_mse(mse_value), timing }
+        StepStats { loss: loss_value, psnr: psnr_from_mse(mse_value), samples: rays.len() * samples_per_ray, timing }
     }
 
     /// PSNR of the current model on one view, rendered deterministically.
@@ -337,4 +343,34 @@ impl ModuleMapper for FreshLeaves {
 fn run_concurrently<T: Send, R: Send>(items: Vec<T>, f: impl Fn(T) -> R + Sync + Send) -> Vec<R> {
     use rayon::prelude::*;
     items.into_par_iter().with_max_len(1).map(f).collect()
+}
+
+impl FieldTrainer for Trainer {
+    fn config(&self) -> &TrainConfig {
+        &self.config
+    }
+
+    fn steps_done(&self) -> usize {
+        self.step
+    }
+
+    fn step(&mut self) -> StepStats {
+        Trainer::step(self)
+    }
+
+    fn save(&self, run: &RunDir, elapsed_s: f64) -> Result<Checkpoint> {
+        Trainer::save(self, run, elapsed_s)
+    }
+
+    fn resume(&mut self, checkpoint: &Checkpoint) -> Result<f64> {
+        Trainer::resume(self, checkpoint)
+    }
+
+    fn view_psnr(&self, data: &SplitData, index: usize) -> f32 {
+        Trainer::view_psnr(self, data, index)
+    }
+
+    fn occupancy(&self) -> Option<&OccupancyGrid> {
+        Trainer::occupancy(self)
+    }
 }

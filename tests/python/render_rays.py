@@ -14,10 +14,12 @@ The renderer below is the whole recipe a consumer needs (scene.json says the sam
             (right-side search), merged and sorted with the coarse t, then the fine network
   pixel     rgb = Σ w·c (+ 1 - Σ w on a white background), depth = Σ w·t, acc = Σ w
 With occupancy.bin (nerf-render's default; --dense turns it off) rays are marched instead:
-  march     256 equal intervals over [near, far], a sample at each middle, only samples in
-            occupied cells evaluated (fine network), delta = interval·|d|, front to back in
-            segments of 16 per ray, a ray stops after the segment where its transmittance
-            falls below 1e-4.
+  march     march_steps (scene.json, default 256) equal intervals over [near, far], a sample at
+            each middle, only samples in occupied cells evaluated (fine network), delta =
+            interval·|d|, front to back in segments of 16 per ray, a ray stops after the segment
+            where its transmittance falls below 1e-4.
+A hash-grid bundle (scene.json "field": "ngp") has one graph, field.onnx, and is always marched:
+with --dense through one occupied cell covering the grid's cube (the field is only defined there).
 The .npy written by `nerf-render --npy` is float32 [H, W, 5]: r, g, b, depth, acc.
 """
 import argparse
@@ -82,6 +84,10 @@ def check_scene(scene, where):
     for key in ("test", "orbit"):
         if len(scene["poses"][key]) > MAX_FRAMES:
             raise BundleError(f"{where}: poses.{key}: {len(scene['poses'][key])} poses is more than the limit of {MAX_FRAMES}")
+    if not 1 <= scene.get("march_steps", 256) <= MAX_SAMPLES_PER_RAY:
+        raise BundleError(f"{where}: march_steps: {scene['march_steps']} is outside 1..{MAX_SAMPLES_PER_RAY}")
+    if scene.get("field", "mlp") == "ngp" and not scene.get("occupancy"):
+        raise BundleError(f"{where}: occupancy: a hash-grid field (field \"ngp\") is marched through its occupancy grid: the bundle needs one")
     occ = scene.get("occupancy")
     if occ and not 1 <= occ["resolution"] <= MAX_GRID_RESOLUTION:
         raise BundleError(f"{where}: occupancy.resolution: {occ['resolution']} cells per axis is outside 1..{MAX_GRID_RESOLUTION}")
@@ -128,6 +134,8 @@ class Bundle:
             grid = bundle_file(path, occ["file"], "occupancy.file")
             density, bound, threshold = read_grid(bounded_file(grid, MAX_GRAPH_BYTES))
             self.occupied, self.bound = density > threshold, F32(bound)
+        elif self.scene.get("field", "mlp") == "ngp":
+            self.occupied, self.bound = np.ones((1, 1, 1), bool), F32(occ["bound"])
 
     def is_occupied(self, points):
         """Cell (i, j, k) of point p: floor((p + b) / 2b · R) per axis; outside the cube is empty."""
@@ -183,8 +191,9 @@ def sample_pdf(bins, weights, n):
     return out
 
 
-def march(bundle, o, d, steps=256, segment=16, min_transmittance=1e-4):
+def march(bundle, o, d, segment=16, min_transmittance=1e-4):
     s = bundle.scene["sampling"]
+    steps = bundle.scene.get("march_steps", 256)
     near, far = F32(s["near"]), F32(s["far"])
     interval = (far - near) / F32(steps)
     t = near + (np.arange(steps, dtype=F32) + F32(0.5)) * interval

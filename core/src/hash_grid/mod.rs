@@ -6,6 +6,7 @@
 //! - [`grid`]: the table ([`HashGrid`]), its forward pass `[n, 3] → [n, L·F]` and its backward
 //!   pass into a sparse, reusable [`HashGridGradient`].
 //! - [`adam`]: [`SparseAdam`], tiny-cuda-nn's Adam applied to touched entries only.
+//! - [`state`]: the table and its Adam state as one checkpoint file.
 //! - [`throughput`]: samples/s of forward and backward + update, for `nerf bench`.
 //!
 //! The table is not a burn parameter: its features enter the network as a leaf tensor, and the
@@ -14,6 +15,7 @@
 pub mod adam;
 pub mod config;
 pub mod grid;
+pub mod state;
 pub mod throughput;
 
 pub use adam::{SparseAdam, SparseAdamConfig};

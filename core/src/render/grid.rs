@@ -5,16 +5,20 @@ use super::{Field, RenderOptions, Stage};
 use crate::camera::{Rays, length, point_at};
 use crate::compositing::RayOutput;
 use crate::occupancy::OccupancyGrid;
+use crate::rng::Rng;
 
 /// The samples marching takes: `steps` equal intervals over [near, far], one sample at each
 /// interval's middle, kept only where it lies in an occupied cell; δ = the interval · ‖d‖.
-pub fn occupied_samples(grid: &OccupancyGrid, rays: &Rays, near: f32, far: f32, steps: usize) -> PackedSamples {
+/// With `jitter` (training), each ray's samples move together by one uniform draw within their
+/// interval instead of sitting at the middles.
+pub fn occupied_samples(grid: &OccupancyGrid, rays: &Rays, near: f32, far: f32, steps: usize, mut jitter: Option<&mut Rng>) -> PackedSamples {
     let interval = (far - near) / steps as f32;
     let mut packed = PackedSamples { offsets: vec![0], ..PackedSamples::default() };
     for (&o, &d) in rays.origins.iter().zip(&rays.directions) {
         let delta = interval * length(d);
+        let shift = jitter.as_deref_mut().map_or(0.5, |rng| rng.uniform());
         for k in 0..steps {
-            let t = near + (k as f32 + 0.5) * interval;
+            let t = near + (k as f32 + shift) * interval;
             if grid.is_occupied(point_at(o, d, t)) {
                 packed.t.push(t);
                 packed.delta.push(delta);
@@ -33,7 +37,7 @@ pub fn occupied_samples(grid: &OccupancyGrid, rays: &Rays, near: f32, far: f32, 
 pub fn render_rays<F: Field>(field: &mut F, grid: &OccupancyGrid, rays: &Rays, options: &RenderOptions) -> Result<Vec<RayOutput>, F::Error> {
     let s = &options.sampling;
     let stage = if s.n_fine > 0 { Stage::Fine } else { Stage::Coarse };
-    let samples = occupied_samples(grid, rays, s.near, s.far, options.march_steps.max(1));
+    let samples = occupied_samples(grid, rays, s.near, s.far, options.march_steps.max(1), None);
     let min_transmittance = options.min_transmittance.unwrap_or(0.0);
     let marched = march_front_to_back(field, stage, rays, &rays.view_directions(), &samples, min_transmittance, options.white_background)?;
     Ok(marched.rays)

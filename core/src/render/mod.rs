@@ -12,6 +12,7 @@
 //! the path (a grid → marching, else dense) and walks the image a chunk of rays at a time.
 
 pub mod dense;
+pub mod gradient;
 pub mod grid;
 pub mod packed;
 

@@ -14,6 +14,10 @@ use nerf_export::write_bundle;
 use nerf_runtime::{OpenOptions, OrtNetwork, OrtScene};
 use std::path::{Path, PathBuf};
 
+/// Untimed steps before the hash-grid field's timed ones: past the occupancy grid's warm-up
+/// (64 steps) and a few updates, so the samples per ray are those of training.
+const NGP_WARMUP: usize = 150;
+
 /// `nerf bench`: everything measured in one run, printed as tables (and JSON with `json`).
 #[allow(clippy::too_many_arguments)]
 pub fn run(
@@ -26,6 +30,7 @@ pub fn run(
     sizes: &[u32],
     chunk: usize,
     (bundle, views, march_steps, skip_threshold): (&Path, usize, usize, Option<f32>),
+    (ngp_bundle, ngp_steps): (Option<PathBuf>, usize),
     pytorch: Option<PathBuf>,
     json: Option<PathBuf>,
     progress: bool,
@@ -39,13 +44,20 @@ pub fn run(
     }
     let mut report = serde_json::Map::new();
     if wanted(BenchPart::Train) {
-        let presets = if preset.is_empty() { vec![Preset::CpuFast, Preset::Paper] } else { preset };
+        let presets = if preset.is_empty() { vec![Preset::CpuFast, Preset::Paper, Preset::Ngp] } else { preset };
         let mut results = Vec::new();
-        println!("\ntraining step (1/{downscale} resolution rays, mean of {steps} after 2 warm-up)");
-        println!("{:<10} {:>6} {:>9} {:>9} {:>9} {:>9}", "preset", "rays", "step s", "forward", "backward", "update");
+        println!("\ntraining step (1/{downscale} resolution rays, mean of {steps} after 2 warm-up, ngp after {NGP_WARMUP})");
+        println!("{:<10} {:>6} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>11}", "preset", "rays", "step s", "forward", "backward", "update", "grid", "samples", "samples/s");
         for p in presets {
-            let b = nerf::bench::bench_train_step(p, data.as_deref(), downscale, 2, steps)?;
-            println!("{:<10} {:>6} {:>9.3} {:>9.3} {:>9.3} {:>9.3}", b.preset, b.batch_rays, b.step_s, b.forward_s, b.backward_s, b.update_s);
+            let warmup = if p == Preset::Ngp { NGP_WARMUP } else { 2 };
+            let b = nerf::bench::bench_train_step(p, data.as_deref(), downscale, warmup, steps)?;
+            println!(
+                "{:<10} {:>6} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>9.3} {:>9.0} {:>11.0}",
+                b.preset, b.batch_rays, b.step_s, b.forward_s, b.backward_s, b.update_s, b.grid_s, b.samples, b.samples_per_s
+            );
+            if p == Preset::Ngp {
+                report.insert("train_ngp_samples_per_s".into(), b.samples_per_s.into());
+            }
             if b.preset == Preset::Paper.name() {
                 report.insert("train_step_paper_s".into(), b.step_s.into());
             }
@@ -127,6 +139,19 @@ pub fn run(
             results.push(t);
         }
         report.insert("grid".into(), serde_json::to_value(results)?);
+    }
+    if wanted(BenchPart::NgpRender) {
+        match &data {
+            Some(d) => {
+                let b = bench_ngp_render(ngp_bundle.as_deref(), ngp_steps, d, progress)?;
+                println!("\nhash-grid field through onnxruntime: {} ({}), val {} at {}×{}", b.bundle, b.trained, b.view, b.width, b.height);
+                println!("{:>10} {:>14} {:>13} {:>12} {:>9}", "s / frame", "onnxruntime s", "points / ray", "PSNR", "bundle MB");
+                println!("{:>10.2} {:>14.2} {:>13.1} {:>9.2} dB {:>9.1}", b.seconds, b.onnxruntime_s, b.points_per_ray, b.psnr_db, b.bundle_mb);
+                report.insert("ngp_frame_s".into(), b.seconds.into());
+                report.insert("ngp".into(), serde_json::to_value(b)?);
+            }
+            None => println!("\nngp-render: needs the lego data (--data); not measured"),
+        }
     }
     if let Some(path) = json {
         let text = serde_json::to_string_pretty(&serde_json::Value::Object(report))?;
@@ -237,3 +262,72 @@ fn bench_skipping(bundle: &Path, data: &Path, downscale: u32, views: usize, samp
     Ok(SkipBench { views: val.views.len(), width: k.width, height: k.height, samples, dense_s, skip_s, dense_psnr_db, skip_psnr_db, dense_points_per_ray, skip_points_per_ray })
 }
 
+
+/// One full-resolution frame of a hash-grid bundle through onnxruntime.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct NgpRenderBench {
+    /// The bundle rendered.
+    pub bundle: String,
+    /// Where the field came from.
+    pub trained: String,
+    /// The val view rendered.
+    pub view: String,
+    /// Frame size.
+    pub width: u32,
+    /// Frame size.
+    pub height: u32,
+    /// Seconds for the frame.
+    pub seconds: f64,
+    /// Of which in onnxruntime's session runs (the rest: rays, marching through the grid,
+    /// compositing).
+    pub onnxruntime_s: f64,
+    /// Field evaluations per pixel.
+    pub points_per_ray: f64,
+    /// PSNR against the ground truth.
+    pub psnr_db: f32,
+    /// Size of the bundle directory.
+    pub bundle_mb: f64,
+}
+
+/// Render lego val view 0 at full resolution through the hash-grid bundle `bundle`, or through
+/// one trained here for `steps` steps of the ngp preset and exported (into a temporary
+/// directory).
+fn bench_ngp_render(bundle: Option<&Path>, steps: usize, data: &Path, progress: bool) -> Result<NgpRenderBench> {
+    let temporary = tempfile::tempdir()?;
+    let (bundle, trained) = match bundle {
+        Some(b) => (b.to_path_buf(), "given".to_string()),
+        None => {
+            let run = temporary.path().join("run");
+            let mut config = Preset::Ngp.config();
+            config.eval_every_min = 0.0;
+            let options = nerf::train::TrainOptions { data: data.to_path_buf(), run: run.clone(), config, downscale: 1, time_budget_min: None, iters: Some(steps), progress };
+            let summary = nerf::train::train(&options)?;
+            let out = temporary.path().join("bundle");
+            nerf::export::export_run(&run, &out, None)?;
+            (out, format!("ngp preset, {} steps here ({:.1} min)", summary.steps, summary.minutes))
+        }
+    };
+    let mut scene = OrtScene::open(&bundle, &OpenOptions::default())?;
+    if scene.description.field != nerf_core::network::FieldKind::Ngp {
+        bail!("{}: not a hash-grid bundle (scene.json field {:?})", bundle.display(), scene.description.field.name());
+    }
+    let val = load_split(data, Split::Val, 1, true)?;
+    let view = &val.views[0];
+    let k = val.intrinsics;
+    let (image, seconds) = timed_frame(progress, "ngp frame", k.num_pixels(), |p| scene.render(&k, &view.pose, p));
+    let image = image?;
+    let net = &scene.field.coarse;
+    let bundle_bytes: u64 = std::fs::read_dir(&bundle)?.filter_map(|e| e.ok()?.metadata().ok()).map(|m| m.len()).sum();
+    Ok(NgpRenderBench {
+        bundle: bundle.display().to_string(),
+        trained,
+        view: view.name.clone(),
+        width: k.width,
+        height: k.height,
+        seconds,
+        onnxruntime_s: net.seconds,
+        points_per_ray: net.evaluated as f64 / k.num_pixels() as f64,
+        psnr_db: psnr(&image.rays.rgb, view.image.as_ref().expect("loaded with images")),
+        bundle_mb: bundle_bytes as f64 / 1e6,
+    })
+}

@@ -103,9 +103,11 @@ enum Command {
         /// Bundle directory to write (replaced only once the new bundle is complete).
         #[arg(long)]
         out: PathBuf,
-        /// ONNX opset (17–23).
-        #[arg(long, default_value_t = nerf_export::DEFAULT_OPSET)]
-        opset: i64,
+        /// ONNX opset (17–23). Default: 17 for the NeRF MLPs, 18 for the hash-grid field (its
+        /// hash uses BitwiseXor; at 17 it is lowered to Div/Mod, for onnxruntime's CUDA provider,
+        /// which has no bitwise kernels).
+        #[arg(long)]
+        opset: Option<i64>,
     },
     /// Import a model trained elsewhere into a scene bundle (coarse.onnx, fine.onnx, scene.json).
     Import {
@@ -118,7 +120,7 @@ enum Command {
         /// What to measure (default: all).
         #[arg(long, value_enum)]
         only: Vec<BenchPart>,
-        /// Presets for the training step (default: cpu-fast and paper).
+        /// Presets for the training step (default: cpu-fast, paper and ngp).
         #[arg(long, value_enum)]
         preset: Vec<Preset>,
         /// Blender scene: training rays and the frame's camera (lego val r_0). Default: the lego
@@ -143,6 +145,13 @@ enum Command {
         /// Trained bundle with an occupancy grid for the skipping measurement (lego).
         #[arg(long, default_value = "models/lego")]
         bundle: PathBuf,
+        /// Hash-grid bundle for the ngp-render measurement (lego). Default: train the ngp preset
+        /// on lego for --ngp-steps steps and export it.
+        #[arg(long)]
+        ngp_bundle: Option<PathBuf>,
+        /// Training steps of the hash-grid field when no --ngp-bundle is given.
+        #[arg(long, default_value_t = 400)]
+        ngp_steps: usize,
         /// Val views for the skipping measurement.
         #[arg(long, default_value_t = 5)]
         views: usize,
@@ -206,6 +215,8 @@ enum BenchPart {
     Skip,
     /// The hash-grid encoding: forward, backward and sparse Adam update (no MLPs).
     Grid,
+    /// A full-resolution lego val view of a hash-grid bundle through onnxruntime.
+    NgpRender,
 }
 
 fn main() -> Result<()> {
@@ -277,8 +288,9 @@ fn main() -> Result<()> {
                 println!("{:>10} bytes  {}", f.bytes, f.path.display());
             }
         }
-        Command::Bench { only, preset, data, downscale, steps, points, sizes, chunk, bundle, views, march_steps, skip_threshold, pytorch, json } => {
-            bench::run(&only, preset, data, downscale, steps, points, &sizes, chunk, (&bundle, views, march_steps, skip_threshold), pytorch, json, progress)?
+        Command::Bench { only, preset, data, downscale, steps, points, sizes, chunk, bundle, ngp_bundle, ngp_steps, views, march_steps, skip_threshold, pytorch, json } => {
+            let skip = (bundle.as_path(), views, march_steps, skip_threshold);
+            bench::run(&only, preset, data, downscale, steps, points, &sizes, chunk, skip, (ngp_bundle, ngp_steps), pytorch, json, progress)?
         }
         Command::Demo { out, minutes } => demo(out, minutes, progress)?,
     }

@@ -1,0 +1,260 @@
+//! One training step of the hash-grid field (instant-ngp / nerfacc style): rays from several
+//! random training images, samples marched through the occupancy grid's occupied cells (a
+//! jittered fine step), the field on exactly those samples, compositing and its gradient in
+//! plain Rust ([`nerf_core::render::gradient`]), then burn's backward through the MLPs only, the
+//! features' gradient scattered into the table, sparse Adam on the table and Adam on the MLPs.
+
+use super::checkpoint::{Checkpoint, CheckpointState, GRID_FILE};
+use super::step::{StepStats, StepTiming};
+use super::{FieldTrainer, TrainConfig, learning_rate};
+use crate::error::{Error, Result};
+use crate::field::{NgpField, TrainedField};
+use crate::inference::tensor_vec3;
+use crate::run_dir::RunDir;
+use burn::module::Module;
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::tensor::{Device, Tensor, TensorData};
+use nerf_core::camera::point_at;
+use nerf_core::dataset::{RayBatcher, SplitData};
+use nerf_core::hash_grid::{HashGridGradient, SparseAdam, SparseAdamConfig};
+use nerf_core::metrics::psnr_from_mse;
+use nerf_core::occupancy::OccupancyGrid;
+use nerf_core::render::gradient::{composite_packed, composite_packed_backward};
+use nerf_core::render::grid::occupied_samples;
+use nerf_core::{Rays, Rng};
+use std::time::Instant;
+
+/// Fewest and most rays in one step, whatever the samples per ray.
+const MIN_RAYS: usize = 64;
+const MAX_RAYS: usize = 1 << 14;
+/// Rays drawn from one image: a step mixes `rays / RAYS_PER_IMAGE` images (at least one).
+const RAYS_PER_IMAGE: usize = 256;
+
+/// Trains a [`NgpField`].
+pub struct NgpTrainer {
+    config: TrainConfig,
+    /// `None` only inside [`FieldTrainer::step`].
+    field: Option<NgpField>,
+    optim: ModuleOptimizer,
+    table_adam: SparseAdam,
+    grad: HashGridGradient,
+    rng: Rng,
+    step: usize,
+    device: Device,
+    batcher: RayBatcher,
+    occupancy: OccupancyGrid,
+    /// Samples per ray in the last step (sets the next step's ray count).
+    samples_per_ray: f32,
+}
+
+impl NgpTrainer {
+    /// A fresh trainer on `train` data (the table from `config.seed`, the MLPs from the device's
+    /// seed).
+    pub fn new(config: TrainConfig, train: SplitData, device: Device) -> Result<Self> {
+        config.validate()?;
+        device.seed(config.seed);
+        let field = NgpField::new(config.ngp, config.seed, &device).map_err(Error::Config)?;
+        let optim = AdamConfig::new().with_beta_1(config.adam_beta1).with_beta_2(config.adam_beta2).with_epsilon(config.adam_epsilon).init();
+        let table_adam = SparseAdam::new(table_adam_config(&config), &field.grid);
+        let grad = HashGridGradient::new(&field.grid);
+        let samples_per_ray = (config.target_samples as f32 / config.batch_rays.max(1) as f32).max(1.0);
+        Ok(NgpTrainer {
+            rng: Rng::new(config.seed),
+            occupancy: OccupancyGrid::from_config(&config.occupancy),
+            batcher: RayBatcher::new(train)?,
+            field: Some(field),
+            optim,
+            table_adam,
+            grad,
+            step: 0,
+            device,
+            config,
+            samples_per_ray,
+        })
+    }
+
+    fn field(&self) -> &NgpField {
+        self.field.as_ref().expect("field present outside a step")
+    }
+
+    /// The field without autodiff (a copy of the table; for renders and export).
+    pub fn snapshot(&self) -> NgpField {
+        let f = self.field();
+        NgpField { spec: f.spec, grid: f.grid.clone(), mlps: f.mlps.valid() }
+    }
+
+    /// Re-measure the density at one random point per grid cell; with
+    /// `threshold_at_most_mean`, lower the threshold to the mean density.
+    fn update_occupancy(&mut self) {
+        let points = self.occupancy.random_cell_points(&mut self.rng);
+        let snapshot = self.snapshot();
+        let device = snapshot.mlps.devices().into_iter().next().unwrap_or_else(crate::backend::cpu);
+        let mut sigma = Vec::with_capacity(points.len());
+        for chunk in points.chunks(1 << 16) {
+            sigma.extend(snapshot.density(chunk, &device));
+        }
+        let o = &self.config.occupancy;
+        self.occupancy.update(&sigma, o.decay);
+        if o.threshold_at_most_mean {
+            let grid = std::mem::replace(&mut self.occupancy, OccupancyGrid::new(1, 1.0, 0.0));
+            let threshold = o.threshold.min(grid.mean_density());
+            self.occupancy = grid.with_threshold(threshold);
+        }
+    }
+
+    /// This step's rays and their target colours: about `target_samples / samples_per_ray`
+    /// rays, [`RAYS_PER_IMAGE`] from each of several random images.
+    fn draw_rays(&mut self) -> (Rays, Vec<[f32; 3]>) {
+        let n_rays = ((self.config.target_samples as f32 / self.samples_per_ray.max(1.0)) as usize).clamp(MIN_RAYS, MAX_RAYS);
+        let images = n_rays.div_ceil(RAYS_PER_IMAGE);
+        let mut rays = Rays::with_capacity(n_rays);
+        let mut targets = Vec::with_capacity(n_rays);
+        for k in 0..images {
+            let part = n_rays * (k + 1) / images - n_rays * k / images;
+            let (index, pixels, target) = self.batcher.next_batch(&mut self.rng, part, None);
+            let data = self.batcher.data();
+            let r = Rays::for_pixels(&data.intrinsics, &data.views[index].pose, &pixels);
+            rays.origins.extend(r.origins);
+            rays.directions.extend(r.directions);
+            targets.extend(target);
+        }
+        (rays, targets)
+    }
+}
+
+fn table_adam_config(config: &TrainConfig) -> SparseAdamConfig {
+    SparseAdamConfig { learning_rate: config.lr as f32, beta1: config.adam_beta1, beta2: config.adam_beta2, epsilon: config.adam_epsilon }
+}
+
+impl FieldTrainer for NgpTrainer {
+    fn config(&self) -> &TrainConfig {
+        &self.config
+    }
+
+    fn steps_done(&self) -> usize {
+        self.step
+    }
+
+    fn step(&mut self) -> StepStats {
+        let start = Instant::now();
+        let o = &self.config.occupancy;
+        if self.step >= o.warmup_steps && (self.step - o.warmup_steps) % o.update_every == 0 {
+            self.update_occupancy();
+        }
+        let (rays, targets) = self.draw_rays();
+        let s = &self.config.sampling;
+        let samples = occupied_samples(&self.occupancy, &rays, s.near, s.far, self.config.march_steps, Some(&mut self.rng));
+        let n = samples.t.len();
+        self.samples_per_ray = n.max(1) as f32 / rays.len() as f32;
+        let background = if self.config.white_background { [1.0; 3] } else { [0.0; 3] };
+        let lr = learning_rate(self.config.lr, self.config.lr_decay_ksteps, self.step);
+        self.step += 1;
+        if n == 0 {
+            // Nothing occupied along these rays: they render the background, nothing to learn.
+            let mse = mean_squared_error(&vec![background; targets.len()], &targets).0;
+            return StepStats { loss: mse, psnr: psnr_from_mse(mse), samples: 0, timing: StepTiming { forward_s: start.elapsed().as_secs_f64(), ..StepTiming::default() } };
+        }
+        let viewdirs = rays.view_directions();
+        let mut points = Vec::with_capacity(n);
+        let mut dirs = Vec::with_capacity(n);
+        for r in 0..rays.len() {
+            for i in samples.ray(r) {
+                points.push(point_at(rays.origins[r], rays.directions[r], samples.t[i]));
+                dirs.push(viewdirs[r]);
+            }
+        }
+        let mut field = self.field.take().expect("field present");
+        let (rgb_t, sigma_t, inputs) = field.forward_train(&points, &dirs, &self.device);
+        let rgb = tensor_vec3(rgb_t.clone());
+        let sigma = sigma_t.clone().into_data().try_to_vec::<f32>().expect("f32 densities");
+        let (colors, _) = composite_packed(&samples, &sigma, &rgb, background);
+        let (mse, grad_color) = mean_squared_error(&colors, &targets);
+        let (grad_sigma, grad_rgb) = composite_packed_backward(&samples, &sigma, &rgb, background, &grad_color);
+        let forward_done = Instant::now();
+        // Σ rgb·∂L/∂rgb + Σ σ·∂L/∂σ with the factors constant: its gradient is the loss's.
+        let grad_rgb = Tensor::<2>::from_data(TensorData::new(grad_rgb.as_flattened().to_vec(), [n, 3]), &self.device);
+        let grad_sigma = Tensor::<1>::from_data(TensorData::new(grad_sigma, [n]), &self.device);
+        let surrogate = (rgb_t * grad_rgb).sum() + (sigma_t * grad_sigma).sum();
+        let mut grads = surrogate.backward();
+        let scatter = Instant::now();
+        field.accumulate_grid_gradient(&inputs, &mut grads, &mut self.grad).expect("the features are in the graph");
+        let mut grid_s = inputs.encode_s + scatter.elapsed().as_secs_f64();
+        let params = GradientsParams::from_grads(grads, &field.mlps);
+        let backward_done = Instant::now();
+        self.table_adam.config.learning_rate = lr as f32;
+        self.table_adam.step(&mut field.grid, &mut self.grad);
+        grid_s += backward_done.elapsed().as_secs_f64();
+        field.mlps = self.optim.step(lr, field.mlps, params);
+        self.field = Some(field);
+        let timing = StepTiming {
+            forward_s: (forward_done - start).as_secs_f64(),
+            backward_s: (backward_done - forward_done).as_secs_f64(),
+            update_s: backward_done.elapsed().as_secs_f64(),
+            grid_s,
+        };
+        StepStats { loss: mse, psnr: psnr_from_mse(mse), samples: n, timing }
+    }
+
+    fn save(&self, run: &RunDir, elapsed_s: f64) -> Result<Checkpoint> {
+        let state = CheckpointState { samples_per_ray: Some(self.samples_per_ray), ..CheckpointState::new(self.step, self.rng.clone(), elapsed_s) };
+        let field = self.field();
+        let files = [
+            ("model.bpk", Checkpoint::model_bytes(&field.mlps)?),
+            ("optim.bpk", Checkpoint::optimizer_bytes(&self.optim)?),
+            (GRID_FILE, nerf_core::hash_grid::state::state_to_bytes(&field.grid, &self.table_adam)),
+        ];
+        Checkpoint::save(run, &files, Some(&self.occupancy), &state)
+    }
+
+    fn resume(&mut self, checkpoint: &Checkpoint) -> Result<f64> {
+        let state = checkpoint.state()?;
+        let mut field = self.field.take().expect("field present");
+        let loaded = checkpoint.load_model(&mut field.mlps);
+        let grid = checkpoint.load_grid(&self.config.ngp.grid, table_adam_config(&self.config));
+        self.field = Some(field);
+        loaded?;
+        let (grid, adam) = grid?;
+        self.field.as_mut().expect("field present").grid = grid;
+        self.table_adam = adam;
+        self.optim = checkpoint.load_optimizer(self.optim.clone())?;
+        if let Some(o) = checkpoint.load_occupancy()? {
+            self.occupancy = o;
+        }
+        self.step = state.step;
+        self.rng = state.rng;
+        if let Some(s) = state.samples_per_ray.filter(|s| s.is_finite() && *s > 0.0) {
+            self.samples_per_ray = s;
+        }
+        Ok(state.elapsed_s)
+    }
+
+    fn view_psnr(&self, data: &SplitData, index: usize) -> f32 {
+        let view = &data.views[index];
+        let Some(target) = &view.image else { return f32::NAN };
+        let field = TrainedField::Ngp(self.snapshot());
+        let image = field.render(&crate::backend::cpu(), Some(&self.occupancy), &data.intrinsics, &view.pose, &self.config.render_options(), &mut |_, _| {});
+        nerf_core::metrics::psnr(&image.rays.rgb, target)
+    }
+
+    fn occupancy(&self) -> Option<&OccupancyGrid> {
+        Some(&self.occupancy)
+    }
+}
+
+/// MSE over rays and channels, and its gradient with respect to each ray's colour.
+fn mean_squared_error(colors: &[[f32; 3]], targets: &[[f32; 3]]) -> (f32, Vec<[f32; 3]>) {
+    let count = (3 * colors.len()).max(1) as f32;
+    let mut sum = 0.0f64;
+    let grad = colors
+        .iter()
+        .zip(targets)
+        .map(|(c, t)| {
+            [0, 1, 2].map(|k| {
+                let d = c[k] - t[k];
+                sum += (d * d) as f64;
+                2.0 * d / count
+            })
+        })
+        .collect();
+    ((sum / count as f64) as f32, grad)
+}

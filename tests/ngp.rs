@@ -1,0 +1,151 @@
+//! The hash-grid field end to end on a generated scene: training (the loss falls, a resumed run
+//! equals an uninterrupted one), export (the graph holds exactly the trained field), rendering
+//! (`nerf render` vs `nerf-render` ≥ 60 dB, the numpy consumer ≤ 1e-4, marched through the grid
+//! and, with `--dense`, through the whole box),
+//! and bad input (a truncated table, impossible grid configs) refused with clear errors.
+
+mod common;
+
+use common::{nerf, nerf_render, s, small_scene};
+use nerf::run_dir::RunDir;
+use nerf::train::{Preset, TrainConfig, TrainOptions, train};
+use nerf_core::frames::load_npy;
+use nerf_core::hash_grid::HashGridConfig;
+use nerf_core::metrics::psnr;
+use nerf_export::proto::ModelProto;
+use prost::Message;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// The `ngp` preset shrunk so that a test trains in seconds.
+fn tiny_ngp() -> TrainConfig {
+    let mut c = Preset::Ngp.config();
+    c.ngp.grid = HashGridConfig { levels: 8, features_per_level: 2, log2_table_size: 14, base_resolution: 8, max_resolution: 128 };
+    c.ngp.density_hidden = 32;
+    c.ngp.color_hidden = 32;
+    c.target_samples = 1 << 13;
+    c.march_steps = 256;
+    c.occupancy.resolution = 32;
+    c.occupancy.warmup_steps = 16;
+    c.occupancy.update_every = 8;
+    c.checkpoint_every = 10_000;
+    c.eval_every_min = 0.0;
+    c.iters = 80;
+    c
+}
+
+fn train_tiny(scene: &Path, run: &Path, iters: usize) -> nerf::train::TrainSummary {
+    let options = TrainOptions { data: scene.to_path_buf(), run: run.to_path_buf(), config: tiny_ngp(), downscale: 1, time_budget_min: None, iters: Some(iters), progress: false };
+    train(&options).unwrap()
+}
+
+fn python() -> String {
+    std::env::var("NERF_PYTHON").unwrap_or_else(|_| "python3".into())
+}
+
+/// `nerf render --npy` of test view 0 (burn) vs `nerf-render --npy` of the bundle
+/// (onnxruntime): (PSNR, largest deviation from white, the onnxruntime frame's path).
+fn render_both(run: &Path, scene: &Path, bundle: &Path, dir: &Path) -> (f32, f32, PathBuf) {
+    let burn_out = dir.join("burn");
+    let (ok, text) = nerf(&["render", "--run", s(run), "--split", "test", "--data", s(scene), "--out", s(&burn_out), "--npy"]);
+    assert!(ok, "{text}");
+    let ort_out = dir.join("ort");
+    let (ok, text) = nerf_render(&["--bundle", s(bundle), "--split", "test", "--data", s(scene), "--limit", "1", "--out", s(&ort_out), "--npy"]);
+    assert!(ok, "{text}");
+    let (_, _, a) = load_npy(&burn_out.join("r_0.npy")).unwrap();
+    let (_, _, b) = load_npy(&ort_out.join("r_0.npy")).unwrap();
+    let rgb = |v: &[f32]| v.chunks_exact(5).map(|p| [p[0], p[1], p[2]]).collect::<Vec<_>>();
+    let (a_rgb, b_rgb) = (rgb(&a), rgb(&b));
+    let off_white = a_rgb.iter().flatten().map(|v| (1.0 - v).abs()).fold(0.0, f32::max);
+    (psnr(&a_rgb, &b_rgb), off_white, ort_out.join("r_0.npy"))
+}
+
+#[test]
+fn ngp_trains_exports_and_renders_the_same_everywhere() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = small_scene(dir.path());
+    let run = dir.path().join("run");
+    let summary = train_tiny(&scene, &run, 80);
+    println!("tiny ngp: {} steps, train PSNR {:.2} dB", summary.steps, summary.train_psnr);
+    assert!(summary.train_psnr > 14.0, "the field did not learn: {:.2} dB", summary.train_psnr);
+
+    let bundle = dir.path().join("bundle");
+    let (ok, text) = nerf(&["export", "--run", s(&run), "--out", s(&bundle)]);
+    assert!(ok, "{text}");
+    let scene_json: serde_json::Value = serde_json::from_slice(&std::fs::read(bundle.join("scene.json")).unwrap()).unwrap();
+    assert_eq!(scene_json["field"], "ngp");
+    assert_eq!(scene_json["networks"]["coarse"], "field.onnx");
+    assert!(scene_json["networks"]["fine"].is_null() && scene_json["occupancy"]["file"] == "occupancy.bin");
+    assert_eq!(scene_json["march_steps"], 256);
+    // The graph holds exactly the trained field (opset 18, bitwise hash by default).
+    let model = ModelProto::decode(std::fs::read(bundle.join("field.onnx")).unwrap().as_slice()).unwrap();
+    assert_eq!(model.opset_import[0].version, 18);
+    let trained = RunDir::open(&run).unwrap().load_latest(&nerf::backend::cpu()).unwrap().model;
+    let nerf::field::TrainedField::Ngp(field) = trained else { panic!("an ngp run loads as an ngp field") };
+    assert_eq!(nerf_export::ngp::read_ngp(&model).unwrap(), field.to_plain());
+
+    // burn vs onnxruntime through the grid; the numpy consumer vs onnxruntime through the grid
+    // and, with --dense, through the whole box.
+    let (db, off_white, npy) = render_both(&run, &scene, &bundle, dir.path());
+    println!("nerf render vs nerf-render: {db:.1} dB");
+    assert!(off_white > 0.05, "the image is blank: parity would mean nothing");
+    assert!(db >= 60.0, "burn vs onnxruntime: {db:.1} dB");
+    let dense_out = dir.path().join("dense");
+    let (ok, text) = nerf_render(&["--bundle", s(&bundle), "--split", "test", "--data", s(&scene), "--limit", "1", "--out", s(&dense_out), "--npy", "--dense"]);
+    assert!(ok, "{text}");
+    // Marching the whole box sums ~10× more samples per ray, and float32 rounding with them.
+    for (npy, extra, tolerance) in [(npy, &[][..], "1e-4"), (dense_out.join("r_0.npy"), &["--dense"][..], "5e-4")] {
+        let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python/render_rays.py");
+        let mut cmd = Command::new(python());
+        cmd.args([s(&script), s(&bundle), "--npy", s(&npy), "--test-pose", "0", "--tolerance", tolerance]).args(extra);
+        let out = cmd.output().unwrap_or_else(|e| panic!("cannot run {} ({e}): run scripts/setup.sh and source scripts/env.sh", python()));
+        let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+        println!("python {extra:?}: {text}");
+        assert!(out.status.success(), "{text}");
+    }
+
+    // A table cut short is refused before onnxruntime indexes into it.
+    let mut bad = model.clone();
+    let table = bad.graph.as_mut().unwrap().initializer.iter_mut().find(|t| t.name == "grid.table").unwrap();
+    table.raw_data.truncate(table.raw_data.len() - 64);
+    std::fs::write(bundle.join("field.onnx"), bad.encode_to_vec()).unwrap();
+    let (ok, text) = nerf_render(&["--bundle", s(&bundle), "--orbit", "--frames", "1", "--out", s(&dir.path().join("bad"))]);
+    assert!(!ok && text.contains("field.onnx") && text.contains("grid.table") && text.contains("truncated"), "{text}");
+}
+
+#[test]
+fn a_resumed_ngp_run_equals_an_uninterrupted_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = small_scene(dir.path());
+    let straight = dir.path().join("straight");
+    let resumed = dir.path().join("resumed");
+    train_tiny(&scene, &straight, 40);
+    train_tiny(&scene, &resumed, 20);
+    train_tiny(&scene, &resumed, 40);
+    let grid = |run: &Path| {
+        let latest = std::fs::read_to_string(run.join("checkpoints/latest")).unwrap();
+        std::fs::read(run.join("checkpoints").join(latest.trim()).join(nerf::train::GRID_FILE)).unwrap()
+    };
+    assert!(grid(&straight) == grid(&resumed), "table or its Adam state differ after resuming");
+    let load = |run: &Path| match RunDir::open(run).unwrap().load_latest(&nerf::backend::cpu()).unwrap().model {
+        nerf::field::TrainedField::Ngp(f) => f.to_plain(),
+        _ => panic!("an ngp run"),
+    };
+    assert_eq!(load(&straight), load(&resumed));
+}
+
+#[test]
+fn impossible_grid_configs_are_refused_by_name() {
+    for (toml, needle) in [
+        ("[ngp.grid]\nlevels = 0", "levels"),
+        ("[ngp.grid]\nmax_resolution = 8", "max_resolution"),
+        ("[ngp.grid]\nlog2_table_size = 40", "log2_table_size"),
+        ("[ngp.grid]\nfeatures_per_level = 3", "features_per_level"),
+        ("[ngp.grid]\ntable_size = 1000", "table_size"),
+        ("[sampling]\nn_fine = 64", "n_fine"),
+        ("[occupancy]\nbound = 2.0", "bound"),
+    ] {
+        let err = TrainConfig::from_toml_str(&format!("preset = 'ngp'\n{toml}\n"), None).unwrap_err().to_string();
+        assert!(err.contains(needle), "{toml:?}: {err}");
+    }
+}
