@@ -5,11 +5,12 @@
 //! [`nerf_core::hash_grid::SparseAdam`]. Only the two small MLPs are burn parameters.
 
 use burn::module::{Module, Param};
-use burn::nn::{Linear, LinearConfig};
+use burn::nn::Linear;
 use burn::tensor::activation::{relu, sigmoid};
 use burn::tensor::{Device, Gradients, Tensor, TensorData};
 use nerf_core::hash_grid::{HashGrid, HashGridGradient};
 use nerf_core::network::DenseLayer;
+use nerf_core::Rng;
 use nerf_core::ngp::{NgpSpec, PlainNgp};
 use nerf_core::spherical_harmonics::{SH4_DIM, sh4_all};
 
@@ -22,10 +23,19 @@ pub struct NgpMlps {
 }
 
 impl NgpMlps {
-    /// Fresh layers (burn's default initialisation, from the device's seed).
-    pub fn new(spec: &NgpSpec, device: &Device) -> Self {
-        let mut layers: Vec<Linear> =
-            spec.layer_shapes().into_iter().map(|(_, i, o)| LinearConfig::new(i, o).with_bias(false).init(device)).collect();
+    /// Fresh layers, weights U(±1/√fan_in) (burn's default for `Linear`) drawn from `rng`, so
+    /// that a field's start depends on its seed alone (not on the device's shared generator,
+    /// which concurrent users would interleave).
+    pub fn new(spec: &NgpSpec, rng: &mut Rng, device: &Device) -> Self {
+        let mut layers: Vec<Linear> = spec
+            .layer_shapes()
+            .into_iter()
+            .map(|(_, i, o)| {
+                let bound = 1.0 / (i as f32).sqrt();
+                let weight: Vec<f32> = (0..i * o).map(|_| (rng.uniform() * 2.0 - 1.0) * bound).collect();
+                Linear { weight: Param::from_tensor(Tensor::from_data(TensorData::new(weight, [i, o]), device)), bias: None }
+            })
+            .collect();
         let color = layers.split_off(2);
         NgpMlps { density: layers, color }
     }
@@ -89,11 +99,11 @@ pub struct GridInputs {
 }
 
 impl NgpField {
-    /// A fresh field: table U(±1e-4) from `seed`, MLPs from the device's seed.
+    /// A fresh field: table U(±1e-4) from `seed`, MLPs from a generator forked from it.
     pub fn new(spec: NgpSpec, seed: u64, device: &Device) -> Result<Self, String> {
         spec.validate().map_err(|e| e.to_string())?;
         let grid = HashGrid::new(spec.grid, seed).map_err(|e| e.to_string())?;
-        Ok(NgpField { spec, grid, mlps: NgpMlps::new(&spec, device) })
+        Ok(NgpField { spec, grid, mlps: NgpMlps::new(&spec, &mut Rng::new(seed).fork(), device) })
     }
 
     fn encode(&self, points: &[[f32; 3]], viewdirs: &[[f32; 3]], device: &Device) -> (Vec<[f32; 3]>, Tensor<2>, Tensor<2>) {

@@ -28,7 +28,7 @@ enum Command {
         /// TOML file overriding the preset's settings (any subset of the keys of config.toml).
         #[arg(long)]
         config: Option<PathBuf>,
-        /// Starting configuration (default: cpu-fast).
+        /// Starting configuration (default: ngp, the hash-grid field).
         #[arg(long, value_enum)]
         preset: Option<Preset>,
         /// Shrink images by this integer factor (area averaging); focal scales to match.
@@ -227,7 +227,7 @@ fn main() -> Result<()> {
         Command::Train { data, config, preset, downscale, iters, time_budget_min, seed, out } => {
             let mut cfg = match &config {
                 Some(path) => TrainConfig::from_toml_file(path, preset)?,
-                None => preset.unwrap_or(Preset::CpuFast).config(),
+                None => preset.unwrap_or(Preset::DEFAULT).config(),
             };
             if let Some(seed) = seed {
                 cfg.seed = seed;
