@@ -5,7 +5,8 @@ use crate::error::{Error, Result};
 use crate::field::TrainedField;
 use crate::run_dir::RunDir;
 use crate::train::TrainConfig;
-use nerf_core::camera::{Intrinsics, Pose};
+use nerf_core::PinholeCamera;
+use nerf_core::camera::Pose;
 use nerf_core::dataset::{Split, load_split};
 use nerf_core::frames::{FrameOutput, FrameSpec, FramesReport, render_frames};
 use nerf_core::metrics::EvalReport;
@@ -20,7 +21,7 @@ pub struct LoadedRun {
     /// Its networks (no autodiff).
     pub model: TrainedField,
     /// The training camera.
-    pub camera: Intrinsics,
+    pub camera: PinholeCamera,
     /// Steps it was trained for.
     pub step: usize,
     /// Where the scene is, for runs trained with empty-space skipping.
@@ -38,8 +39,8 @@ impl LoadedRun {
 
     /// Render one view deterministically (test-time sampling, skipping empty space when the
     /// run has a grid), reporting `progress(done, total)` pixels.
-    pub fn render(&self, intrinsics: &Intrinsics, pose: &Pose, progress: &mut dyn FnMut(usize, usize)) -> RenderedImage {
-        self.model.render(&crate::backend::cpu(), self.occupancy.as_ref(), intrinsics, pose, &self.config.render_options(), progress)
+    pub fn render(&self, camera: &PinholeCamera, pose: &Pose, progress: &mut dyn FnMut(usize, usize)) -> RenderedImage {
+        self.model.render(&crate::backend::cpu(), self.occupancy.as_ref(), camera, pose, &self.config.render_options(), progress)
     }
 
     /// Render `frames` into `out` (PNG + depth map each, `.npy` with `raw`; metrics when they
@@ -47,7 +48,7 @@ impl LoadedRun {
     pub fn render_frames(&self, frames: Vec<FrameSpec>, out: &Path, gif: bool, raw: bool, progress: bool) -> Result<FramesReport> {
         let s = &self.config.sampling;
         let output = FrameOutput { dir: out.to_path_buf(), depth_range: (s.near, s.far), gif, raw, progress };
-        render_frames(frames, &output, |f, p| Ok::<_, Error>(self.render(&f.intrinsics, &f.pose, p)))
+        render_frames(frames, &output, |f, p| Ok::<_, Error>(self.render(&f.camera, &f.pose, p)))
     }
 }
 

@@ -6,7 +6,8 @@ use crate::evaluate::LoadedRun;
 use crate::field::{NerfModel, NgpField, TrainedField};
 use crate::run_dir::RunDir;
 use crate::train::TrainConfig;
-use nerf_core::camera::{Intrinsics, Pose};
+use nerf_core::PinholeCamera;
+use nerf_core::camera::Pose;
 use nerf_core::dataset::{Split, load_split};
 use nerf_core::occupancy::OccupancyGrid;
 use nerf_export::bundle::{NamedPose, WrittenFile, pose_matrix};
@@ -28,7 +29,7 @@ fn test_poses(run: &RunDir) -> Vec<NamedPose> {
 
 /// The bundle of `model` trained with `config` on images from `camera` (orbit poses included,
 /// no test poses).
-pub fn model_bundle(model: &NerfModel, config: &TrainConfig, camera: &Intrinsics, occupancy: Option<OccupancyGrid>) -> Bundle {
+pub fn model_bundle(model: &NerfModel, config: &TrainConfig, camera: &PinholeCamera, occupancy: Option<OccupancyGrid>) -> Bundle {
     let coarse = model.coarse.to_plain();
     let fine = model.fine.as_ref().map(|f| f.to_plain());
     let mut scene = SceneDescription::new(camera, &config.sampling, config.white_background, &coarse, fine.is_some());
@@ -38,7 +39,7 @@ pub fn model_bundle(model: &NerfModel, config: &TrainConfig, camera: &Intrinsics
 
 /// The bundle of a hash-grid `field` trained with `config` (orbit poses included, no test
 /// poses), marched through `occupancy`.
-pub fn ngp_bundle(field: &NgpField, config: &TrainConfig, camera: &Intrinsics, occupancy: OccupancyGrid) -> NgpBundle {
+pub fn ngp_bundle(field: &NgpField, config: &TrainConfig, camera: &PinholeCamera, occupancy: OccupancyGrid) -> NgpBundle {
     let mut scene = SceneDescription::ngp(camera, &config.sampling, config.white_background, config.march_steps);
     scene.poses.orbit = Pose::orbit(ORBIT_FRAMES).iter().map(pose_matrix).collect();
     NgpBundle { field: field.to_plain(), scene, occupancy }

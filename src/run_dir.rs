@@ -4,7 +4,7 @@
 //! | path | written | content |
 //! |---|---|---|
 //! | `config.toml` | at the start | the resolved [`TrainConfig`] (a resumed run keeps it) |
-//! | `camera.json` | at the start | the training camera ([`Intrinsics`]) |
+//! | `camera.json` | at the start | the training camera ([`PinholeCamera`]; older runs: `focal` only) |
 //! | `source.json` | at the start | the dataset and downscale ([`RunSource`]) |
 //! | `curve.csv` | while training | step, minutes, train PSNR, val PSNR ([`Curve`]) |
 //! | `checkpoints/step-NNNNNNN/` | every `checkpoint_every` steps | weights, optimizer, state, grid ([`Checkpoint`]) |
@@ -15,7 +15,7 @@ use crate::field::{NerfModel, NgpField, TrainedField};
 use crate::train::{Checkpoint, CheckpointState, TrainConfig};
 use burn::tensor::Device;
 use nerf_core::atomic::write_atomic;
-use nerf_core::camera::Intrinsics;
+use nerf_core::PinholeCamera;
 use nerf_core::limits;
 use nerf_core::network::FieldKind;
 use nerf_core::occupancy::OccupancyGrid;
@@ -113,17 +113,17 @@ impl RunDir {
     }
 
     /// The training camera.
-    pub fn read_camera(&self) -> Result<Intrinsics> {
+    pub fn read_camera(&self) -> Result<PinholeCamera> {
         let path = self.camera_path();
         let text = limits::read_json_text(&path)?;
         let camera = serde_json::from_str(&text).map_err(|e| nerf_core::Error::Json { path: path.clone(), source: e })?;
-        limits::check_intrinsics(&camera, limits::Origin::Field(&path, "camera"))?;
+        limits::check_camera(&camera, limits::Origin::Field(&path, "camera"))?;
         Ok(camera)
     }
 
     /// Record the training camera (orbits render at its resolution).
-    pub fn write_camera(&self, camera: &Intrinsics) -> Result<()> {
-        Ok(write_atomic(&self.camera_path(), serde_json::to_string_pretty(camera).expect("intrinsics serialise").as_bytes())?)
+    pub fn write_camera(&self, camera: &PinholeCamera) -> Result<()> {
+        Ok(write_atomic(&self.camera_path(), serde_json::to_string_pretty(camera).expect("a camera serialises").as_bytes())?)
     }
 
     /// Where the run's data came from, if recorded and readable (it is informational: export

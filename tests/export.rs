@@ -37,7 +37,7 @@ fn export_writes_a_bundle_that_onnx_and_onnxruntime_accept() {
         assert!(bundle.join(file).is_file(), "{file} missing:\n{text}");
     }
     let scene = nerf_export::read_scene(&bundle).unwrap();
-    assert_eq!((scene.camera.width, scene.camera.height), (32, 32));
+    assert_eq!((scene.camera.camera.width, scene.camera.camera.height), (32, 32));
     assert_eq!((scene.sampling.near, scene.sampling.far), (2.0, 6.0));
     assert_eq!(scene.poses.test.len(), 2, "the generated scene's test poses");
     assert_eq!(scene.poses.orbit.len(), nerf::export::ORBIT_FRAMES);

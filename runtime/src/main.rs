@@ -2,7 +2,8 @@
 
 use anyhow::{Result, anyhow, bail};
 use clap::Parser;
-use nerf_core::camera::{Intrinsics, Pose};
+use nerf_core::PinholeCamera;
+use nerf_core::camera::Pose;
 use nerf_core::dataset::{Split, load_split};
 use nerf_core::frames::{FrameOutput, FrameSpec, render_frames};
 use nerf_core::limits::{self, Origin};
@@ -75,7 +76,7 @@ fn main() {
     }
 }
 
-fn resize(k: Intrinsics, width: Option<u32>, height: Option<u32>) -> Result<Intrinsics> {
+fn resize(k: PinholeCamera, width: Option<u32>, height: Option<u32>) -> Result<PinholeCamera> {
     let Some(w) = width else { return Ok(k) };
     let h = height.map_or((w as u64 * k.height as u64 + k.width as u64 / 2) / k.width as u64, u64::from);
     limits::check_image_size(w as u64, h, Origin::Option("--width/--height"))?;
@@ -101,7 +102,7 @@ fn run(cli: Cli) -> Result<()> {
             if poses.is_empty() {
                 bail!("the orbit has no frames");
             }
-            FrameSpec::orbit(&resize(scene.intrinsics(None), cli.width, cli.height)?, &poses)
+            FrameSpec::orbit(&resize(scene.camera(None), cli.width, cli.height)?, &poses)
         }
         (false, Some(split), Some(data)) => {
             let loaded = match load_split(data, split, cli.downscale, true) {
@@ -115,20 +116,20 @@ fn run(cli: Cli) -> Result<()> {
             let mut specs = FrameSpec::from_split(loaded);
             if cli.width.is_some() {
                 for f in &mut specs {
-                    f.intrinsics = resize(f.intrinsics, cli.width, cli.height)?;
+                    f.camera = resize(f.camera, cli.width, cli.height)?;
                     f.target = None; // ground truth is at the dataset's resolution
                 }
             }
             specs
         }
         (false, Some(Split::Test), None) => {
-            let k = resize(scene.intrinsics(None), cli.width, cli.height)?;
+            let k = resize(scene.camera(None), cli.width, cli.height)?;
             scene
                 .description
                 .poses
                 .test
                 .iter()
-                .map(|p| FrameSpec { name: p.name.clone(), intrinsics: k, pose: Pose::from_rows(p.transform_matrix), target: None })
+                .map(|p| FrameSpec { name: p.name.clone(), camera: k, pose: Pose::from_rows(p.transform_matrix), target: None })
                 .collect()
         }
         (false, Some(_), None) => bail!("--split val/train needs --data <scene dir> (the bundle only stores test poses)"),
@@ -140,9 +141,9 @@ fn run(cli: Cli) -> Result<()> {
     }
     let s = &scene.options.sampling;
     let output = FrameOutput { dir: cli.out.clone(), depth_range: (s.near, s.far), gif: cli.orbit, raw: cli.npy, progress: std::io::stderr().is_terminal() };
-    let (first, n) = (frames[0].intrinsics, frames.len());
+    let (first, n) = (frames[0].camera, frames.len());
     let start = Instant::now();
-    let report = render_frames(frames, &output, |f, progress| scene.render(&f.intrinsics, &f.pose, progress))?;
+    let report = render_frames(frames, &output, |f, progress| scene.render(&f.camera, &f.pose, progress))?;
     let seconds = start.elapsed().as_secs_f64();
     println!(
         "{n} frames at {}×{} in {seconds:.1} s ({:.2} s per frame, {}) into {}",

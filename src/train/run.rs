@@ -101,7 +101,8 @@ fn start_or_resume(run: &RunDir, options: &TrainOptions) -> Result<(Box<dyn Fiel
     }
     run.write_config(&config)?;
     let train_data = load_split(&options.data, Split::Train, options.downscale, true)?;
-    run.write_camera(&train_data.intrinsics)?;
+    let camera = train_data.camera().ok_or_else(|| Error::invalid(&options.data, "the train split has no views"))?;
+    run.write_camera(&camera)?;
     // Where the data came from, so `nerf export` can include the test poses.
     let data = std::path::absolute(&options.data).unwrap_or(options.data.clone());
     run.write_source(&RunSource { data, downscale: options.downscale })?;

@@ -8,6 +8,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{Split, SplitData, View};
 use crate::camera::{Intrinsics, Pose};
+use crate::camera_model::PinholeCamera;
 use crate::error::{Error, Result};
 use crate::imageio::load_rgba;
 
@@ -138,11 +139,11 @@ pub fn load_split(dir: &Path, split: Split, downscale: u32, images: bool) -> Res
     };
 
     let full = Intrinsics::from_camera_angle_x(width, height, angle);
-    let intrinsics = Intrinsics {
+    let camera = PinholeCamera::from(Intrinsics {
         width: width / downscale,
         height: height / downscale,
         focal: full.focal / downscale as f32,
-    };
+    });
     let views = transforms
         .frames
         .into_iter()
@@ -152,16 +153,13 @@ pub fn load_split(dir: &Path, split: Split, downscale: u32, images: bool) -> Res
                 .file_stem()
                 .map(|s| s.to_string_lossy().into_owned())
                 .unwrap_or_default(),
+            camera,
             pose: Pose::from_rows(frame.transform_matrix),
             file_path: frame.file_path,
             image,
         })
         .collect();
-    Ok(SplitData {
-        split,
-        intrinsics,
-        views,
-    })
+    Ok(SplitData { split, views })
 }
 
 /// The full-resolution size from the first existing image of `split`, else of the train split.
@@ -338,12 +336,12 @@ mod tests {
         });
         write_json(dir.path(), Split::Train, &frames_json(&["./train/r_0"]));
         let full = load_split(dir.path(), Split::Train, 1, true).unwrap();
-        assert_eq!((full.intrinsics.width, full.intrinsics.height), (4, 2));
+        assert_eq!((full.camera().unwrap().width, full.camera().unwrap().height), (4, 2));
         let img = full.views[0].image.as_ref().unwrap();
         assert_eq!(img[0], [1.0, 0.0, 0.0]);
         assert_eq!(img[1], [1.0, 1.0, 1.0]); // transparent → exactly white
         let half = load_split(dir.path(), Split::Train, 2, true).unwrap();
-        assert_eq!((half.intrinsics.width, half.intrinsics.height), (2, 1));
+        assert_eq!((half.camera().unwrap().width, half.camera().unwrap().height), (2, 1));
         let img = half.views[0].image.as_ref().unwrap();
         assert_eq!(img.len(), 2);
         let close = |a: [f32; 3], b: [f32; 3]| a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-6);
@@ -351,11 +349,11 @@ mod tests {
         assert!(close(img[1], [0.2, 0.4, 0.8]), "{:?}", img[1]);
         // focal: 0.5·4 / tan(0.3455556) = 2 / 0.36000002 = 5.5555552, halved.
         assert!(
-            (full.intrinsics.focal - 5.555_555).abs() < 1e-4,
+            (full.camera().unwrap().fx - 5.555_555).abs() < 1e-4,
             "{}",
-            full.intrinsics.focal
+            full.camera().unwrap().fx
         );
-        assert!((half.intrinsics.focal - full.intrinsics.focal / 2.0).abs() < 1e-6);
+        assert!((half.camera().unwrap().fx - full.camera().unwrap().fx / 2.0).abs() < 1e-6);
         assert_eq!(half.views[0].name, "r_0");
         assert_eq!(half.views[0].file_path, "./train/r_0");
         assert_eq!(half.views[0].pose, Pose::from_rows(identity_rows(0.0)));
@@ -409,7 +407,7 @@ mod tests {
             &frames_json(&["./test/r_0", "./test/r_1"]),
         );
         let test = load_split(dir.path(), Split::Test, 2, false).unwrap();
-        assert_eq!((test.intrinsics.width, test.intrinsics.height), (4, 3));
+        assert_eq!((test.camera().unwrap().width, test.camera().unwrap().height), (4, 3));
         assert_eq!(test.views.len(), 2);
         assert!(test.views.iter().all(|v| v.image.is_none()));
         assert_eq!(test.views[1].name, "r_1");
@@ -418,7 +416,7 @@ mod tests {
             [0, 0, 0, 255]
         });
         let test = load_split(dir.path(), Split::Test, 1, false).unwrap();
-        assert_eq!((test.intrinsics.width, test.intrinsics.height), (10, 4));
+        assert_eq!((test.camera().unwrap().width, test.camera().unwrap().height), (10, 4));
         // Loading test pixels needs all of them.
         let err = load_split(dir.path(), Split::Test, 1, true)
             .unwrap_err()
@@ -517,7 +515,8 @@ mod tests {
         assert_eq!(
             load_split(d, Split::Train, 4, true)
                 .unwrap()
-                .intrinsics
+                .camera()
+                .unwrap()
                 .width,
             1
         );

@@ -35,7 +35,8 @@ use std::str::FromStr;
 
 use serde::{Deserialize, Serialize};
 
-use crate::camera::{Intrinsics, Pose};
+use crate::camera::Pose;
+use crate::camera_model::PinholeCamera;
 use crate::error::{Error, Result};
 use crate::rng::Rng;
 
@@ -92,6 +93,9 @@ pub struct View {
     pub name: String,
     /// The frame's `file_path` as written in the JSON.
     pub file_path: String,
+    /// Its camera at the loaded resolution (shared by all views unless the format has
+    /// per-frame intrinsics).
+    pub camera: PinholeCamera,
     /// Camera-to-world pose.
     pub pose: Pose,
     /// The image (row-major RGB in `[0, 1]`, composited on white, at the loaded resolution),
@@ -99,13 +103,11 @@ pub struct View {
     pub image: Option<Vec<[f32; 3]>>,
 }
 
-/// A loaded split: intrinsics shared by all its views (at the loaded resolution) and the views.
+/// A loaded split: its views, each with its camera.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SplitData {
     /// Which split.
     pub split: Split,
-    /// Image size and focal length after downscaling.
-    pub intrinsics: Intrinsics,
     /// The views in file order.
     pub views: Vec<View>,
 }
@@ -114,6 +116,12 @@ impl SplitData {
     /// The poses of all views, in order.
     pub fn poses(&self) -> Vec<Pose> {
         self.views.iter().map(|v| v.pose).collect()
+    }
+
+    /// The split's camera (its first view's): the run's camera for orbits; `None` when the
+    /// split has no views.
+    pub fn camera(&self) -> Option<PinholeCamera> {
+        self.views.first().map(|v| v.camera)
     }
 }
 
@@ -129,14 +137,14 @@ impl RayBatcher {
     /// A batcher over `data` (normally the train split), which must have at least one view and
     /// an image of `width·height` pixels for every view.
     pub fn new(data: SplitData) -> Result<Self> {
-        let n_pixels = data.intrinsics.num_pixels();
-        if data.views.is_empty() || n_pixels == 0 {
+        if data.views.is_empty() || data.views.iter().any(|v| v.camera.num_pixels() == 0) {
             return Err(Error::Argument(format!(
                 "the {} split has no views or empty images to train on",
                 data.split
             )));
         }
         for view in &data.views {
+            let n_pixels = view.camera.num_pixels();
             match &view.image {
                 None => {
                     return Err(Error::Argument(format!(
@@ -149,8 +157,8 @@ impl RayBatcher {
                         "view {} has {} pixels, expected {}×{}",
                         view.file_path,
                         img.len(),
-                        data.intrinsics.width,
-                        data.intrinsics.height
+                        view.camera.width,
+                        view.camera.height
                     )));
                 }
                 Some(_) => {}
@@ -199,7 +207,7 @@ impl RayBatcher {
         precrop_fraction: Option<f32>,
     ) -> (usize, Vec<(u32, u32)>, Vec<[f32; 3]>) {
         let index = rng.below(self.data.views.len());
-        let Intrinsics { width, height, .. } = self.data.intrinsics;
+        let PinholeCamera { width, height, .. } = self.data.views[index].camera;
         let (cols, rows) = Self::sample_region(width, height, precrop_fraction);
         let region_w = (cols.end - cols.start) as usize;
         let region = region_w * (rows.end - rows.start) as usize;
@@ -250,6 +258,7 @@ mod tests {
             .map(|k| View {
                 name: format!("r_{k}"),
                 file_path: format!("./train/r_{k}"),
+                camera: crate::camera::Intrinsics { width, height, focal: 50.0 }.into(),
                 pose: Pose::spherical(0.0, -30.0, 4.0),
                 image: Some(
                     (0..height)
@@ -260,11 +269,6 @@ mod tests {
             .collect();
         SplitData {
             split: Split::Train,
-            intrinsics: Intrinsics {
-                width,
-                height,
-                focal: 50.0,
-            },
             views,
         }
     }

@@ -270,7 +270,7 @@ fn main() -> Result<()> {
             let imported = nerf_export::import::import_nerf_pytorch(&opts)?;
             let b = &imported.bundle;
             let shape = |n: &nerf_core::network::PlainNetwork| format!("{}×{}", n.spec.depth, n.spec.width);
-            let (s, k) = (&b.scene.sampling, &b.scene.camera);
+            let (s, k) = (&b.scene.sampling, &b.scene.camera.camera);
             println!(
                 "nerf-pytorch run ({}): coarse {}, fine {}, {} + {} samples; camera {}×{}, focal {:.2}, {} test poses from {}",
                 imported.args_file.display(),
@@ -280,7 +280,7 @@ fn main() -> Result<()> {
                 s.n_fine,
                 k.width,
                 k.height,
-                k.focal,
+                k.fx,
                 b.scene.poses.test.len(),
                 imported.data.display()
             );
