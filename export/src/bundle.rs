@@ -7,6 +7,7 @@ use crate::ExportError;
 use crate::graph::{compile, read_network};
 use crate::proto::ModelProto;
 use nerf_core::PinholeCamera;
+use nerf_core::dataset::ScenePlacement;
 use nerf_core::camera::Pose;
 use nerf_core::limits::{self, MAX_FRAMES, Origin};
 use crate::hash_grid::HashOps;
@@ -68,6 +69,12 @@ pub struct SceneDescription {
     /// renderers without it sample densely.
     #[serde(default)]
     pub occupancy: Option<OccupancyDescription>,
+    /// For a captured scene: its format, the transform from the capture's world into the
+    /// field's frame that every pose here already went through (apply it to poses of the
+    /// capture's own files: `x' = scale · (rotation · x + translation)`), near/far and the
+    /// orbit path. Absent for Blender scenes, which are used as they are.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub placement: Option<ScenePlacement>,
 }
 
 fn default_march_steps() -> usize {
@@ -174,6 +181,7 @@ impl SceneDescription {
             networks: NetworkFiles { coarse: "coarse.onnx".into(), fine: has_fine.then(|| "fine.onnx".into()) },
             poses: ScenePoses::default(),
             occupancy: None,
+            placement: None,
         }
     }
 
@@ -192,6 +200,7 @@ impl SceneDescription {
             networks: NetworkFiles { coarse: NGP_FILE.into(), fine: None },
             poses: ScenePoses::default(),
             occupancy: None,
+            placement: None,
         }
     }
 }

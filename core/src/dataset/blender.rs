@@ -10,7 +10,7 @@ use super::{Split, SplitData, View};
 use crate::camera::{Intrinsics, Pose};
 use crate::camera_model::PinholeCamera;
 use crate::error::{Error, Result};
-use crate::imageio::load_rgba;
+use super::images::{Background, Decoded, check_divisible, load_image};
 
 /// The contents of a `transforms_{split}.json` (other fields are ignored when reading).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -68,6 +68,17 @@ fn read_transforms(path: &Path) -> Result<Transforms> {
 /// `transform_matrix`, a missing or undecodable image, images of different sizes, a size not
 /// divisible by `downscale`, or `downscale == 0`.
 pub fn load_split(dir: &Path, split: Split, downscale: u32, images: bool) -> Result<SplitData> {
+    load_blender(dir, split, downscale, images, Background::White)
+}
+
+/// [`load_split`] composited on `background` (the reference code's white, or black).
+pub fn load_blender(
+    dir: &Path,
+    split: Split,
+    downscale: u32,
+    images: bool,
+    background: Background,
+) -> Result<SplitData> {
     let json_path = transforms_path(dir, split);
     if downscale == 0 {
         return Err(Error::Argument(format!(
@@ -107,7 +118,7 @@ pub fn load_split(dir: &Path, split: Split, downscale: u32, images: bool) -> Res
         let decoded: Vec<Result<Decoded>> = transforms
             .frames
             .par_iter()
-            .map(|frame| load_image(&image_path(dir, &frame.file_path), downscale))
+            .map(|frame| load_image(&image_path(dir, &frame.file_path), downscale, background))
             .collect();
         let mut size = None;
         let mut pixels = Vec::with_capacity(decoded.len());
@@ -159,7 +170,7 @@ pub fn load_split(dir: &Path, split: Split, downscale: u32, images: bool) -> Res
             image,
         })
         .collect();
-    Ok(SplitData { split, views })
+    Ok(SplitData { split: split.into(), views })
 }
 
 /// The full-resolution size from the first existing image of `split`, else of the train split.
@@ -200,59 +211,6 @@ fn probe_size(
             image_path(dir, &transforms.frames[0].file_path).display()
         ),
     ))
-}
-
-fn check_divisible(path: &Path, width: u32, height: u32, downscale: u32) -> Result<()> {
-    if !width.is_multiple_of(downscale) || !height.is_multiple_of(downscale) {
-        return Err(Error::invalid(
-            path,
-            format!("image is {width}×{height}, not divisible by the downscale factor {downscale}"),
-        ));
-    }
-    Ok(())
-}
-
-/// A decoded image: full-resolution width and height, downscaled composited pixels.
-type Decoded = (u32, u32, Vec<[f32; 3]>);
-
-/// Decodes one image and returns its full-resolution size with the downscaled, white-composited
-/// RGB pixels.
-fn load_image(path: &Path, downscale: u32) -> Result<Decoded> {
-    let (w, h, rgba) = load_rgba(path)?;
-    check_divisible(path, w, h, downscale)?;
-    let small = downscale_area(&rgba, w as usize, h as usize, downscale as usize);
-    let rgb = small
-        .iter()
-        .map(|p| [0, 1, 2].map(|c| p[c] * p[3] + (1.0 - p[3])))
-        .collect();
-    Ok((w, h, rgb))
-}
-
-/// Box-filter reduction by an integer `factor` (sides divisible by it): each output pixel is
-/// the mean of its `factor × factor` block of RGBA values.
-fn downscale_area(rgba: &[[f32; 4]], width: usize, height: usize, factor: usize) -> Vec<[f32; 4]> {
-    if factor == 1 {
-        return rgba.to_vec();
-    }
-    let (ow, oh) = (width / factor, height / factor);
-    let scale = 1.0 / (factor * factor) as f32;
-    let mut out = vec![[0.0f32; 4]; ow * oh];
-    for j in 0..height {
-        let orow = (j / factor) * ow;
-        for i in 0..width {
-            let o = &mut out[orow + i / factor];
-            let p = rgba[j * width + i];
-            for c in 0..4 {
-                o[c] += p[c];
-            }
-        }
-    }
-    for o in &mut out {
-        for v in o.iter_mut() {
-            *v *= scale;
-        }
-    }
-    out
 }
 
 #[cfg(test)]

@@ -2,16 +2,23 @@
 //! nerfstudio `transforms.json`, LLFF `poses_bounds.npy`) parsed into a format-free
 //! [`Capture`], a generated test scene, and the random pixel batcher used in training.
 //!
+//! [`load_dataset`] is the entry point every command uses; each format is a parser behind it.
 //! Images are row-major RGB (pixel (column `i`, row `j`) at index `j·W + i`), in `[0, 1]`,
-//! already composited on a white background.
+//! already composited on the configured background (white unless told otherwise).
 
 mod blender;
 mod capture;
+mod images;
 mod instant_ngp;
 mod llff;
+mod scene_fit;
+mod source;
 mod synthetic;
 
-pub use blender::{Frame, Transforms, image_path, load_split, transforms_path};
+pub use blender::{Frame, Transforms, image_path, load_blender, load_split, transforms_path};
+pub use images::{Background, check_divisible, load_image};
+pub use scene_fit::{OrbitPath, field_near_far, fit_to_field};
+pub use source::{Dataset, LoadOptions, SceneFrame, ScenePlacement, load_dataset};
 pub use capture::{
     Capture, CaptureFormat, CaptureSplit, CaptureView, ExplicitSplits, FORWARD_FACING_MAX_DEG,
     HOLDOUT_EVERY, centroid, detect_format, focus_point, holdout_split, is_forward_facing,
@@ -107,7 +114,7 @@ pub struct View {
 #[derive(Debug, Clone, PartialEq)]
 pub struct SplitData {
     /// Which split.
-    pub split: Split,
+    pub split: CaptureSplit,
     /// The views in file order.
     pub views: Vec<View>,
 }
@@ -268,7 +275,7 @@ mod tests {
             })
             .collect();
         SplitData {
-            split: Split::Train,
+            split: CaptureSplit::Train,
             views,
         }
     }
