@@ -244,12 +244,16 @@ impl Capture {
     /// when the axes are parallel) and scales so that the farthest is `radius` away, through
     /// [`Capture::renormalise`]. An error when no camera is away from that centre.
     pub fn fit_cameras(&mut self, radius: f32) -> Result<()> {
-        let poses = self.poses();
-        let centre = focus_point(&poses).unwrap_or_else(|| centroid(&poses));
-        let fit = SceneTransform::fit_cameras(&poses, centre, radius)
-            .map_err(|e| Error::invalid(&self.source, e.to_string()))?;
+        let fit = self.camera_fit(radius)?;
         self.renormalise(&fit);
         Ok(())
+    }
+
+    /// The transform [`Capture::fit_cameras`] applies.
+    pub fn camera_fit(&self, radius: f32) -> Result<SceneTransform> {
+        let poses = self.poses();
+        let centre = focus_point(&poses).unwrap_or_else(|| centroid(&poses));
+        SceneTransform::fit_cameras(&poses, centre, radius).map_err(|e| Error::invalid(&self.source, e.to_string()))
     }
 
     /// Maps every pose and bound through `next` as well, and records it in `transform`.

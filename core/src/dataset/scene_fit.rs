@@ -39,8 +39,7 @@ pub fn fit_to_field(capture: &Capture, bound: f32) -> Result<SceneTransform> {
         }
         return Ok(SceneTransform { scale: bound / half, translation: (-centre).to_array(), ..SceneTransform::identity() });
     }
-    let centre = focus_point(&poses).unwrap_or_else(|| centroid(&poses));
-    SceneTransform::fit_cameras(&poses, centre, bound).map_err(|e| Error::invalid(&capture.source, e.to_string()))
+    capture.camera_fit(bound)
 }
 
 /// Near and far for rays of a fitted capture (poses in the field's frame): the file's depth
