@@ -128,9 +128,12 @@ fn load_as_commands_do(dir: &Path) -> Result<(), String> {
     all.and(load_dataset(dir, CaptureSplit::Test, &options(false, 2)).map(drop).map_err(|e| e.to_string()))
 }
 
+/// A camera-to-world matrix, 4 rows of 4.
+type Matrix = [[f32; 4]; 4];
+
 /// The small scene's train views (8×8) copied to `work/<name>/images/<k>.png`, with their
 /// OpenGL camera-to-world rows.
-fn capture_images(work: &Path, name: &str) -> Result<(PathBuf, Vec<[[f32; 4]; 4]>), String> {
+fn capture_images(work: &Path, name: &str) -> Result<(PathBuf, Vec<Matrix>), String> {
     let scene = small_scene(work)?;
     let dir = work.join(name);
     std::fs::create_dir_all(dir.join("images")).map_err(|e| e.to_string())?;
