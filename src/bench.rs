@@ -9,6 +9,7 @@ use crate::inference::{BurnField, vec3_tensor};
 use crate::train::{Preset, StepTiming, TrainConfig, field_trainer};
 use nerf_core::Rng;
 use nerf_core::camera::{Intrinsics, Pose, length};
+use nerf_core::PinholeCamera;
 use nerf_core::dataset::{Split, SyntheticSceneConfig, generate_scene, load_split};
 use nerf_core::network::{NetworkSpec, PlainNetwork};
 use nerf_core::render::{RenderedImage, render_image};
@@ -214,13 +215,13 @@ pub struct FrameBench {
 
 /// The lego validation pose r_0 and camera from `data` (or, without data, the reference orbit's
 /// first pose and lego's field of view): frame times are the same for any pose on the dense path.
-pub fn bench_view(data: Option<&Path>) -> Result<(Intrinsics, Pose)> {
+pub fn bench_view(data: Option<&Path>) -> Result<(PinholeCamera, Pose)> {
     match data {
         Some(dir) => {
             let val = load_split(dir, Split::Val, 1, false)?;
-            Ok((val.intrinsics, val.views[0].pose))
+            Ok((val.views[0].camera, val.views[0].pose))
         }
-        None => Ok((Intrinsics::from_camera_angle_x(800, 800, nerf_core::dataset::CAMERA_ANGLE_X), Pose::orbit(1)[0])),
+        None => Ok((Intrinsics::from_camera_angle_x(800, 800, nerf_core::dataset::CAMERA_ANGLE_X).into(), Pose::orbit(1)[0])),
     }
 }
 
@@ -237,7 +238,7 @@ pub fn paper_model(chunk: usize) -> Result<(TrainConfig, PlainNetwork, PlainNetw
 }
 
 /// One frame of `model` rendered by burn (dense: no grid), timed under a progress bar.
-pub fn burn_frame(model: &NerfModel, config: &TrainConfig, camera: &Intrinsics, pose: &Pose, progress: bool) -> (RenderedImage, f64) {
+pub fn burn_frame(model: &NerfModel, config: &TrainConfig, camera: &PinholeCamera, pose: &Pose, progress: bool) -> (RenderedImage, f64) {
     let mut field = BurnField { model, device: crate::backend::cpu() };
     let label = format!("burn {}×{}", camera.width, camera.height);
     let options = config.render_options();

@@ -5,8 +5,9 @@ use crate::error::{Error, Result};
 use crate::field::TrainedField;
 use crate::run_dir::RunDir;
 use crate::train::TrainConfig;
-use nerf_core::camera::{Intrinsics, Pose};
-use nerf_core::dataset::{Split, load_split};
+use nerf_core::PinholeCamera;
+use nerf_core::camera::Pose;
+use nerf_core::dataset::{Background, CaptureFormat, CaptureSplit, LoadOptions, SceneFrame, ScenePlacement, SplitData, load_dataset};
 use nerf_core::frames::{FrameOutput, FrameSpec, FramesReport, render_frames};
 use nerf_core::metrics::EvalReport;
 use nerf_core::occupancy::OccupancyGrid;
@@ -20,11 +21,13 @@ pub struct LoadedRun {
     /// Its networks (no autodiff).
     pub model: TrainedField,
     /// The training camera.
-    pub camera: Intrinsics,
+    pub camera: PinholeCamera,
     /// Steps it was trained for.
     pub step: usize,
     /// Where the scene is, for runs trained with empty-space skipping.
     pub occupancy: Option<OccupancyGrid>,
+    /// Where the run placed its scene in the field (`None` for older runs: Blender as it is).
+    pub placement: Option<ScenePlacement>,
 }
 
 impl LoadedRun {
@@ -33,13 +36,35 @@ impl LoadedRun {
         let run = RunDir::open(run)?;
         let latest = run.load_latest(&crate::backend::cpu())?;
         let camera = run.read_camera()?;
-        Ok(LoadedRun { config: latest.config, model: latest.model, camera, step: latest.state.step, occupancy: latest.occupancy })
+        let placement = run.read_source()?.and_then(|s| s.placement);
+        Ok(LoadedRun { config: latest.config, model: latest.model, camera, step: latest.state.step, occupancy: latest.occupancy, placement })
+    }
+
+    /// `split` of the dataset in `data`, its poses mapped into the field by the run's recorded
+    /// transform (never refitted to this data).
+    pub fn load_split(&self, data: &Path, format: Option<CaptureFormat>, split: CaptureSplit, downscale: u32, images: bool) -> Result<SplitData> {
+        let transform = self.placement.as_ref().map_or_else(nerf_core::SceneTransform::identity, |p| p.transform);
+        let background = Background::from_white(self.config.white_background);
+        let options = LoadOptions { format, downscale, images, background, frame: SceneFrame::Recorded(transform) };
+        let dataset = load_dataset(data, split, &options)?;
+        for w in &dataset.warnings {
+            eprintln!("warning: {w}");
+        }
+        Ok(dataset.data)
+    }
+
+    /// The run's orbit: around a capture's cameras, else the reference orbit.
+    pub fn orbit(&self, frames: usize) -> Vec<Pose> {
+        match self.placement.as_ref().and_then(|p| p.orbit) {
+            Some(orbit) => orbit.poses(frames),
+            None => Pose::orbit(frames),
+        }
     }
 
     /// Render one view deterministically (test-time sampling, skipping empty space when the
     /// run has a grid), reporting `progress(done, total)` pixels.
-    pub fn render(&self, intrinsics: &Intrinsics, pose: &Pose, progress: &mut dyn FnMut(usize, usize)) -> RenderedImage {
-        self.model.render(&crate::backend::cpu(), self.occupancy.as_ref(), intrinsics, pose, &self.config.render_options(), progress)
+    pub fn render(&self, camera: &PinholeCamera, pose: &Pose, progress: &mut dyn FnMut(usize, usize)) -> RenderedImage {
+        self.model.render(&crate::backend::cpu(), self.occupancy.as_ref(), camera, pose, &self.config.render_options(), progress)
     }
 
     /// Render `frames` into `out` (PNG + depth map each, `.npy` with `raw`; metrics when they
@@ -47,31 +72,46 @@ impl LoadedRun {
     pub fn render_frames(&self, frames: Vec<FrameSpec>, out: &Path, gif: bool, raw: bool, progress: bool) -> Result<FramesReport> {
         let s = &self.config.sampling;
         let output = FrameOutput { dir: out.to_path_buf(), depth_range: (s.near, s.far), gif, raw, progress };
-        render_frames(frames, &output, |f, p| Ok::<_, Error>(self.render(&f.intrinsics, &f.pose, p)))
+        render_frames(frames, &output, |f, p| Ok::<_, Error>(self.render(&f.camera, &f.pose, p)))
     }
 }
 
+/// Which data `nerf eval`/`nerf render --split` read: directory, format (`None`: detected),
+/// split and downscale factor.
+#[derive(Debug, Clone)]
+pub struct DataChoice {
+    /// Dataset directory.
+    pub dir: PathBuf,
+    /// Its format, `None` to detect it.
+    pub format: Option<CaptureFormat>,
+    /// train, val, test or all.
+    pub split: CaptureSplit,
+    /// Image downscale factor.
+    pub downscale: u32,
+}
+
 /// Render a split's views, compare with its images, write PNGs and `<out>/metrics.json`.
-pub fn eval(run: &Path, data: &Path, split: Split, downscale: u32, limit: Option<usize>, out: &Path, progress: bool) -> Result<EvalReport> {
+pub fn eval(run: &Path, data: &DataChoice, limit: Option<usize>, out: &Path, progress: bool) -> Result<EvalReport> {
     let loaded = LoadedRun::open(run)?;
-    let mut scene = load_split(data, split, downscale, true)?;
+    let mut scene = loaded.load_split(&data.dir, data.format, data.split, data.downscale, true)?;
     scene.views.truncate(limit.unwrap_or(usize::MAX));
     let report = loaded.render_frames(FrameSpec::from_split(scene), out, false, false, progress)?;
-    report.metrics.ok_or_else(|| Error::invalid(data, format!("the {} split has no views", split.name())))
+    report.metrics.ok_or_else(|| Error::invalid(&data.dir, format!("the {} split has no views", data.split)))
 }
 
 /// Render a split's poses (no ground truth needed) to PNGs and depth maps (and `.npy` with `raw`).
-pub fn render_split(run: &Path, data: &Path, split: Split, downscale: u32, out: &Path, raw: bool, progress: bool) -> Result<usize> {
+pub fn render_split(run: &Path, data: &DataChoice, out: &Path, raw: bool, progress: bool) -> Result<usize> {
     let loaded = LoadedRun::open(run)?;
-    let scene = load_split(data, split, downscale, false)?;
+    let scene = loaded.load_split(&data.dir, data.format, data.split, data.downscale, false)?;
     Ok(loaded.render_frames(FrameSpec::from_split(scene), out, false, raw, progress)?.frames)
 }
 
-/// Render the reference 360° orbit: `frame_NNN.png`, depth maps (`.npy` with `raw`) and `orbit.gif`.
+/// Render the run's 360° orbit (around a capture's cameras, else the reference orbit):
+/// `frame_NNN.png`, depth maps (`.npy` with `raw`) and `orbit.gif`.
 pub fn render_orbit(run: &Path, frames: usize, out: &Path, raw: bool, progress: bool) -> Result<PathBuf> {
     nerf_core::limits::check_count(frames, nerf_core::limits::MAX_FRAMES, "frames", nerf_core::limits::Origin::Option("--frames"))?;
     let loaded = LoadedRun::open(run)?;
-    let specs = FrameSpec::orbit(&loaded.camera, &Pose::orbit(frames));
+    let specs = FrameSpec::orbit(&loaded.camera, &loaded.orbit(frames));
     let report = loaded.render_frames(specs, out, true, raw, progress)?;
     report.gif.ok_or_else(|| Error::Config("an orbit needs at least one frame".into()))
 }

@@ -4,8 +4,8 @@
 //! | path | written | content |
 //! |---|---|---|
 //! | `config.toml` | at the start | the resolved [`TrainConfig`] (a resumed run keeps it) |
-//! | `camera.json` | at the start | the training camera ([`Intrinsics`]) |
-//! | `source.json` | at the start | the dataset and downscale ([`RunSource`]) |
+//! | `camera.json` | at the start | the training camera ([`PinholeCamera`]; older runs: `focal` only) |
+//! | `source.json` | at the start | the dataset, downscale and the scene's placement in the field ([`RunSource`]) |
 //! | `curve.csv` | while training | step, minutes, train PSNR, val PSNR ([`Curve`]) |
 //! | `checkpoints/step-NNNNNNN/` | every `checkpoint_every` steps | weights, optimizer, state, grid ([`Checkpoint`]) |
 //! | `checkpoints/latest` | after each checkpoint | the name of the newest complete checkpoint |
@@ -15,7 +15,9 @@ use crate::field::{NerfModel, NgpField, TrainedField};
 use crate::train::{Checkpoint, CheckpointState, TrainConfig};
 use burn::tensor::Device;
 use nerf_core::atomic::write_atomic;
-use nerf_core::camera::Intrinsics;
+use nerf_core::PinholeCamera;
+use nerf_core::SceneTransform;
+use nerf_core::dataset::ScenePlacement;
 use nerf_core::limits;
 use nerf_core::network::FieldKind;
 use nerf_core::occupancy::OccupancyGrid;
@@ -23,13 +25,25 @@ use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-/// `source.json`: the dataset a run was trained on.
+/// `source.json`: the dataset a run was trained on and where its scene sits in the field.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct RunSource {
     /// Scene directory (absolute when it could be made so).
     pub data: PathBuf,
     /// Downscale factor used.
     pub downscale: u32,
+    /// The format, the transform from the data's world into the field (decided when the run
+    /// started; every later `--data` goes through it), near/far and orbit of a capture.
+    /// Absent in runs written before: the Blender format as it is.
+    #[serde(default)]
+    pub placement: Option<ScenePlacement>,
+}
+
+impl RunSource {
+    /// The transform from the data's world into the field (identity for older runs).
+    pub fn transform(&self) -> SceneTransform {
+        self.placement.as_ref().map_or_else(SceneTransform::identity, |p| p.transform)
+    }
 }
 
 /// A run directory.
@@ -113,24 +127,41 @@ impl RunDir {
     }
 
     /// The training camera.
-    pub fn read_camera(&self) -> Result<Intrinsics> {
+    pub fn read_camera(&self) -> Result<PinholeCamera> {
         let path = self.camera_path();
         let text = limits::read_json_text(&path)?;
         let camera = serde_json::from_str(&text).map_err(|e| nerf_core::Error::Json { path: path.clone(), source: e })?;
-        limits::check_intrinsics(&camera, limits::Origin::Field(&path, "camera"))?;
+        limits::check_camera(&camera, limits::Origin::Field(&path, "camera"))?;
         Ok(camera)
     }
 
     /// Record the training camera (orbits render at its resolution).
-    pub fn write_camera(&self, camera: &Intrinsics) -> Result<()> {
-        Ok(write_atomic(&self.camera_path(), serde_json::to_string_pretty(camera).expect("intrinsics serialise").as_bytes())?)
+    pub fn write_camera(&self, camera: &PinholeCamera) -> Result<()> {
+        Ok(write_atomic(&self.camera_path(), serde_json::to_string_pretty(camera).expect("a camera serialises").as_bytes())?)
     }
 
-    /// Where the run's data came from, if recorded and readable (it is informational: export
-    /// uses it for the test poses when the data is still there).
-    pub fn read_source(&self) -> Option<RunSource> {
-        let text = std::fs::read_to_string(self.source_path()).ok()?;
-        serde_json::from_str(&text).ok()
+    /// Where the run's data came from and how its scene is placed; `None` when the run has no
+    /// `source.json`. A malformed file, or a transform that is not a finite similarity with a
+    /// positive scale, is an error naming the file.
+    pub fn read_source(&self) -> Result<Option<RunSource>> {
+        let path = self.source_path();
+        if !path.is_file() {
+            return Ok(None);
+        }
+        let text = limits::read_json_text(&path)?;
+        let source: RunSource = serde_json::from_str(&text).map_err(|e| nerf_core::Error::Json { path: path.clone(), source: e })?;
+        let t = source.transform();
+        let finite = t.rotation.iter().flatten().chain(&t.translation).all(|v| v.is_finite());
+        if !(t.scale.is_finite() && t.scale > 0.0 && finite) {
+            return Err(Error::invalid(&path, format!("placement.transform {t:?}: needs a positive finite scale and finite entries")));
+        }
+        Ok(Some(source))
+    }
+
+    /// The transform from the data's world into the run's field (identity for a run without
+    /// a recorded placement).
+    pub fn scene_transform(&self) -> Result<SceneTransform> {
+        Ok(self.read_source()?.map_or_else(SceneTransform::identity, |s| s.transform()))
     }
 
     /// Record where the data came from.

@@ -131,7 +131,14 @@ fn untrusted_run_directories_are_refused() {
     let huge = variant("huge-camera", &|r| std::fs::write(r.join("camera.json"), r#"{"width": 100000000, "height": 100000000, "focal": 50.0}"#).unwrap());
     check(&orbit(&huge), &["camera.json: camera: 100000000×100000000 pixels", "16384"]);
     let focal = variant("bad-focal", &|r| std::fs::write(r.join("camera.json"), r#"{"width": 32, "height": 32, "focal": -1.0}"#).unwrap());
-    check(&orbit(&focal), &["camera.json: camera.focal: -1"]);
+    check(&orbit(&focal), &["camera.json: camera.fx: -1"]);
+    // The placement every --data goes through: a zero scale would collapse the scene.
+    let placement = variant("bad-placement", &|r| {
+        let mut source: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(r.join("source.json")).unwrap()).unwrap();
+        source["placement"]["transform"]["scale"] = serde_json::json!(0.0);
+        std::fs::write(r.join("source.json"), source.to_string()).unwrap();
+    });
+    check(&eval(&placement), &["source.json: placement.transform", "positive finite scale"]);
 
     let config = |name: &str, section: &str, key: &str, value: &str| {
         variant(name, &|r| {

@@ -37,7 +37,7 @@ fn export_writes_a_bundle_that_onnx_and_onnxruntime_accept() {
         assert!(bundle.join(file).is_file(), "{file} missing:\n{text}");
     }
     let scene = nerf_export::read_scene(&bundle).unwrap();
-    assert_eq!((scene.camera.width, scene.camera.height), (32, 32));
+    assert_eq!((scene.camera.camera.width, scene.camera.camera.height), (32, 32));
     assert_eq!((scene.sampling.near, scene.sampling.far), (2.0, 6.0));
     assert_eq!(scene.poses.test.len(), 2, "the generated scene's test poses");
     assert_eq!(scene.poses.orbit.len(), nerf::export::ORBIT_FRAMES);
@@ -89,7 +89,7 @@ fn export_failures_leave_no_bundle() {
     config.network.width = 32;
     config.iters = 1;
     let scene = small_scene(&dir.path().join("s2"));
-    train(&TrainOptions { data: scene, run: other.clone(), config, downscale: 1, time_budget_min: None, iters: None, progress: false }).unwrap();
+    train(&TrainOptions { format: None, data: scene, run: other.clone(), config, downscale: 1, time_budget_min: None, iters: None, progress: false }).unwrap();
     let latest = RunDir::open(&run).unwrap().latest_checkpoint().unwrap().unwrap().dir;
     let other_latest = RunDir::open(&other).unwrap().latest_checkpoint().unwrap().unwrap().dir;
     let model = latest.join("model.bpk");

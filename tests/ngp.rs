@@ -35,7 +35,7 @@ fn tiny_ngp() -> TrainConfig {
 }
 
 fn train_tiny(scene: &Path, run: &Path, iters: usize) -> nerf::train::TrainSummary {
-    let options = TrainOptions { data: scene.to_path_buf(), run: run.to_path_buf(), config: tiny_ngp(), downscale: 1, time_budget_min: None, iters: Some(iters), progress: false };
+    let options = TrainOptions { format: None, data: scene.to_path_buf(), run: run.to_path_buf(), config: tiny_ngp(), downscale: 1, time_budget_min: None, iters: Some(iters), progress: false };
     train(&options).unwrap()
 }
 

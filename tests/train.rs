@@ -106,6 +106,7 @@ fn resume_continues_exactly_and_runs_are_deterministic() {
     config.occupancy.warmup_steps = 2;
     config.occupancy.update_every = 2;
     let options = |run: &str, iters: usize| TrainOptions {
+        format: None,
         data: scene.clone(),
         run: dir.path().join(run),
         config: config.clone(),

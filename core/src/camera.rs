@@ -4,9 +4,14 @@
 //! Ray directions are *not* normalised (their z component in camera space is −1), and pixel
 //! centres carry no +0.5 offset — both exactly as the reference code, because the trained
 //! networks and the δ scaling depend on it.
+//!
+//! Rays come from one camera model, [`PinholeCamera`] (focal lengths, principal point, lens
+//! distortion); [`Intrinsics`] is the Blender camera it generalises (`PinholeCamera::from`).
 
 use glam::{Mat3, Mat4, Vec3, Vec4};
 use serde::{Deserialize, Serialize};
+
+use crate::camera_model::PinholeCamera;
 
 /// Image size and focal length (pixels) of a pinhole camera with its principal point at the
 /// image centre.
@@ -35,14 +40,6 @@ impl Intrinsics {
     /// Number of pixels (= rays per image).
     pub fn num_pixels(&self) -> usize {
         self.width as usize * self.height as usize
-    }
-
-    /// The camera-space direction through pixel column `i`, row `j`:
-    /// `((i − W/2)/f, −(j − H/2)/f, −1)`.
-    pub fn camera_direction(&self, i: f32, j: f32) -> Vec3 {
-        let cx = 0.5 * self.width as f32;
-        let cy = 0.5 * self.height as f32;
-        Vec3::new((i - cx) / self.focal, -(j - cy) / self.focal, -1.0)
     }
 }
 
@@ -134,8 +131,8 @@ impl Pose {
     }
 
     /// The world-space (unnormalised) direction of the ray through pixel (`i`, `j`).
-    pub fn ray_direction(&self, intrinsics: &Intrinsics, i: f32, j: f32) -> Vec3 {
-        self.rotation() * intrinsics.camera_direction(i, j)
+    pub fn ray_direction(&self, camera: &PinholeCamera, i: f32, j: f32) -> Vec3 {
+        self.rotation() * camera.camera_direction(i, j)
     }
 }
 
@@ -175,13 +172,17 @@ impl Rays {
         self.origins.is_empty()
     }
 
-    /// The rays through the given pixels `(column, row)`.
-    pub fn for_pixels(intrinsics: &Intrinsics, pose: &Pose, pixels: &[(u32, u32)]) -> Rays {
+    /// The world-space rays (origin, unnormalised direction) of `camera` at `pose` through
+    /// the given pixels `(column, row)`: the one ray generator of the project.
+    ///
+    /// # Shapes
+    /// `pixels`: `[n]` → `[n]` rays.
+    pub fn for_pixels(camera: &PinholeCamera, pose: &Pose, pixels: &[(u32, u32)]) -> Rays {
         let rotation = pose.rotation();
         let origin = pose.origin().to_array();
         let mut rays = Rays::with_capacity(pixels.len());
         for &(i, j) in pixels {
-            let d = rotation * intrinsics.camera_direction(i as f32, j as f32);
+            let d = rotation * camera.camera_direction(i as f32, j as f32);
             rays.origins.push(origin);
             rays.directions.push(d.to_array());
         }
@@ -190,10 +191,10 @@ impl Rays {
 
     /// The rays of a whole image, row-major (pixel `(i, j)` at index `j·W + i`), or of rows
     /// `rows` only.
-    pub fn for_rows(intrinsics: &Intrinsics, pose: &Pose, rows: std::ops::Range<u32>) -> Rays {
+    pub fn for_rows(camera: &PinholeCamera, pose: &Pose, rows: std::ops::Range<u32>) -> Rays {
         let pixels: Vec<(u32, u32)> =
-            rows.flat_map(|j| (0..intrinsics.width).map(move |i| (i, j))).collect();
-        Rays::for_pixels(intrinsics, pose, &pixels)
+            rows.flat_map(|j| (0..camera.width).map(move |i| (i, j))).collect();
+        Rays::for_pixels(camera, pose, &pixels)
     }
 
     /// Empty batch with room for `n` rays.
@@ -242,7 +243,7 @@ mod tests {
     fn ray_directions_for_known_pose_and_focal() {
         // W=4, H=2, f=2; c2w rotates camera x→world x, camera y→world z, camera z→world −y
         // (the "swap" used by pose_spherical's last step would differ; this one is explicit).
-        let k = Intrinsics { width: 4, height: 2, focal: 2.0 };
+        let k = PinholeCamera::from(Intrinsics { width: 4, height: 2, focal: 2.0 });
         let pose = Pose([[1.0, 0.0, 0.0, 0.5], [0.0, 0.0, -1.0, -4.0], [0.0, 1.0, 0.0, 1.0]]);
         // Corner pixel (0,0): camera dir ((0−2)/2, −(0−1)/2, −1) = (−1, 0.5, −1).
         // World = R·d = (−1, −(−1), 0.5) = (−1, 1, 0.5).

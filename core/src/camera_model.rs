@@ -9,7 +9,7 @@
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
-use crate::camera::{Intrinsics, Pose, Rays};
+use crate::camera::Intrinsics;
 use crate::error::{Error, Result};
 
 /// Where the ray of pixel (column `i`, row `j`) crosses the image plane, in the coordinates
@@ -126,7 +126,13 @@ impl OpenCvDistortion {
 
 /// A pinhole camera with its own focal lengths, principal point, pixel convention and lens
 /// distortion (sizes in pixels, at the resolution the images are used at).
+///
+/// In JSON (`camera.json`, `scene.json`): `width, height, fx, fy, cx, cy, pixel_center`
+/// (`"integer"` or `"half_pixel"`), `distortion` (`{k1, k2, p1, p2}` or null). Files written
+/// before the full model carry `focal` alone and still read: `fx = fy = focal`, the principal
+/// point at the centre, integer pixel centres (the Blender camera).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(from = "CameraRecord")]
 pub struct PinholeCamera {
     /// Image width in pixels.
     pub width: u32,
@@ -144,6 +150,44 @@ pub struct PinholeCamera {
     pub pixel_center: PixelCenter,
     /// Lens distortion, `None` for an ideal pinhole.
     pub distortion: Option<OpenCvDistortion>,
+}
+
+/// A camera as stored: the full model, or the older `focal` alone (see [`PinholeCamera`]).
+/// A missing focal length reads as NaN, which the limits check refuses naming `fx`.
+#[derive(Deserialize)]
+struct CameraRecord {
+    width: u32,
+    height: u32,
+    focal: Option<f32>,
+    fx: Option<f32>,
+    fy: Option<f32>,
+    cx: Option<f32>,
+    cy: Option<f32>,
+    pixel_center: Option<PixelCenter>,
+    #[serde(default)]
+    distortion: Option<OpenCvDistortion>,
+}
+
+impl From<CameraRecord> for PinholeCamera {
+    fn from(r: CameraRecord) -> Self {
+        let fx = r.fx.or(r.focal).unwrap_or(f32::NAN);
+        PinholeCamera {
+            width: r.width,
+            height: r.height,
+            fx,
+            fy: r.fy.unwrap_or(fx),
+            cx: r.cx.unwrap_or(0.5 * r.width as f32),
+            cy: r.cy.unwrap_or(0.5 * r.height as f32),
+            pixel_center: r.pixel_center.unwrap_or(PixelCenter::Integer),
+            distortion: r.distortion,
+        }
+    }
+}
+
+impl From<Intrinsics> for PinholeCamera {
+    fn from(k: Intrinsics) -> Self {
+        PinholeCamera::from_intrinsics(&k)
+    }
 }
 
 impl PinholeCamera {
@@ -251,23 +295,6 @@ impl PinholeCamera {
         Some((i as f32, j as f32))
     }
 
-    /// The world-space rays (origin, unnormalised direction) through the given pixels
-    /// `(column, row)`.
-    ///
-    /// # Shapes
-    /// `pixels`: `[n]` → `Rays` of `[n]`.
-    pub fn rays(&self, pose: &Pose, pixels: &[(u32, u32)]) -> Rays {
-        let rotation = pose.rotation();
-        let origin = pose.origin().to_array();
-        let mut rays = Rays::with_capacity(pixels.len());
-        for &(i, j) in pixels {
-            rays.origins.push(origin);
-            rays.directions
-                .push((rotation * self.camera_direction(i as f32, j as f32)).to_array());
-        }
-        rays
-    }
-
     /// Number of pixels.
     pub fn num_pixels(&self) -> usize {
         self.width as usize * self.height as usize
@@ -277,6 +304,7 @@ impl PinholeCamera {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::camera::Pose;
 
     const D: OpenCvDistortion = OpenCvDistortion {
         k1: 0.1,
@@ -479,8 +507,10 @@ mod tests {
         let c = PinholeCamera::from_intrinsics(&k);
         assert_eq!((c.cx, c.cy, c.fx, c.fy), (200.0, 150.0, 323.5, 323.5));
         assert_eq!(c.to_intrinsics().unwrap(), k);
-        for &(i, j) in &[(0.0, 0.0), (399.0, 17.0), (123.0, 299.0)] {
-            assert_eq!(c.camera_direction(i, j), k.camera_direction(i, j));
+        // The Blender rays, bit for bit: ((i − W/2)/f, −(j − H/2)/f, −1) in f32.
+        for &(i, j) in &[(0.0f32, 0.0f32), (399.0, 17.0), (123.0, 299.0), (7.0, 3.0)] {
+            let blender = Vec3::new((i - 200.0) / 323.5, -(j - 150.0) / 323.5, -1.0);
+            assert_eq!(c.camera_direction(i, j), blender);
         }
         // A half-pixel camera centred on (W/2 + 0.5, H/2 + 0.5) is the same camera.
         let shifted = PinholeCamera {
@@ -554,6 +584,22 @@ mod tests {
     }
 
     #[test]
+    fn json_reads_the_full_model_and_the_older_focal() {
+        let c = camera(PixelCenter::HalfPixel, Some(D));
+        let text = serde_json::to_string(&c).unwrap();
+        assert!(text.contains("\"pixel_center\":\"half_pixel\"") && text.contains("\"k1\":0.1"), "{text}");
+        assert_eq!(serde_json::from_str::<PinholeCamera>(&text).unwrap(), c);
+        // A camera.json written before: focal only → the Blender camera.
+        let old: PinholeCamera =
+            serde_json::from_str(r#"{"width": 400, "height": 300, "focal": 323.5}"#).unwrap();
+        let k = Intrinsics { width: 400, height: 300, focal: 323.5 };
+        assert_eq!(old, PinholeCamera::from(k));
+        // Neither fx nor focal: NaN, refused by the limits check (naming fx).
+        let none: PinholeCamera = serde_json::from_str(r#"{"width": 4, "height": 4}"#).unwrap();
+        assert!(none.fx.is_nan());
+    }
+
+    #[test]
     fn rays_rotate_into_the_world() {
         // c2w: camera x → world x, camera y → world z, camera z → world −y; centre (0.5, −4, 1).
         let pose = Pose([
@@ -562,7 +608,7 @@ mod tests {
             [0.0, 1.0, 0.0, 1.0],
         ]);
         let c = camera(PixelCenter::HalfPixel, None);
-        let rays = c.rays(&pose, &[(0, 0), (2, 1)]);
+        let rays = crate::camera::Rays::for_pixels(&c, &pose, &[(0, 0), (2, 1)]);
         // Camera (−1, 0.25, −1) → world (−1, 1, 0.25); the axis (0, 0, −1) → (0, 1, 0).
         assert_eq!(rays.directions, vec![[-1.0, 1.0, 0.25], [0.0, 1.0, 0.0]]);
         assert_eq!(rays.origins, vec![[0.5, -4.0, 1.0]; 2]);

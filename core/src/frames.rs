@@ -3,7 +3,8 @@
 //! metrics against ground truth and the orbit GIF. The renderer is a closure, so both binaries
 //! write the same files the same way.
 
-use crate::camera::{Intrinsics, Pose};
+use crate::camera::Pose;
+use crate::camera_model::PinholeCamera;
 use crate::dataset::SplitData;
 use crate::atomic::write_atomic;
 use crate::error::{Error, Result};
@@ -26,7 +27,7 @@ pub struct FrameSpec {
     /// Output file stem (`r_0`, `frame_007`).
     pub name: String,
     /// Camera.
-    pub intrinsics: Intrinsics,
+    pub camera: PinholeCamera,
     /// Camera-to-world pose.
     pub pose: Pose,
     /// Ground truth (row-major RGB, white background) for metrics.
@@ -35,18 +36,17 @@ pub struct FrameSpec {
 
 impl FrameSpec {
     /// The orbit frames `frame_000`, `frame_001`, … for `poses`.
-    pub fn orbit(intrinsics: &Intrinsics, poses: &[Pose]) -> Vec<FrameSpec> {
+    pub fn orbit(camera: &PinholeCamera, poses: &[Pose]) -> Vec<FrameSpec> {
         poses
             .iter()
             .enumerate()
-            .map(|(k, pose)| FrameSpec { name: format!("frame_{k:03}"), intrinsics: *intrinsics, pose: *pose, target: None })
+            .map(|(k, pose)| FrameSpec { name: format!("frame_{k:03}"), camera: *camera, pose: *pose, target: None })
             .collect()
     }
 
     /// A split's views, named after their images, with the images as targets when loaded.
     pub fn from_split(data: SplitData) -> Vec<FrameSpec> {
-        let intrinsics = data.intrinsics;
-        data.views.into_iter().map(|v| FrameSpec { name: v.name, intrinsics, pose: v.pose, target: v.image }).collect()
+        data.views.into_iter().map(|v| FrameSpec { name: v.name, camera: v.camera, pose: v.pose, target: v.image }).collect()
     }
 }
 
@@ -102,7 +102,7 @@ pub fn render_frames<E: From<Error>>(
     let mut gif_frames = Vec::new();
     for (k, frame) in frames.iter().enumerate() {
         let bar = frame_bar(out.progress, &format!("{} {}/{total}", frame.name, k + 1));
-        bar.set_length(frame.intrinsics.num_pixels() as u64);
+        bar.set_length(frame.camera.num_pixels() as u64);
         let image = render(frame, &mut |done, _| bar.set_position(done as u64))?;
         save_frame(&image, &out.dir, &frame.name, out.depth_range, out.raw)?;
         if let Some(target) = frame.target.as_ref().filter(|_| with_metrics) {
@@ -130,7 +130,7 @@ pub fn render_frames<E: From<Error>>(
     let gif = match (out.gif, frames.first()) {
         (true, Some(first)) => {
             let path = out.dir.join(GIF_FILE);
-            let k = first.intrinsics;
+            let k = first.camera;
             save_gif(&path, k.width, k.height, &gif_frames, GIF_DELAY_MS)?;
             Some(path)
         }
@@ -235,7 +235,7 @@ mod tests {
     #[test]
     fn frames_write_pngs_metrics_and_gif() {
         let dir = tempfile::tempdir().unwrap();
-        let k = Intrinsics { width: 3, height: 2, focal: 3.0 };
+        let k = PinholeCamera::from(crate::camera::Intrinsics { width: 3, height: 2, focal: 3.0 });
         let pose = Pose::spherical(0.0, -30.0, 4.0);
         let mut frames = FrameSpec::orbit(&k, &[pose, pose]);
         let truth = image().rays.rgb;

@@ -8,7 +8,7 @@
 //! wrong or hostile number gives an error at once instead of an out-of-memory kill or a render
 //! that never ends. `tests/python/render_rays.py` applies the same limits (a test compares them).
 
-use crate::camera::Intrinsics;
+use crate::camera_model::PinholeCamera;
 use crate::error::{Error, Result};
 use crate::sampling::SamplingConfig;
 use std::path::{Component, Path, PathBuf};
@@ -98,11 +98,24 @@ pub fn check_image_size(width: u64, height: u64, at: Origin) -> Result<()> {
     Ok(())
 }
 
-/// A camera: [`check_image_size`] and a finite positive focal length.
-pub fn check_intrinsics(k: &Intrinsics, at: Origin) -> Result<()> {
-    check_image_size(k.width as u64, k.height as u64, at)?;
-    if !(k.focal.is_finite() && k.focal > 0.0) {
-        return Err(at.sub_error("focal", format!("{} is not a positive finite focal length", k.focal)));
+/// A camera: [`check_image_size`], finite positive focal lengths, a finite principal point
+/// and finite distortion coefficients.
+pub fn check_camera(c: &PinholeCamera, at: Origin) -> Result<()> {
+    check_image_size(c.width as u64, c.height as u64, at)?;
+    for (name, f) in [("fx", c.fx), ("fy", c.fy)] {
+        if !(f.is_finite() && f > 0.0) {
+            return Err(at.sub_error(name, format!("{f} is not a positive finite focal length")));
+        }
+    }
+    for (name, v) in [("cx", c.cx), ("cy", c.cy)] {
+        if !v.is_finite() {
+            return Err(at.sub_error(name, format!("{v} is not a finite principal point")));
+        }
+    }
+    if let Some(d) = c.distortion
+        && ![d.k1, d.k2, d.p1, d.p2].iter().all(|v| v.is_finite())
+    {
+        return Err(at.sub_error("distortion", format!("{d:?} has a non-finite coefficient")));
     }
     Ok(())
 }
@@ -213,8 +226,18 @@ mod tests {
         let e = check_image_size(16_384, 16_384, at(f)).unwrap_err().to_string();
         assert!(e.contains("16777216 pixels per frame"), "{e}");
         assert!(check_image_size(0, 5, at(f)).unwrap_err().to_string().contains("positive"));
-        let e = check_intrinsics(&Intrinsics { width: 4, height: 4, focal: f32::NAN }, at(f)).unwrap_err().to_string();
-        assert!(e.starts_with("scene.json: camera.focal: NaN"), "{e}");
+        let k = crate::camera::Intrinsics { width: 4, height: 4, focal: 2.0 };
+        let ok = PinholeCamera::from(k);
+        check_camera(&ok, at(f)).unwrap();
+        let e = check_camera(&PinholeCamera::from(crate::camera::Intrinsics { focal: f32::NAN, ..k }), at(f)).unwrap_err().to_string();
+        assert!(e.starts_with("scene.json: camera.fx: NaN"), "{e}");
+        let e = check_camera(&PinholeCamera { fy: -1.0, ..ok }, at(f)).unwrap_err().to_string();
+        assert!(e.starts_with("scene.json: camera.fy: -1"), "{e}");
+        let e = check_camera(&PinholeCamera { cy: f32::INFINITY, ..ok }, at(f)).unwrap_err().to_string();
+        assert!(e.starts_with("scene.json: camera.cy: inf"), "{e}");
+        let bad = crate::camera_model::OpenCvDistortion { k1: f32::NAN, k2: 0.0, p1: 0.0, p2: 0.0 };
+        let e = check_camera(&PinholeCamera { distortion: Some(bad), ..ok }, at(f)).unwrap_err().to_string();
+        assert!(e.starts_with("scene.json: camera.distortion"), "{e}");
         let e = check_image_size(0, 5, Origin::Option("--width")).unwrap_err().to_string();
         assert!(e.starts_with("--width: 0×5"), "{e}");
     }

@@ -6,7 +6,9 @@
 use crate::ExportError;
 use crate::graph::{compile, read_network};
 use crate::proto::ModelProto;
-use nerf_core::camera::{Intrinsics, Pose};
+use nerf_core::PinholeCamera;
+use nerf_core::dataset::ScenePlacement;
+use nerf_core::camera::Pose;
 use nerf_core::limits::{self, MAX_FRAMES, Origin};
 use crate::hash_grid::HashOps;
 use crate::ngp::compile_ngp;
@@ -24,8 +26,9 @@ pub const SCENE_FORMAT: &str = "nerf-rs-scene-1";
 pub const SCENE_FILE: &str = "scene.json";
 /// The camera convention, spelled out for readers of `scene.json`.
 pub const CAMERA_CONVENTION: &str = "OpenGL camera-to-world (Blender/NeRF): +x right, +y up, the camera looks along -z; \
-     ray through pixel (i, j): d = c2w[:3,:3] @ ((i - W/2)/focal, -(j - H/2)/focal, -1), not normalised, no half-pixel offset; \
-     origin c2w[:3,3]; samples at t in [near, far] along d; viewdirs = d/|d|";
+     ray through pixel (i, j): o = 0.5 if pixel_center is half_pixel else 0, (xd, yd) = ((i + o - cx)/fx, (j + o - cy)/fy), \
+     (x, y) = (xd, yd) with OpenCV distortion (k1, k2, p1, p2) undone (Newton's method), \
+     d = c2w[:3,:3] @ (x, -y, -1), not normalised; origin c2w[:3,3]; samples at t in [near, far] along d; viewdirs = d/|d|";
 
 /// The graph file of a hash-grid bundle.
 pub const NGP_FILE: &str = "field.onnx";
@@ -66,6 +69,12 @@ pub struct SceneDescription {
     /// renderers without it sample densely.
     #[serde(default)]
     pub occupancy: Option<OccupancyDescription>,
+    /// For a captured scene: its format, the transform from the capture's world into the
+    /// field's frame that every pose here already went through (apply it to poses of the
+    /// capture's own files: `x' = scale · (rotation · x + translation)`), near/far and the
+    /// orbit path. Absent for Blender scenes, which are used as they are.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub placement: Option<ScenePlacement>,
 }
 
 fn default_march_steps() -> usize {
@@ -83,17 +92,22 @@ pub struct OccupancyDescription {
     pub bound: f32,
 }
 
-/// Image size, focal and the convention rays follow.
+/// The training camera (the full pinhole model; bundles written before it carry `focal`
+/// alone, read as the Blender camera) and the convention rays follow.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CameraDescription {
-    /// Width in pixels.
-    pub width: u32,
-    /// Height in pixels.
-    pub height: u32,
-    /// Focal length in pixels.
-    pub focal: f32,
+    /// Size, focal lengths, principal point, pixel centres, distortion.
+    #[serde(flatten)]
+    pub camera: PinholeCamera,
     /// [`CAMERA_CONVENTION`].
     pub convention: String,
+}
+
+impl CameraDescription {
+    /// `camera` with today's convention.
+    pub fn new(camera: &PinholeCamera) -> Self {
+        CameraDescription { camera: *camera, convention: CAMERA_CONVENTION.into() }
+    }
 }
 
 /// An encoding `[x, sin(f x), cos(f x) for f in frequencies]`.
@@ -154,10 +168,10 @@ pub fn pose_matrix(p: &Pose) -> [[f32; 4]; 4] {
 
 impl SceneDescription {
     /// A description for networks trained with `sampling` on images from `camera`.
-    pub fn new(camera: &Intrinsics, sampling: &SamplingConfig, white_background: bool, coarse: &PlainNetwork, has_fine: bool) -> Self {
+    pub fn new(camera: &PinholeCamera, sampling: &SamplingConfig, white_background: bool, coarse: &PlainNetwork, has_fine: bool) -> Self {
         SceneDescription {
             format: SCENE_FORMAT.into(),
-            camera: CameraDescription { width: camera.width, height: camera.height, focal: camera.focal, convention: CAMERA_CONVENTION.into() },
+            camera: CameraDescription::new(camera),
             sampling: sampling.clone(),
             white_background,
             field: FieldKind::Mlp,
@@ -167,15 +181,16 @@ impl SceneDescription {
             networks: NetworkFiles { coarse: "coarse.onnx".into(), fine: has_fine.then(|| "fine.onnx".into()) },
             poses: ScenePoses::default(),
             occupancy: None,
+            placement: None,
         }
     }
 
     /// A description for a hash-grid field marched with `march_steps` intervals over
     /// `sampling`'s [near, far] (`networks.coarse` = `field.onnx`, no fine network).
-    pub fn ngp(camera: &Intrinsics, sampling: &SamplingConfig, white_background: bool, march_steps: usize) -> Self {
+    pub fn ngp(camera: &PinholeCamera, sampling: &SamplingConfig, white_background: bool, march_steps: usize) -> Self {
         SceneDescription {
             format: SCENE_FORMAT.into(),
-            camera: CameraDescription { width: camera.width, height: camera.height, focal: camera.focal, convention: CAMERA_CONVENTION.into() },
+            camera: CameraDescription::new(camera),
             sampling: SamplingConfig { n_fine: 0, ..sampling.clone() },
             white_background,
             field: FieldKind::Ngp,
@@ -185,12 +200,8 @@ impl SceneDescription {
             networks: NetworkFiles { coarse: NGP_FILE.into(), fine: None },
             poses: ScenePoses::default(),
             occupancy: None,
+            placement: None,
         }
-    }
-
-    /// The training camera as intrinsics.
-    pub fn intrinsics(&self) -> Intrinsics {
-        Intrinsics { width: self.camera.width, height: self.camera.height, focal: self.camera.focal }
     }
 }
 
@@ -343,7 +354,7 @@ impl SceneDescription {
         if self.format != SCENE_FORMAT {
             return Err(at("format").error(format!("{:?}, expected {SCENE_FORMAT:?}", self.format)));
         }
-        limits::check_intrinsics(&self.intrinsics(), at("camera"))?;
+        limits::check_camera(&self.camera.camera, at("camera"))?;
         limits::check_sampling(&self.sampling, at("sampling"))?;
         if (self.sampling.n_fine > 0) != self.networks.fine.is_some() {
             return Err(at("networks.fine").error("must be given exactly when sampling.n_fine > 0"));

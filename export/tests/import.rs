@@ -30,7 +30,7 @@ fn legacy_coarse_only_checkpoint_without_viewdirs() {
     assert_eq!((s.near, s.far, s.n_coarse, s.n_fine, s.lindisp), (2.0, 6.0, 24, 0, false));
     assert!(b.scene.white_background);
     // The shared lego images are 400×400; lego's 200 test poses.
-    assert_eq!((b.scene.camera.width, b.scene.camera.height), (400, 400));
+    assert_eq!((b.scene.camera.camera.width, b.scene.camera.camera.height), (400, 400));
     assert_eq!(b.scene.poses.test.len(), 200);
     assert_eq!(b.scene.poses.test[0].name, "r_0");
 }

@@ -2,8 +2,10 @@
 
 use anyhow::{Result, anyhow, bail};
 use clap::Parser;
-use nerf_core::camera::{Intrinsics, Pose};
-use nerf_core::dataset::{Split, load_split};
+use nerf_core::PinholeCamera;
+use nerf_core::camera::Pose;
+use nerf_core::SceneTransform;
+use nerf_core::dataset::{Background, CaptureFormat, CaptureSplit, LoadOptions, SceneFrame, load_dataset};
 use nerf_core::frames::{FrameOutput, FrameSpec, render_frames};
 use nerf_core::limits::{self, Origin};
 use nerf_runtime::{OpenOptions, OrtScene, scene::DEFAULT_CHUNK};
@@ -27,17 +29,23 @@ struct Cli {
     /// Render the bundle's 360° orbit (scene.json poses.orbit) and orbit.gif.
     #[arg(long, conflicts_with = "split")]
     orbit: bool,
-    /// Orbit frames (default: the bundle's orbit; another count renders the reference orbit,
-    /// radius 4, elevation −30°, with that many frames).
+    /// Orbit frames (default: the bundle's orbit; another count renders the same path with
+    /// that many frames: around a capture's cameras, else the reference orbit, radius 4,
+    /// elevation −30°).
     #[arg(long, requires = "orbit")]
     frames: Option<usize>,
-    /// Render this split's views (train, val or test): from --data (with metrics.json when its
-    /// images exist), or the bundle's own test poses when --data is not given (test only).
+    /// Render this split's views (train, val, test or all): from --data (with metrics.json
+    /// when its images exist), or the bundle's own test poses when --data is not given (test
+    /// only).
     #[arg(long)]
-    split: Option<Split>,
-    /// Blender-format scene directory (transforms_<split>.json and images).
+    split: Option<CaptureSplit>,
+    /// Dataset directory (Blender, instant-ngp/nerfstudio or LLFF; a capture's poses go
+    /// through the bundle's recorded placement).
     #[arg(long, requires = "split")]
     data: Option<PathBuf>,
+    /// The dataset's format: blender, instant-ngp or llff (default: detected).
+    #[arg(long, requires = "data")]
+    format: Option<CaptureFormat>,
     /// Image downscale factor for --data (use the one the scene was trained at).
     #[arg(long, default_value_t = 1)]
     downscale: u32,
@@ -75,7 +83,7 @@ fn main() {
     }
 }
 
-fn resize(k: Intrinsics, width: Option<u32>, height: Option<u32>) -> Result<Intrinsics> {
+fn resize(k: PinholeCamera, width: Option<u32>, height: Option<u32>) -> Result<PinholeCamera> {
     let Some(w) = width else { return Ok(k) };
     let h = height.map_or((w as u64 * k.height as u64 + k.width as u64 / 2) / k.width as u64, u64::from);
     limits::check_image_size(w as u64, h, Origin::Option("--width/--height"))?;
@@ -94,41 +102,50 @@ fn run(cli: Cli) -> Result<()> {
             if let Some(n) = cli.frames {
                 limits::check_count(n, limits::MAX_FRAMES, "frames", Origin::Option("--frames"))?;
             }
-            let poses = match cli.frames {
-                Some(n) if n != scene.description.poses.orbit.len() => Pose::orbit(n),
+            let path = scene.description.placement.as_ref().and_then(|p| p.orbit);
+            let poses = match (cli.frames, path) {
+                (Some(n), Some(path)) if n != scene.description.poses.orbit.len() => path.poses(n),
+                (Some(n), None) if n != scene.description.poses.orbit.len() => Pose::orbit(n),
                 _ => scene.orbit_poses()?,
             };
             if poses.is_empty() {
                 bail!("the orbit has no frames");
             }
-            FrameSpec::orbit(&resize(scene.intrinsics(None), cli.width, cli.height)?, &poses)
+            FrameSpec::orbit(&resize(scene.camera(None), cli.width, cli.height)?, &poses)
         }
         (false, Some(split), Some(data)) => {
-            let loaded = match load_split(data, split, cli.downscale, true) {
+            let transform = scene.description.placement.as_ref().map_or_else(SceneTransform::identity, |p| p.transform);
+            let background = Background::from_white(scene.description.white_background);
+            let options = |images| LoadOptions { format: cli.format, downscale: cli.downscale, images, background, frame: SceneFrame::Recorded(transform) };
+            let loaded = match load_dataset(data, split, &options(true)) {
                 Ok(d) => d,
                 Err(with_images) => {
-                    let d = load_split(data, split, cli.downscale, false).map_err(|e| anyhow!("{e}"))?;
-                    eprintln!("note: rendering the {} poses without metrics: {with_images}", split.name());
+                    let d = load_dataset(data, split, &options(false)).map_err(|e| anyhow!("{e}"))?;
+                    eprintln!("note: rendering the {split} poses without metrics: {with_images}");
                     d
                 }
             };
+            for w in &loaded.warnings {
+                eprintln!("warning: {w}");
+            }
+            let loaded = loaded.data;
             let mut specs = FrameSpec::from_split(loaded);
             if cli.width.is_some() {
                 for f in &mut specs {
-                    f.intrinsics = resize(f.intrinsics, cli.width, cli.height)?;
+                    f.camera = resize(f.camera, cli.width, cli.height)?;
                     f.target = None; // ground truth is at the dataset's resolution
                 }
             }
             specs
         }
-        (false, Some(Split::Test), None) => {
-            let k = resize(scene.intrinsics(None), cli.width, cli.height)?;
+        (false, Some(CaptureSplit::Test), None) => {
+            let k = resize(scene.camera(None), cli.width, cli.height)?;
             scene
                 .description
                 .poses
                 .test
                 .iter()
-                .map(|p| FrameSpec { name: p.name.clone(), intrinsics: k, pose: Pose::from_rows(p.transform_matrix), target: None })
+                .map(|p| FrameSpec { name: p.name.clone(), camera: k, pose: Pose::from_rows(p.transform_matrix), target: None })
                 .collect()
         }
         (false, Some(_), None) => bail!("--split val/train needs --data <scene dir> (the bundle only stores test poses)"),
@@ -140,9 +157,9 @@ fn run(cli: Cli) -> Result<()> {
     }
     let s = &scene.options.sampling;
     let output = FrameOutput { dir: cli.out.clone(), depth_range: (s.near, s.far), gif: cli.orbit, raw: cli.npy, progress: std::io::stderr().is_terminal() };
-    let (first, n) = (frames[0].intrinsics, frames.len());
+    let (first, n) = (frames[0].camera, frames.len());
     let start = Instant::now();
-    let report = render_frames(frames, &output, |f, progress| scene.render(&f.intrinsics, &f.pose, progress))?;
+    let report = render_frames(frames, &output, |f, progress| scene.render(&f.camera, &f.pose, progress))?;
     let seconds = start.elapsed().as_secs_f64();
     println!(
         "{n} frames at {}×{} in {seconds:.1} s ({:.2} s per frame, {}) into {}",

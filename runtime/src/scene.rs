@@ -4,7 +4,8 @@
 use crate::error::{Result, RuntimeError};
 use crate::field::OrtField;
 use crate::network::OrtNetwork;
-use nerf_core::camera::{Intrinsics, Pose};
+use nerf_core::PinholeCamera;
+use nerf_core::camera::Pose;
 use nerf_core::limits::{self, Origin};
 use nerf_core::network::FieldKind;
 use nerf_core::occupancy::OccupancyGrid;
@@ -79,9 +80,10 @@ impl OrtScene {
         Ok(OrtScene { dir: dir.to_path_buf(), description, field: OrtField { coarse, fine }, occupancy, options: render_options })
     }
 
-    /// The training camera, optionally at another resolution (focal scaled with the width).
-    pub fn intrinsics(&self, size: Option<(u32, u32)>) -> Intrinsics {
-        let k = self.description.intrinsics();
+    /// The training camera, optionally at another resolution (focal lengths and principal
+    /// point scaled with each side).
+    pub fn camera(&self, size: Option<(u32, u32)>) -> PinholeCamera {
+        let k = self.description.camera.camera;
         match size {
             Some((w, h)) => k.resized(w, h),
             None => k,
@@ -104,7 +106,7 @@ impl OrtScene {
     }
 
     /// Render one view deterministically, reporting `progress(done, total)` pixels.
-    pub fn render(&mut self, intrinsics: &Intrinsics, pose: &Pose, progress: &mut dyn FnMut(usize, usize)) -> Result<RenderedImage> {
-        render_image(&mut self.field, self.occupancy.as_ref(), intrinsics, pose, &self.options, progress)
+    pub fn render(&mut self, camera: &PinholeCamera, pose: &Pose, progress: &mut dyn FnMut(usize, usize)) -> Result<RenderedImage> {
+        render_image(&mut self.field, self.occupancy.as_ref(), camera, pose, &self.options, progress)
     }
 }

@@ -3,6 +3,7 @@
 
 use nerf_export::proto::ModelProto;
 use prost::Message;
+use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -66,9 +67,20 @@ fn python() -> String {
 fn python_consumer_matches_nerf_render() {
     let dir = tempfile::tempdir().unwrap();
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/python/render_rays.py");
-    let bundle = shipped_bundle();
-    for (dense, width) in [(false, "64"), (true, "48")] {
-        let out = dir.path().join(format!("dense-{dense}"));
+    // The shipped bundle (the older camera, `focal` alone), and a copy whose camera is a real
+    // capture's: fx ≠ fy, the principal point off the centre, half-pixel centres, distortion on.
+    let captured = copy_bundle(&dir.path().join("captured"));
+    let scene_path = captured.join("scene.json");
+    let mut scene: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&scene_path).unwrap()).unwrap();
+    let camera = scene["camera"].as_object_mut().unwrap();
+    camera.remove("focal");
+    for (key, value) in [("fx", json!(70.0)), ("fy", json!(66.5)), ("cx", json!(29.3)), ("cy", json!(35.9)), ("pixel_center", json!("half_pixel"))] {
+        camera.insert(key.into(), value);
+    }
+    camera.insert("distortion".into(), json!({"k1": -0.21, "k2": 0.05, "p1": 0.003, "p2": -0.002}));
+    std::fs::write(&scene_path, serde_json::to_string(&scene).unwrap()).unwrap();
+    for (bundle, dense, width) in [(shipped_bundle(), false, "64"), (shipped_bundle(), true, "48"), (captured.clone(), false, "64"), (captured, true, "40")] {
+        let out = dir.path().join(format!("out-{}-{dense}", bundle.file_name().unwrap().to_string_lossy()));
         let mut args = vec!["--bundle", s(&bundle), "--split", "test", "--limit", "1", "--width", width, "--out", s(&out), "--npy"];
         if dense {
             args.push("--dense");
@@ -76,7 +88,7 @@ fn python_consumer_matches_nerf_render() {
         let (ok, text) = nerf_render(&args);
         assert!(ok, "{text}");
         let mut cmd = Command::new(python());
-        cmd.arg(&script).arg(shipped_bundle()).args(["--npy", s(&out.join("r_0.npy")), "--test-pose", "0", "--rays", "96"]);
+        cmd.arg(&script).arg(&bundle).args(["--npy", s(&out.join("r_0.npy")), "--test-pose", "0", "--rays", "96"]);
         if dense {
             cmd.arg("--dense");
         }

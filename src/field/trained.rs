@@ -4,7 +4,8 @@
 use super::{NerfModel, NgpField};
 use crate::inference::{BurnField, BurnNgpField};
 use burn::tensor::Device;
-use nerf_core::camera::{Intrinsics, Pose};
+use nerf_core::PinholeCamera;
+use nerf_core::camera::Pose;
 use nerf_core::network::FieldKind;
 use nerf_core::occupancy::OccupancyGrid;
 use nerf_core::render::{RenderOptions, RenderedImage, render_image};
@@ -40,19 +41,19 @@ impl TrainedField {
         &self,
         device: &Device,
         occupancy: Option<&OccupancyGrid>,
-        intrinsics: &Intrinsics,
+        camera: &PinholeCamera,
         pose: &Pose,
         options: &RenderOptions,
         progress: &mut dyn FnMut(usize, usize),
     ) -> RenderedImage {
         let device = device.clone();
         let Ok(image) = match self {
-            TrainedField::Mlp(model) => render_image(&mut BurnField { model, device }, occupancy, intrinsics, pose, options, progress),
+            TrainedField::Mlp(model) => render_image(&mut BurnField { model, device }, occupancy, camera, pose, options, progress),
             TrainedField::Ngp(field) => {
                 // The field is only defined inside its box: without a grid, march the whole box.
                 let whole_box = field.whole_box();
                 let grid = occupancy.unwrap_or(&whole_box);
-                render_image(&mut BurnNgpField { field, device }, Some(grid), intrinsics, pose, options, progress)
+                render_image(&mut BurnNgpField { field, device }, Some(grid), camera, pose, options, progress)
             }
         };
         image

@@ -113,7 +113,8 @@ impl NgpTrainer {
             let part = n_rays * (k + 1) / images - n_rays * k / images;
             let (index, pixels, target) = self.batcher.next_batch(&mut self.rng, part, None);
             let data = self.batcher.data();
-            let r = Rays::for_pixels(&data.intrinsics, &data.views[index].pose, &pixels);
+            let view = &data.views[index];
+            let r = Rays::for_pixels(&view.camera, &view.pose, &pixels);
             rays.origins.extend(r.origins);
             rays.directions.extend(r.directions);
             targets.extend(target);
@@ -232,7 +233,7 @@ impl FieldTrainer for NgpTrainer {
         let view = &data.views[index];
         let Some(target) = &view.image else { return f32::NAN };
         let field = TrainedField::Ngp(self.snapshot());
-        let image = field.render(&crate::backend::cpu(), Some(&self.occupancy), &data.intrinsics, &view.pose, &self.config.render_options(), &mut |_, _| {});
+        let image = field.render(&crate::backend::cpu(), Some(&self.occupancy), &view.camera, &view.pose, &self.config.render_options(), &mut |_, _| {});
         nerf_core::metrics::psnr(&image.rays.rgb, target)
     }
 

@@ -5,15 +5,17 @@ use super::{FieldTrainer, TrainConfig, field_trainer};
 use crate::error::{Error, Result};
 use crate::run_dir::{RunDir, RunSource};
 use indicatif::{ProgressBar, ProgressStyle};
-use nerf_core::dataset::{Split, SplitData, load_split};
+use nerf_core::dataset::{Background, CaptureFormat, CaptureSplit, LoadOptions, SceneFrame, SplitData, load_dataset};
 use std::path::PathBuf;
 use std::time::Instant;
 
 /// What `nerf train` was asked to do.
 #[derive(Debug, Clone)]
 pub struct TrainOptions {
-    /// Blender scene directory.
+    /// Dataset directory (Blender, instant-ngp/nerfstudio or LLFF).
     pub data: PathBuf,
+    /// Its format (`None`: detected from the files).
+    pub format: Option<CaptureFormat>,
     /// Run directory (config, checkpoints, curve).
     pub run: PathBuf,
     /// The configuration for a new run (a resumed run keeps its saved one).
@@ -99,14 +101,43 @@ fn start_or_resume(run: &RunDir, options: &TrainOptions) -> Result<(Box<dyn Fiel
     if let Some(iters) = options.iters {
         config.iters = iters;
     }
+    // A new run fits its scene into the field's cube; a resumed one keeps the recorded fit.
+    let recorded = match &checkpoint {
+        Some(_) => run.read_source()?.and_then(|s| s.placement),
+        None => None,
+    };
+    let frame = match &recorded {
+        Some(p) => SceneFrame::Recorded(p.transform),
+        None => SceneFrame::Fit { bound: config.occupancy.bound },
+    };
+    let background = Background::from_white(config.white_background);
+    let load = move |split, frame| {
+        let load = LoadOptions { format: options.format, downscale: options.downscale, images: true, background, frame };
+        load_dataset(&options.data, split, &load)
+    };
+    let train = load(CaptureSplit::Train, frame)?;
+    for w in &train.warnings {
+        eprintln!("warning: {w}");
+    }
+    let placement = recorded.unwrap_or(train.placement);
+    if checkpoint.is_none()
+        && let Some((near, far)) = placement.near_far
+    {
+        // A capture's depth range comes from its bounds or the cube, not the preset's 2..6.
+        config.sampling.near = near;
+        config.sampling.far = far;
+        eprintln!("{} capture: near {near:.4}, far {far:.4} in the field's frame (scale {:.4})", placement.format, placement.transform.scale);
+    }
     run.write_config(&config)?;
-    let train_data = load_split(&options.data, Split::Train, options.downscale, true)?;
-    run.write_camera(&train_data.intrinsics)?;
-    // Where the data came from, so `nerf export` can include the test poses.
+    let train_data = train.data;
+    let camera = train_data.camera().ok_or_else(|| Error::invalid(&options.data, "the train split has no views"))?;
+    run.write_camera(&camera)?;
+    // Where the data came from and how it is placed: eval, render and export use this.
     let data = std::path::absolute(&options.data).unwrap_or(options.data.clone());
-    run.write_source(&RunSource { data, downscale: options.downscale })?;
+    let transform = placement.transform;
+    run.write_source(&RunSource { data, downscale: options.downscale, placement: Some(placement) })?;
     // The validation curve is optional: a scene without val views still trains.
-    let val_data = match load_split(&options.data, Split::Val, options.downscale, true) {
+    let val_data = match load(CaptureSplit::Val, SceneFrame::Recorded(transform)).map(|d| d.data) {
         Ok(v) if !v.views.is_empty() => Some(v),
         Ok(_) => None,
         Err(e) => {

@@ -146,7 +146,8 @@ impl Trainer {
         let precrop = (self.step < cfg.precrop_iters).then_some(cfg.precrop_fraction);
         let batch = self.batcher.next_batch(&mut self.rng, cfg.batch_rays, precrop);
         let data = self.batcher.data();
-        let rays = Rays::for_pixels(&data.intrinsics, &data.views[batch.0].pose, &batch.1);
+        let view = &data.views[batch.0];
+        let rays = Rays::for_pixels(&view.camera, &view.pose, &batch.1);
         let samples_per_ray = cfg.sampling.n_coarse + cfg.sampling.n_fine;
         let concurrent = cfg.concurrent_passes;
         let passes = (rays.len() * samples_per_ray).div_ceil(cfg.pass_points).next_multiple_of(concurrent).min(rays.len());
@@ -212,7 +213,7 @@ impl Trainer {
         let snapshot = self.model().valid();
         let mut field = BurnField { model: &snapshot, device: snapshot.coarse_device() };
         let options = self.config.render_options();
-        let Ok(image) = render_image(&mut field, self.occupancy.as_ref(), &data.intrinsics, &view.pose, &options, &mut |_, _| {});
+        let Ok(image) = render_image(&mut field, self.occupancy.as_ref(), &view.camera, &view.pose, &options, &mut |_, _| {});
         nerf_core::metrics::psnr(&image.rays.rgb, target)
     }
 }

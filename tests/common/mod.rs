@@ -62,7 +62,7 @@ pub fn trained_run(dir: &Path) -> (PathBuf, PathBuf) {
     let run = dir.join("run");
     let mut config = tiny_config();
     config.iters = 20;
-    train(&TrainOptions { data: scene.clone(), run: run.clone(), config, downscale: 1, time_budget_min: None, iters: None, progress: false })
+    train(&TrainOptions { format: None, data: scene.clone(), run: run.clone(), config, downscale: 1, time_budget_min: None, iters: None, progress: false })
         .unwrap();
     (scene, run)
 }

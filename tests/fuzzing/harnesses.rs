@@ -6,7 +6,9 @@ use super::{Format, Harness, HarnessDef};
 use nerf::evaluate::LoadedRun;
 use nerf::run_dir::RunDir;
 use nerf::train::{Checkpoint, Preset, TrainConfig, TrainOptions, Trainer, train};
-use nerf_core::dataset::{Split, SyntheticSceneConfig, generate_scene, load_split};
+use nerf_core::dataset::{
+    Background, CaptureSplit, LoadOptions, SceneFrame, Split, SyntheticSceneConfig, generate_scene, load_dataset, load_split,
+};
 use nerf_core::imageio::{load_rgba, save_gif};
 use nerf_core::occupancy::FILE_NAME as OCCUPANCY_FILE;
 use nerf_export::bundle::{read_model, read_scene};
@@ -14,8 +16,11 @@ use nerf_export::{check_contract, read_bundle_network, read_occupancy};
 use std::path::{Path, PathBuf};
 
 /// Every harness, in the order they run.
-pub const ALL: [HarnessDef; 10] = [
+pub const ALL: [HarnessDef; 13] = [
     HarnessDef { name: "transforms", file: "transforms_train.json", setup: transforms },
+    HarnessDef { name: "ngp-transforms", file: "capture/transforms.json (instant-ngp, nerfstudio)", setup: ngp_transforms },
+    HarnessDef { name: "llff", file: "llff/poses_bounds.npy", setup: llff },
+    HarnessDef { name: "source", file: "run/source.json", setup: source },
     HarnessDef { name: "image", file: "train/r_0.png (PNG/GIF)", setup: image },
     HarnessDef { name: "config", file: "run/config.toml", setup: config },
     HarnessDef { name: "camera", file: "run/camera.json", setup: camera },
@@ -89,7 +94,7 @@ fn trained_run(work: &Path) -> Result<(PathBuf, PathBuf), String> {
     let data = small_scene(work)?;
     let run = work.join("run");
     let options =
-        TrainOptions { data: data.clone(), run: run.clone(), config: tiny_config(), downscale: 1, time_budget_min: None, iters: None, progress: false };
+        TrainOptions { format: None, data: data.clone(), run: run.clone(), config: tiny_config(), downscale: 1, time_budget_min: None, iters: None, progress: false };
     train(&options).map_err(|e| e.to_string())?;
     Ok((data, run))
 }
@@ -113,6 +118,90 @@ fn transforms(work: &Path) -> Result<Box<dyn Harness>, String> {
         let sizes_only = load_split(&dir, Split::Train, 2, false).map(drop).map_err(|e| e.to_string());
         with_images.and(sizes_only)
     }))
+}
+
+/// Loads every view of the dataset in `dir` as training does (fitted, with pixels) and the
+/// test split as `nerf render --split` does (poses and sizes, downscaled).
+fn load_as_commands_do(dir: &Path) -> Result<(), String> {
+    let options = |images, downscale| LoadOptions { format: None, downscale, images, background: Background::White, frame: SceneFrame::Fit { bound: 1.5 } };
+    let all = load_dataset(dir, CaptureSplit::All, &options(true, 1)).map(drop).map_err(|e| e.to_string());
+    all.and(load_dataset(dir, CaptureSplit::Test, &options(false, 2)).map(drop).map_err(|e| e.to_string()))
+}
+
+/// A camera-to-world matrix, 4 rows of 4.
+type Matrix = [[f32; 4]; 4];
+
+/// The small scene's train views (8×8) copied to `work/<name>/images/<k>.png`, with their
+/// OpenGL camera-to-world rows.
+fn capture_images(work: &Path, name: &str) -> Result<(PathBuf, Vec<Matrix>), String> {
+    let scene = small_scene(work)?;
+    let dir = work.join(name);
+    std::fs::create_dir_all(dir.join("images")).map_err(|e| e.to_string())?;
+    let train = nerf_core::dataset::load_split(&scene, Split::Train, 1, false).map_err(|e| e.to_string())?;
+    let mut poses = Vec::new();
+    for (k, view) in train.views.iter().enumerate() {
+        std::fs::copy(scene.join(format!("train/{}.png", view.name)), dir.join(format!("images/{k}.png"))).map_err(|e| e.to_string())?;
+        let r = view.pose.0;
+        poses.push([r[0], r[1], r[2], [0.0, 0.0, 0.0, 1.0]]);
+    }
+    Ok((dir, poses))
+}
+
+fn ngp_transforms(work: &Path) -> Result<Box<dyn Harness>, String> {
+    let (dir, poses) = capture_images(work, "capture")?;
+    let frames = |ext: &str| -> Vec<serde_json::Value> {
+        poses.iter().enumerate().map(|(k, m)| serde_json::json!({"file_path": format!("images/{k}{ext}"), "transform_matrix": m})).collect()
+    };
+    // instant-ngp: shared intrinsics with distortion and aabb_scale; nerfstudio: per-frame
+    // focal lengths, paths without extension, explicit splits.
+    let ngp = serde_json::json!({"fl_x": 9.5, "fl_y": 9.0, "cx": 4.2, "cy": 3.9, "w": 8, "h": 8, "k1": 0.05, "k2": -0.01, "p1": 0.001, "p2": 0.002, "aabb_scale": 2, "frames": frames(".png")});
+    let mut studio_frames = frames("");
+    for (k, f) in studio_frames.iter_mut().enumerate() {
+        f["fl_x"] = serde_json::json!(9.0 + k as f64);
+        f["camera_model"] = serde_json::json!("OPENCV");
+    }
+    let studio = serde_json::json!({"camera_angle_x": 0.7, "frames": studio_frames, "train_filenames": ["images/1", "images/2"], "test_filenames": ["images/0"]});
+    let seeds = [ngp, studio].iter().map(|v| serde_json::to_vec_pretty(v).expect("JSON serialises")).collect();
+    Ok(boxed(dir.join("transforms.json"), seeds, Format::Json, move || load_as_commands_do(&dir)))
+}
+
+/// A NumPy `.npy` (format 1.0, little-endian float64, C order) of `rows` × 17.
+fn npy_f8(rows: &[[f64; 17]]) -> Vec<u8> {
+    let mut header = format!("{{'descr': '<f8', 'fortran_order': False, 'shape': ({}, 17), }}", rows.len());
+    while (10 + header.len() + 1) % 64 != 0 {
+        header.push(' ');
+    }
+    header.push('\n');
+    let mut out = b"\x93NUMPY\x01\x00".to_vec();
+    out.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    out.extend_from_slice(header.as_bytes());
+    out.extend(rows.iter().flatten().flat_map(|v| v.to_le_bytes()));
+    out
+}
+
+fn llff(work: &Path) -> Result<Box<dyn Harness>, String> {
+    let (dir, poses) = capture_images(work, "llff")?;
+    // LLFF columns [down, right, back, centre, (H, W, focal)] from OpenGL [right, up, back].
+    let rows: Vec<[f64; 17]> = poses
+        .iter()
+        .map(|m| {
+            let mut row = [0.0; 17];
+            for r in 0..3 {
+                let cols = [-m[r][1], m[r][0], m[r][2], m[r][3], [8.0, 8.0, 9.5][r]];
+                for (c, v) in cols.iter().enumerate() {
+                    row[r * 5 + c] = *v as f64;
+                }
+            }
+            (row[15], row[16]) = (2.0, 6.0);
+            row
+        })
+        .collect();
+    let seeds = vec![npy_f8(&rows)];
+    Ok(boxed(dir.join("poses_bounds.npy"), seeds, Format::Binary, move || load_as_commands_do(&dir)))
+}
+
+fn source(work: &Path) -> Result<Box<dyn Harness>, String> {
+    run_file(work, "source.json", Format::Json)
 }
 
 fn image(work: &Path) -> Result<Box<dyn Harness>, String> {

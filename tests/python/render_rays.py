@@ -5,7 +5,10 @@ usage: render_rays.py <bundle-dir> --npy <frame.npy> (--test-pose K | --orbit-po
                       [--rays 64] [--seed 0] [--dense] [--tolerance 1e-4]
 
 The renderer below is the whole recipe a consumer needs (scene.json says the same):
-  rays      d = c2w[:3,:3] @ ((i - W/2)/f, -(j - H/2)/f, -1) (not normalised, no +0.5), o = c2w[:3,3]
+  rays      (xd, yd) = ((i + o - cx)/fx, (j + o - cy)/fy), o = 0.5 for "half_pixel" centres, else 0;
+            (x, y) = undistort(xd, yd) (OpenCV k1 k2 p1 p2, Newton) when the camera has distortion;
+            d = c2w[:3,:3] @ (x, -y, -1) (not normalised), origin c2w[:3,3]. A bundle with `focal`
+            alone: fx = fy = focal, (cx, cy) = (W/2, H/2), integer centres (no +0.5).
   coarse    t_k = near·(1 - k/(n-1)) + far·k/(n-1)  (test time: no jitter; lindisp in 1/t)
   networks  points o + t·d and viewdirs d/|d| → rgb [N,3], sigma [N,1]
   weights   delta = (t_{k+1} - t_k)·|d| (last 1e10·|d|), alpha = 1 - exp(-sigma·delta),
@@ -71,12 +74,18 @@ def bundle_file(path, name, field):
 
 def check_scene(scene, where):
     """The limits nerf-render applies (SceneDescription::check), before anything is allocated."""
-    cam, s = scene["camera"], scene["sampling"]
-    w, h, focal = cam["width"], cam["height"], cam["focal"]
+    cam, s = pinhole(scene["camera"]), scene["sampling"]
+    w, h = cam["width"], cam["height"]
     if not (0 < w <= MAX_IMAGE_SIDE and 0 < h <= MAX_IMAGE_SIDE and w * h <= MAX_FRAME_PIXELS):
         raise BundleError(f"{where}: camera: {w}×{h} pixels is outside the limits ({MAX_IMAGE_SIDE} per side, {MAX_FRAME_PIXELS} per frame)")
-    if not (np.isfinite(focal) and focal > 0):
-        raise BundleError(f"{where}: camera.focal: {focal} is not a positive finite focal length")
+    for key in ("fx", "fy"):
+        if not (np.isfinite(cam[key]) and cam[key] > 0):
+            raise BundleError(f"{where}: camera.{key}: {cam[key]} is not a positive finite focal length")
+    for key in ("cx", "cy"):
+        if not np.isfinite(cam[key]):
+            raise BundleError(f"{where}: camera.{key}: {cam[key]} is not a finite principal point")
+    if cam["distortion"] is not None and not all(np.isfinite(cam["distortion"][k]) for k in ("k1", "k2", "p1", "p2")):
+        raise BundleError(f"{where}: camera.distortion: {cam['distortion']} has a non-finite coefficient")
     if not (np.isfinite(s["near"]) and np.isfinite(s["far"]) and 0 < s["near"] < s["far"]):
         raise BundleError(f"{where}: sampling: need finite 0 < near < far, got near {s['near']} far {s['far']}")
     if not (1 <= s["n_coarse"] and 0 <= s["n_fine"] and s["n_coarse"] + s["n_fine"] <= MAX_SAMPLES_PER_RAY):
@@ -157,11 +166,56 @@ class Bundle:
         return rgb, sigma
 
 
+def pinhole(cam):
+    """scene.json's camera as the full model; bundles written before it have `focal` alone
+    (fx = fy = focal, principal point at the centre, integer pixel centres)."""
+    fx = cam.get("fx", cam.get("focal", float("nan")))
+    return {"width": cam["width"], "height": cam["height"], "fx": fx, "fy": cam.get("fy", fx),
+            "cx": cam.get("cx", 0.5 * cam["width"]), "cy": cam.get("cy", 0.5 * cam["height"]),
+            "pixel_center": cam.get("pixel_center", "integer"), "distortion": cam.get("distortion")}
+
+
+def undistort(xd, yd, k):
+    """OpenCV radial-tangential distortion undone by Newton's method in float64, as
+    OpenCvDistortion::undistort: from (xd, yd), at most 20 steps, a ray stops once its step is
+    below 1e-12 or its Jacobian is singular."""
+    k1, k2, p1, p2 = (np.float64(np.float32(k[n])) for n in ("k1", "k2", "p1", "p2"))
+    x, y = xd.copy(), yd.copy()
+    active = np.ones(len(x), bool)
+    for _ in range(20):
+        r2 = x * x + y * y
+        radial = 1 + r2 * (k1 + k2 * r2)
+        dr = k1 + 2 * k2 * r2
+        drx, dry = dr * 2 * x, dr * 2 * y
+        fx = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x) - xd
+        fy = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y - yd
+        a = radial + x * drx + 2 * p1 * y + 6 * p2 * x
+        b = x * dry + 2 * p1 * x + 2 * p2 * y
+        c = y * drx + 2 * p1 * x + 2 * p2 * y
+        d = radial + y * dry + 6 * p1 * y + 2 * p2 * x
+        det = a * d - b * c
+        active &= np.abs(det) >= 1e-12
+        safe = np.where(active, det, 1.0)
+        dx, dy = (d * fx - b * fy) / safe, (a * fy - c * fx) / safe
+        x, y = np.where(active, x - dx, x), np.where(active, y - dy, y)
+        active &= np.maximum(np.abs(dx), np.abs(dy)) >= 1e-12
+        if not active.any():
+            break
+    return x, y
+
+
 def camera_rays(scene, c2w, width, height, pixels):
-    cam = scene["camera"]
-    focal = F32(cam["focal"] * width / cam["width"])
-    i, j = pixels[:, 0].astype(F32), pixels[:, 1].astype(F32)
-    dirs = np.stack([(i - F32(0.5 * width)) / focal, -(j - F32(0.5 * height)) / focal, -np.ones_like(i)], axis=1)
+    """PinholeCamera at width×height (focal lengths and principal point scale with each side):
+    ((i + o − cx)/fx, (j + o − cy)/fy) undistorted, then (x, −y, −1) rotated by the pose."""
+    cam = pinhole(scene["camera"])
+    sx, sy = np.float32(width / cam["width"]), np.float32(height / cam["height"])
+    fx, fy = np.float32(cam["fx"]) * sx, np.float32(cam["fy"]) * sy
+    cx, cy = np.float32(cam["cx"]) * sx, np.float32(cam["cy"]) * sy
+    o = 0.5 if cam["pixel_center"] == "half_pixel" else 0.0
+    xd = (pixels[:, 0].astype(np.float64) + o - np.float64(cx)) / np.float64(fx)
+    yd = (pixels[:, 1].astype(np.float64) + o - np.float64(cy)) / np.float64(fy)
+    x, y = (xd, yd) if cam["distortion"] is None else undistort(xd, yd, cam["distortion"])
+    dirs = np.stack([x.astype(F32), (-y).astype(F32), -np.ones(len(x), F32)], axis=1)
     d = (dirs @ c2w[:3, :3].T).astype(F32)
     o = np.broadcast_to(c2w[:3, 3], d.shape).astype(F32)
     return o, d

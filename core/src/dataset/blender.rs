@@ -8,8 +8,9 @@ use serde::{Deserialize, Serialize};
 
 use super::{Split, SplitData, View};
 use crate::camera::{Intrinsics, Pose};
+use crate::camera_model::PinholeCamera;
 use crate::error::{Error, Result};
-use crate::imageio::load_rgba;
+use super::images::{Background, Decoded, check_divisible, load_image};
 
 /// The contents of a `transforms_{split}.json` (other fields are ignored when reading).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -67,6 +68,17 @@ fn read_transforms(path: &Path) -> Result<Transforms> {
 /// `transform_matrix`, a missing or undecodable image, images of different sizes, a size not
 /// divisible by `downscale`, or `downscale == 0`.
 pub fn load_split(dir: &Path, split: Split, downscale: u32, images: bool) -> Result<SplitData> {
+    load_blender(dir, split, downscale, images, Background::White)
+}
+
+/// [`load_split`] composited on `background` (the reference code's white, or black).
+pub fn load_blender(
+    dir: &Path,
+    split: Split,
+    downscale: u32,
+    images: bool,
+    background: Background,
+) -> Result<SplitData> {
     let json_path = transforms_path(dir, split);
     if downscale == 0 {
         return Err(Error::Argument(format!(
@@ -106,7 +118,7 @@ pub fn load_split(dir: &Path, split: Split, downscale: u32, images: bool) -> Res
         let decoded: Vec<Result<Decoded>> = transforms
             .frames
             .par_iter()
-            .map(|frame| load_image(&image_path(dir, &frame.file_path), downscale))
+            .map(|frame| load_image(&image_path(dir, &frame.file_path), downscale, background))
             .collect();
         let mut size = None;
         let mut pixels = Vec::with_capacity(decoded.len());
@@ -138,11 +150,11 @@ pub fn load_split(dir: &Path, split: Split, downscale: u32, images: bool) -> Res
     };
 
     let full = Intrinsics::from_camera_angle_x(width, height, angle);
-    let intrinsics = Intrinsics {
+    let camera = PinholeCamera::from(Intrinsics {
         width: width / downscale,
         height: height / downscale,
         focal: full.focal / downscale as f32,
-    };
+    });
     let views = transforms
         .frames
         .into_iter()
@@ -152,16 +164,13 @@ pub fn load_split(dir: &Path, split: Split, downscale: u32, images: bool) -> Res
                 .file_stem()
                 .map(|s| s.to_string_lossy().into_owned())
                 .unwrap_or_default(),
+            camera,
             pose: Pose::from_rows(frame.transform_matrix),
             file_path: frame.file_path,
             image,
         })
         .collect();
-    Ok(SplitData {
-        split,
-        intrinsics,
-        views,
-    })
+    Ok(SplitData { split: split.into(), views })
 }
 
 /// The full-resolution size from the first existing image of `split`, else of the train split.
@@ -202,59 +211,6 @@ fn probe_size(
             image_path(dir, &transforms.frames[0].file_path).display()
         ),
     ))
-}
-
-fn check_divisible(path: &Path, width: u32, height: u32, downscale: u32) -> Result<()> {
-    if !width.is_multiple_of(downscale) || !height.is_multiple_of(downscale) {
-        return Err(Error::invalid(
-            path,
-            format!("image is {width}×{height}, not divisible by the downscale factor {downscale}"),
-        ));
-    }
-    Ok(())
-}
-
-/// A decoded image: full-resolution width and height, downscaled composited pixels.
-type Decoded = (u32, u32, Vec<[f32; 3]>);
-
-/// Decodes one image and returns its full-resolution size with the downscaled, white-composited
-/// RGB pixels.
-fn load_image(path: &Path, downscale: u32) -> Result<Decoded> {
-    let (w, h, rgba) = load_rgba(path)?;
-    check_divisible(path, w, h, downscale)?;
-    let small = downscale_area(&rgba, w as usize, h as usize, downscale as usize);
-    let rgb = small
-        .iter()
-        .map(|p| [0, 1, 2].map(|c| p[c] * p[3] + (1.0 - p[3])))
-        .collect();
-    Ok((w, h, rgb))
-}
-
-/// Box-filter reduction by an integer `factor` (sides divisible by it): each output pixel is
-/// the mean of its `factor × factor` block of RGBA values.
-fn downscale_area(rgba: &[[f32; 4]], width: usize, height: usize, factor: usize) -> Vec<[f32; 4]> {
-    if factor == 1 {
-        return rgba.to_vec();
-    }
-    let (ow, oh) = (width / factor, height / factor);
-    let scale = 1.0 / (factor * factor) as f32;
-    let mut out = vec![[0.0f32; 4]; ow * oh];
-    for j in 0..height {
-        let orow = (j / factor) * ow;
-        for i in 0..width {
-            let o = &mut out[orow + i / factor];
-            let p = rgba[j * width + i];
-            for c in 0..4 {
-                o[c] += p[c];
-            }
-        }
-    }
-    for o in &mut out {
-        for v in o.iter_mut() {
-            *v *= scale;
-        }
-    }
-    out
 }
 
 #[cfg(test)]
@@ -338,12 +294,12 @@ mod tests {
         });
         write_json(dir.path(), Split::Train, &frames_json(&["./train/r_0"]));
         let full = load_split(dir.path(), Split::Train, 1, true).unwrap();
-        assert_eq!((full.intrinsics.width, full.intrinsics.height), (4, 2));
+        assert_eq!((full.camera().unwrap().width, full.camera().unwrap().height), (4, 2));
         let img = full.views[0].image.as_ref().unwrap();
         assert_eq!(img[0], [1.0, 0.0, 0.0]);
         assert_eq!(img[1], [1.0, 1.0, 1.0]); // transparent → exactly white
         let half = load_split(dir.path(), Split::Train, 2, true).unwrap();
-        assert_eq!((half.intrinsics.width, half.intrinsics.height), (2, 1));
+        assert_eq!((half.camera().unwrap().width, half.camera().unwrap().height), (2, 1));
         let img = half.views[0].image.as_ref().unwrap();
         assert_eq!(img.len(), 2);
         let close = |a: [f32; 3], b: [f32; 3]| a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-6);
@@ -351,11 +307,11 @@ mod tests {
         assert!(close(img[1], [0.2, 0.4, 0.8]), "{:?}", img[1]);
         // focal: 0.5·4 / tan(0.3455556) = 2 / 0.36000002 = 5.5555552, halved.
         assert!(
-            (full.intrinsics.focal - 5.555_555).abs() < 1e-4,
+            (full.camera().unwrap().fx - 5.555_555).abs() < 1e-4,
             "{}",
-            full.intrinsics.focal
+            full.camera().unwrap().fx
         );
-        assert!((half.intrinsics.focal - full.intrinsics.focal / 2.0).abs() < 1e-6);
+        assert!((half.camera().unwrap().fx - full.camera().unwrap().fx / 2.0).abs() < 1e-6);
         assert_eq!(half.views[0].name, "r_0");
         assert_eq!(half.views[0].file_path, "./train/r_0");
         assert_eq!(half.views[0].pose, Pose::from_rows(identity_rows(0.0)));
@@ -409,7 +365,7 @@ mod tests {
             &frames_json(&["./test/r_0", "./test/r_1"]),
         );
         let test = load_split(dir.path(), Split::Test, 2, false).unwrap();
-        assert_eq!((test.intrinsics.width, test.intrinsics.height), (4, 3));
+        assert_eq!((test.camera().unwrap().width, test.camera().unwrap().height), (4, 3));
         assert_eq!(test.views.len(), 2);
         assert!(test.views.iter().all(|v| v.image.is_none()));
         assert_eq!(test.views[1].name, "r_1");
@@ -418,7 +374,7 @@ mod tests {
             [0, 0, 0, 255]
         });
         let test = load_split(dir.path(), Split::Test, 1, false).unwrap();
-        assert_eq!((test.intrinsics.width, test.intrinsics.height), (10, 4));
+        assert_eq!((test.camera().unwrap().width, test.camera().unwrap().height), (10, 4));
         // Loading test pixels needs all of them.
         let err = load_split(dir.path(), Split::Test, 1, true)
             .unwrap_err()
@@ -517,7 +473,8 @@ mod tests {
         assert_eq!(
             load_split(d, Split::Train, 4, true)
                 .unwrap()
-                .intrinsics
+                .camera()
+                .unwrap()
                 .width,
             1
         );

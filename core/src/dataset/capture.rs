@@ -66,21 +66,20 @@ impl FromStr for CaptureFormat {
 /// `transforms.json` → instant-ngp, else `poses_bounds.npy` → LLFF; otherwise an error that
 /// names the directory and the files looked for.
 pub fn detect_format(dir: &Path) -> Result<CaptureFormat> {
+    const EXPECTED: &str = "expected transforms_train.json (Blender), transforms.json (instant-ngp/nerfstudio) or poses_bounds.npy (LLFF)";
     if !dir.is_dir() {
-        let source = std::io::Error::new(std::io::ErrorKind::NotFound, "not a directory");
-        return Err(Error::io(dir, source));
+        return Err(Error::invalid(dir, format!("not a directory: {EXPECTED}")));
     }
     let candidates = [
         ("transforms_train.json", CaptureFormat::Blender),
         ("transforms.json", CaptureFormat::InstantNgp),
         ("poses_bounds.npy", CaptureFormat::Llff),
     ];
-    candidates.iter().find(|(file, _)| dir.join(file).is_file()).map(|&(_, f)| f).ok_or_else(|| {
-        Error::invalid(
-            dir,
-            "no dataset found: expected transforms_train.json (Blender), transforms.json (instant-ngp/nerfstudio) or poses_bounds.npy (LLFF)",
-        )
-    })
+    candidates
+        .iter()
+        .find(|(file, _)| dir.join(file).is_file())
+        .map(|&(_, f)| f)
+        .ok_or_else(|| Error::invalid(dir, format!("no dataset found: {EXPECTED}")))
 }
 
 /// A split of a capture: `--split train|val|test|all`.
@@ -244,12 +243,16 @@ impl Capture {
     /// when the axes are parallel) and scales so that the farthest is `radius` away, through
     /// [`Capture::renormalise`]. An error when no camera is away from that centre.
     pub fn fit_cameras(&mut self, radius: f32) -> Result<()> {
-        let poses = self.poses();
-        let centre = focus_point(&poses).unwrap_or_else(|| centroid(&poses));
-        let fit = SceneTransform::fit_cameras(&poses, centre, radius)
-            .map_err(|e| Error::invalid(&self.source, e.to_string()))?;
+        let fit = self.camera_fit(radius)?;
         self.renormalise(&fit);
         Ok(())
+    }
+
+    /// The transform [`Capture::fit_cameras`] applies.
+    pub fn camera_fit(&self, radius: f32) -> Result<SceneTransform> {
+        let poses = self.poses();
+        let centre = focus_point(&poses).unwrap_or_else(|| centroid(&poses));
+        SceneTransform::fit_cameras(&poses, centre, radius).map_err(|e| Error::invalid(&self.source, e.to_string()))
     }
 
     /// Maps every pose and bound through `next` as well, and records it in `transform`.

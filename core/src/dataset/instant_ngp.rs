@@ -270,9 +270,9 @@ pub fn load_instant_ngp(dir: &Path) -> Result<Capture> {
             index_of.insert(key, None);
             continue;
         };
-        let size = image::image_dimensions(&image_path).map_err(|source| Error::Image {
-            path: image_path.clone(),
-            source,
+        // The image's own error names the image; say which frame of which file wants it.
+        let size = image::image_dimensions(&image_path).map_err(|source| {
+            frame_err(Error::Image { path: image_path.clone(), source }.to_string())
         })?;
         let fields = file.camera.overridden_by(&frame.camera);
         let camera = camera_from_fields(&fields, size).map_err(frame_err)?;

@@ -2,16 +2,23 @@
 //! nerfstudio `transforms.json`, LLFF `poses_bounds.npy`) parsed into a format-free
 //! [`Capture`], a generated test scene, and the random pixel batcher used in training.
 //!
+//! [`load_dataset`] is the entry point every command uses; each format is a parser behind it.
 //! Images are row-major RGB (pixel (column `i`, row `j`) at index `j·W + i`), in `[0, 1]`,
-//! already composited on a white background.
+//! already composited on the configured background (white unless told otherwise).
 
 mod blender;
 mod capture;
+mod images;
 mod instant_ngp;
 mod llff;
+mod scene_fit;
+mod source;
 mod synthetic;
 
-pub use blender::{Frame, Transforms, image_path, load_split, transforms_path};
+pub use blender::{Frame, Transforms, image_path, load_blender, load_split, transforms_path};
+pub use images::{Background, check_divisible, load_image};
+pub use scene_fit::{OrbitPath, field_near_far, fit_to_field};
+pub use source::{Dataset, LoadOptions, SceneFrame, ScenePlacement, load_dataset};
 pub use capture::{
     Capture, CaptureFormat, CaptureSplit, CaptureView, ExplicitSplits, FORWARD_FACING_MAX_DEG,
     HOLDOUT_EVERY, centroid, detect_format, focus_point, holdout_split, is_forward_facing,
@@ -35,7 +42,8 @@ use std::str::FromStr;
 
 use serde::{Deserialize, Serialize};
 
-use crate::camera::{Intrinsics, Pose};
+use crate::camera::Pose;
+use crate::camera_model::PinholeCamera;
 use crate::error::{Error, Result};
 use crate::rng::Rng;
 
@@ -92,6 +100,9 @@ pub struct View {
     pub name: String,
     /// The frame's `file_path` as written in the JSON.
     pub file_path: String,
+    /// Its camera at the loaded resolution (shared by all views unless the format has
+    /// per-frame intrinsics).
+    pub camera: PinholeCamera,
     /// Camera-to-world pose.
     pub pose: Pose,
     /// The image (row-major RGB in `[0, 1]`, composited on white, at the loaded resolution),
@@ -99,13 +110,11 @@ pub struct View {
     pub image: Option<Vec<[f32; 3]>>,
 }
 
-/// A loaded split: intrinsics shared by all its views (at the loaded resolution) and the views.
+/// A loaded split: its views, each with its camera.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SplitData {
     /// Which split.
-    pub split: Split,
-    /// Image size and focal length after downscaling.
-    pub intrinsics: Intrinsics,
+    pub split: CaptureSplit,
     /// The views in file order.
     pub views: Vec<View>,
 }
@@ -114,6 +123,12 @@ impl SplitData {
     /// The poses of all views, in order.
     pub fn poses(&self) -> Vec<Pose> {
         self.views.iter().map(|v| v.pose).collect()
+    }
+
+    /// The split's camera (its first view's): the run's camera for orbits; `None` when the
+    /// split has no views.
+    pub fn camera(&self) -> Option<PinholeCamera> {
+        self.views.first().map(|v| v.camera)
     }
 }
 
@@ -129,14 +144,14 @@ impl RayBatcher {
     /// A batcher over `data` (normally the train split), which must have at least one view and
     /// an image of `width·height` pixels for every view.
     pub fn new(data: SplitData) -> Result<Self> {
-        let n_pixels = data.intrinsics.num_pixels();
-        if data.views.is_empty() || n_pixels == 0 {
+        if data.views.is_empty() || data.views.iter().any(|v| v.camera.num_pixels() == 0) {
             return Err(Error::Argument(format!(
                 "the {} split has no views or empty images to train on",
                 data.split
             )));
         }
         for view in &data.views {
+            let n_pixels = view.camera.num_pixels();
             match &view.image {
                 None => {
                     return Err(Error::Argument(format!(
@@ -149,8 +164,8 @@ impl RayBatcher {
                         "view {} has {} pixels, expected {}×{}",
                         view.file_path,
                         img.len(),
-                        data.intrinsics.width,
-                        data.intrinsics.height
+                        view.camera.width,
+                        view.camera.height
                     )));
                 }
                 Some(_) => {}
@@ -199,7 +214,7 @@ impl RayBatcher {
         precrop_fraction: Option<f32>,
     ) -> (usize, Vec<(u32, u32)>, Vec<[f32; 3]>) {
         let index = rng.below(self.data.views.len());
-        let Intrinsics { width, height, .. } = self.data.intrinsics;
+        let PinholeCamera { width, height, .. } = self.data.views[index].camera;
         let (cols, rows) = Self::sample_region(width, height, precrop_fraction);
         let region_w = (cols.end - cols.start) as usize;
         let region = region_w * (rows.end - rows.start) as usize;
@@ -250,6 +265,7 @@ mod tests {
             .map(|k| View {
                 name: format!("r_{k}"),
                 file_path: format!("./train/r_{k}"),
+                camera: crate::camera::Intrinsics { width, height, focal: 50.0 }.into(),
                 pose: Pose::spherical(0.0, -30.0, 4.0),
                 image: Some(
                     (0..height)
@@ -259,12 +275,7 @@ mod tests {
             })
             .collect();
         SplitData {
-            split: Split::Train,
-            intrinsics: Intrinsics {
-                width,
-                height,
-                focal: 50.0,
-            },
+            split: CaptureSplit::Train,
             views,
         }
     }

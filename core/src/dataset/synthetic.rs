@@ -19,6 +19,7 @@ use serde::{Deserialize, Serialize};
 use super::Split;
 use super::blender::{Frame, Transforms, image_path, transforms_path};
 use crate::camera::{Intrinsics, Pose, Rays};
+use crate::camera_model::PinholeCamera;
 use crate::atomic::write_atomic;
 use crate::error::{Error, Result};
 use crate::imageio::save_png_rgba;
@@ -102,7 +103,7 @@ pub fn generate_scene(dir: &Path, cfg: &SyntheticSceneConfig) -> Result<()> {
             "a synthetic scene needs at least one training view".into(),
         ));
     }
-    let intrinsics = Intrinsics::from_camera_angle_x(cfg.width, cfg.height, CAMERA_ANGLE_X);
+    let camera = PinholeCamera::from(Intrinsics::from_camera_angle_x(cfg.width, cfg.height, CAMERA_ANGLE_X));
     for split in Split::ALL {
         let split_dir = dir.join(split.name());
         std::fs::create_dir_all(&split_dir).map_err(|e| Error::io(&split_dir, e))?;
@@ -119,7 +120,7 @@ pub fn generate_scene(dir: &Path, cfg: &SyntheticSceneConfig) -> Result<()> {
             .collect();
         frames.par_iter().try_for_each(|frame| {
             let pose = Pose::from_rows(frame.transform_matrix);
-            let rgba = render_reference(&pose, &intrinsics);
+            let rgba = render_reference(&pose, &camera);
             save_png_rgba(
                 &image_path(dir, &frame.file_path),
                 cfg.width,
@@ -144,8 +145,8 @@ pub fn generate_scene(dir: &Path, cfg: &SyntheticSceneConfig) -> Result<()> {
 /// The analytic image of the scene from any camera: straight RGBA per pixel, row-major, using
 /// exactly the project's rays ([`Rays::for_rows`]: no half-pixel offset, one ray per pixel).
 /// Hits are opaque with the shaded colour; misses are `[0, 0, 0, 0]`.
-pub fn render_reference(pose: &Pose, intrinsics: &Intrinsics) -> Vec<[f32; 4]> {
-    let rays = Rays::for_rows(intrinsics, pose, 0..intrinsics.height);
+pub fn render_reference(pose: &Pose, camera: &PinholeCamera) -> Vec<[f32; 4]> {
+    let rays = Rays::for_rows(camera, pose, 0..camera.height);
     let light = Vec3::new(1.0, -1.0, 2.0).normalize();
     rays.origins
         .iter()
@@ -264,7 +265,7 @@ mod tests {
         // Looking straight down from (0, 0, 4): the red sphere's top (0, 0, 0.45), normal +z;
         // n·l = 2/√6 = 0.816497 → shade 0.3 + 0.7·0.816497 = 0.871548 ×(0.9, 0.2, 0.15).
         let pose = Pose::spherical(0.0, -90.0, 4.0);
-        let k = Intrinsics::from_camera_angle_x(32, 32, CAMERA_ANGLE_X);
+        let k = PinholeCamera::from(Intrinsics::from_camera_angle_x(32, 32, CAMERA_ANGLE_X));
         let img = render_reference(&pose, &k);
         assert!(
             close(
@@ -345,16 +346,17 @@ mod tests {
 
         let test = load_split(dir.path(), Split::Test, 1, true).unwrap();
         assert_eq!(test.views.len(), 4);
-        assert_eq!((test.intrinsics.width, test.intrinsics.height), (32, 24));
+        let camera = test.camera().unwrap();
+        assert_eq!((camera.width, camera.height), (32, 24));
         let focal = 16.0 / (0.5 * CAMERA_ANGLE_X).tan();
-        assert!((test.intrinsics.focal - focal).abs() < 1e-4);
+        assert!((camera.fx - focal).abs() < 1e-4);
         assert_eq!(test.views[0].name, "r_0");
         // Poses survive the JSON round trip exactly.
         assert_eq!(test.poses(), split_poses(&cfg, Split::Test));
 
         let view = &test.views[0];
         let img = view.image.as_ref().unwrap();
-        let reference = render_reference(&view.pose, &test.intrinsics);
+        let reference = render_reference(&view.pose, &camera);
         let (mut white, mut coloured) = (0, 0);
         for (p, r) in img.iter().zip(&reference) {
             if r[3] == 0.0 {
@@ -383,14 +385,15 @@ mod tests {
 
         // Downscale 2: block means of the full-resolution RGBA, then composited.
         let half = load_split(dir.path(), Split::Train, 2, true).unwrap();
-        assert_eq!((half.intrinsics.width, half.intrinsics.height), (16, 12));
-        assert!((half.intrinsics.focal - focal / 2.0).abs() < 1e-4);
+        let half_camera = half.camera().unwrap();
+        assert_eq!((half_camera.width, half_camera.height), (16, 12));
+        assert!((half_camera.fx - focal / 2.0).abs() < 1e-4);
         assert_eq!(half.views.len(), 3);
-        let full = Intrinsics {
+        let full = PinholeCamera::from(Intrinsics {
             width: 32,
             height: 24,
             focal,
-        };
+        });
         for view in &half.views {
             let small = view.image.as_ref().unwrap();
             assert_eq!(small.len(), 16 * 12);
@@ -423,7 +426,7 @@ mod tests {
         // Val loads without pixels, size from its own images.
         let val = load_split(dir.path(), Split::Val, 2, false).unwrap();
         assert_eq!(
-            (val.intrinsics.width, val.intrinsics.height, val.views.len()),
+            (val.views[0].camera.width, val.views[0].camera.height, val.views.len()),
             (16, 12, 2)
         );
     }

@@ -78,7 +78,7 @@ mod tests {
 
     #[test]
     fn hierarchical_render_hits_the_slab_front_and_misses_elsewhere() {
-        let k = Intrinsics { width: 8, height: 4, focal: 8.0 };
+        let k = crate::PinholeCamera::from(Intrinsics { width: 8, height: 4, focal: 8.0 });
         // Camera at z = 4 looking down −z (identity rotation).
         let pose = Pose([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 4.0]]);
         let options = RenderOptions {

@@ -80,7 +80,7 @@ mod tests {
         };
         grid.update(&(0..grid.len()).map(|c| if touches(c) { 1.0 } else { 0.0 }).collect::<Vec<_>>(), 1.0);
         assert!(grid.occupied_fraction() < 0.05);
-        let k = Intrinsics { width: 24, height: 24, focal: 30.0 };
+        let k = crate::PinholeCamera::from(Intrinsics { width: 24, height: 24, focal: 30.0 });
         let pose = Pose::spherical(30.0, -30.0, 4.0);
         let options = RenderOptions {
             sampling: SamplingConfig { n_coarse: 64, n_fine: 128, ..Default::default() },

@@ -16,7 +16,8 @@ pub mod gradient;
 pub mod grid;
 pub mod packed;
 
-use crate::camera::{Intrinsics, Pose, Rays};
+use crate::camera::{Pose, Rays};
+use crate::camera_model::PinholeCamera;
 use crate::compositing::RayOutput;
 use crate::occupancy::OccupancyGrid;
 use crate::sampling::SamplingConfig;
@@ -159,20 +160,20 @@ pub fn render_rays<F: Field>(
 pub fn render_image<F: Field>(
     field: &mut F,
     occupancy: Option<&OccupancyGrid>,
-    intrinsics: &Intrinsics,
+    camera: &PinholeCamera,
     pose: &Pose,
     options: &RenderOptions,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<RenderedImage, F::Error> {
     let chunk = options.chunk.max(1);
-    let width = intrinsics.width as usize;
+    let width = camera.width as usize;
     let rows_per_chunk = (chunk / width.max(1)).max(1) as u32;
-    let total = intrinsics.num_pixels();
+    let total = camera.num_pixels();
     let mut out = RenderedRays::default();
     let mut row = 0;
-    while row < intrinsics.height {
-        let end = (row + rows_per_chunk).min(intrinsics.height);
-        let rays = Rays::for_rows(intrinsics, pose, row..end);
+    while row < camera.height {
+        let end = (row + rows_per_chunk).min(camera.height);
+        let rays = Rays::for_rows(camera, pose, row..end);
         let mut start = 0;
         while start < rays.len() {
             let stop = (start + chunk).min(rays.len());
@@ -182,5 +183,5 @@ pub fn render_image<F: Field>(
         }
         row = end;
     }
-    Ok(RenderedImage { width: intrinsics.width, height: intrinsics.height, rays: out })
+    Ok(RenderedImage { width: camera.width, height: camera.height, rays: out })
 }

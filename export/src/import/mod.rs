@@ -15,7 +15,8 @@ use crate::ExportError;
 use crate::bundle::{Bundle, NamedPose, SceneDescription, pose_matrix};
 use args::NerfPytorchArgs;
 use checkpoint::{ExpectedNetwork, MappingError, read_checkpoint, to_plain_network};
-use nerf_core::camera::{Intrinsics, Pose};
+use nerf_core::PinholeCamera;
+use nerf_core::camera::Pose;
 use nerf_core::dataset::{Split, load_split};
 use nerf_core::network::EncodingSpec;
 use nerf_core::sampling::SamplingConfig;
@@ -177,7 +178,7 @@ pub fn import_nerf_pytorch(opts: &NerfPytorchImport) -> Result<Imported, ImportE
     // nerf-pytorch halves the images (and the focal) with half_res.
     let downscale = if args.half_res { 2 } else { 1 };
     let test = load_split(&data, Split::Test, downscale, false).map_err(|e| ImportError::Data(e.to_string()))?;
-    let camera: Intrinsics = test.intrinsics;
+    let camera: PinholeCamera = test.camera().ok_or_else(|| ImportError::Data(format!("{}: the test split has no views", data.display())))?;
     let (near, far) = BLENDER_NEAR_FAR;
     let sampling = SamplingConfig { near, far, n_coarse: args.n_samples, n_fine: args.n_importance, lindisp: args.lindisp };
     let mut scene = SceneDescription::new(&camera, &sampling, args.white_bkgd, &coarse, fine.is_some());

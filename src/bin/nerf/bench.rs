@@ -245,7 +245,7 @@ fn bench_skipping(bundle: &Path, data: &Path, downscale: u32, views: usize, samp
         let (mut seconds, mut db) = (0.0, 0.0);
         for view in &val.views {
             let label = format!("{} {}", if skip { "skip" } else { "dense" }, view.name);
-            let (image, s) = timed_frame(progress, &label, val.intrinsics.num_pixels(), |p| scene.render(&val.intrinsics, &view.pose, p));
+            let (image, s) = timed_frame(progress, &label, view.camera.num_pixels(), |p| scene.render(&view.camera, &view.pose, p));
             let image = image?;
             seconds += s;
             db += psnr(&image.rays.rgb, view.image.as_ref().expect("loaded with images"));
@@ -253,11 +253,12 @@ fn bench_skipping(bundle: &Path, data: &Path, downscale: u32, views: usize, samp
         let n = val.views.len();
         let f = &scene.field;
         let points = f.coarse.evaluated + f.fine.as_ref().map_or(0, |n| n.evaluated);
-        Ok((seconds / n as f64, db / n as f32, points as f64 / (n * val.intrinsics.num_pixels()) as f64))
+        let pixels: usize = val.views.iter().map(|v| v.camera.num_pixels()).sum();
+        Ok((seconds / n as f64, db / n as f32, points as f64 / pixels as f64))
     };
     let (dense_s, dense_psnr_db, dense_points_per_ray) = measure(false)?;
     let (skip_s, skip_psnr_db, skip_points_per_ray) = measure(true)?;
-    let k = val.intrinsics;
+    let k = val.views[0].camera;
     let samples = format!("{} + {}", samples.0, samples.1);
     Ok(SkipBench { views: val.views.len(), width: k.width, height: k.height, samples, dense_s, skip_s, dense_psnr_db, skip_psnr_db, dense_points_per_ray, skip_points_per_ray })
 }
@@ -300,7 +301,7 @@ fn bench_ngp_render(bundle: Option<&Path>, steps: usize, data: &Path, progress: 
             let run = temporary.path().join("run");
             let mut config = Preset::Ngp.config();
             config.eval_every_min = 0.0;
-            let options = nerf::train::TrainOptions { data: data.to_path_buf(), run: run.clone(), config, downscale: 1, time_budget_min: None, iters: Some(steps), progress };
+            let options = nerf::train::TrainOptions { format: None, data: data.to_path_buf(), run: run.clone(), config, downscale: 1, time_budget_min: None, iters: Some(steps), progress };
             let summary = nerf::train::train(&options)?;
             let out = temporary.path().join("bundle");
             nerf::export::export_run(&run, &out, None)?;
@@ -313,7 +314,7 @@ fn bench_ngp_render(bundle: Option<&Path>, steps: usize, data: &Path, progress: 
     }
     let val = load_split(data, Split::Val, 1, true)?;
     let view = &val.views[0];
-    let k = val.intrinsics;
+    let k = view.camera;
     let (image, seconds) = timed_frame(progress, "ngp frame", k.num_pixels(), |p| scene.render(&k, &view.pose, p));
     let image = image?;
     let net = &scene.field.coarse;

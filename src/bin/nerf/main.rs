@@ -4,9 +4,9 @@ mod bench;
 
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
-use nerf::evaluate::{eval, render_orbit, render_split};
+use nerf::evaluate::{DataChoice, eval, render_orbit, render_split};
 use nerf::train::{Preset, TrainConfig, TrainOptions, train};
-use nerf_core::dataset::{Split, SyntheticSceneConfig, generate_scene};
+use nerf_core::dataset::{CaptureFormat, CaptureSplit, SyntheticSceneConfig, generate_scene};
 use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -20,11 +20,16 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Train a NeRF on a Blender-format scene (resumes if <out> holds a checkpoint).
+    /// Train a NeRF on a dataset: Blender, instant-ngp/nerfstudio transforms.json or LLFF
+    /// (resumes if <out> holds a checkpoint).
     Train {
-        /// Scene directory holding transforms_{train,val,test}.json.
+        /// Dataset directory: transforms_{train,val,test}.json (Blender), transforms.json
+        /// (instant-ngp/nerfstudio) or poses_bounds.npy + images/ (LLFF).
         #[arg(long)]
         data: PathBuf,
+        /// The dataset's format: blender, instant-ngp or llff (default: detected from the files).
+        #[arg(long)]
+        format: Option<CaptureFormat>,
         /// TOML file overriding the preset's settings (any subset of the keys of config.toml).
         #[arg(long)]
         config: Option<PathBuf>,
@@ -52,12 +57,15 @@ enum Command {
         /// Run directory written by `nerf train`.
         #[arg(long)]
         run: PathBuf,
-        /// Scene directory.
+        /// Dataset directory (its poses go through the run's recorded placement).
         #[arg(long)]
         data: PathBuf,
-        /// Which views: train, val or test.
+        /// The dataset's format: blender, instant-ngp or llff (default: detected).
+        #[arg(long)]
+        format: Option<CaptureFormat>,
+        /// Which views: train, val, test or all (captures: test = every 8th frame, val = test).
         #[arg(long, default_value = "val")]
-        split: Split,
+        split: CaptureSplit,
         /// Image downscale factor (use the one you trained with).
         #[arg(long, default_value_t = 1)]
         downscale: u32,
@@ -73,18 +81,22 @@ enum Command {
         /// Run directory written by `nerf train`.
         #[arg(long)]
         run: PathBuf,
-        /// Render the reference orbit (radius 4, elevation −30°) at the training resolution.
+        /// Render the run's orbit at the training resolution: the reference one (radius 4,
+        /// elevation −30°) for Blender scenes, around the cameras at their height for captures.
         #[arg(long)]
         orbit: bool,
         /// Frames in the orbit.
         #[arg(long, default_value_t = 40)]
         frames: usize,
-        /// Render this split's poses (train, val or test; needs --data).
+        /// Render this split's poses (train, val, test or all; needs --data).
         #[arg(long)]
-        split: Option<Split>,
-        /// Scene directory (with --split).
+        split: Option<CaptureSplit>,
+        /// Dataset directory (with --split).
         #[arg(long)]
         data: Option<PathBuf>,
+        /// The dataset's format: blender, instant-ngp or llff (default: detected).
+        #[arg(long)]
+        format: Option<CaptureFormat>,
         /// Image downscale factor (with --split).
         #[arg(long, default_value_t = 1)]
         downscale: u32,
@@ -224,7 +236,7 @@ fn main() -> Result<()> {
     let cli = Cli::parse();
     let progress = std::io::stderr().is_terminal();
     match cli.command {
-        Command::Train { data, config, preset, downscale, iters, time_budget_min, seed, out } => {
+        Command::Train { data, format, config, preset, downscale, iters, time_budget_min, seed, out } => {
             let mut cfg = match &config {
                 Some(path) => TrainConfig::from_toml_file(path, preset)?,
                 None => preset.unwrap_or(Preset::DEFAULT).config(),
@@ -232,7 +244,7 @@ fn main() -> Result<()> {
             if let Some(seed) = seed {
                 cfg.seed = seed;
             }
-            let opts = TrainOptions { data, run: out.clone(), config: cfg, downscale, time_budget_min, iters, progress };
+            let opts = TrainOptions { format, data, run: out.clone(), config: cfg, downscale, time_budget_min, iters, progress };
             let s = train(&opts)?;
             println!(
                 "trained {} steps in {:.1} min: train PSNR {:.2} dB{}; run in {}",
@@ -243,17 +255,17 @@ fn main() -> Result<()> {
                 out.display()
             );
         }
-        Command::Eval { run, data, split, downscale, limit, out } => {
-            let r = eval(&run, &data, split, downscale, limit, &out, progress)?;
+        Command::Eval { run, data, format, split, downscale, limit, out } => {
+            let r = eval(&run, &DataChoice { dir: data, format, split, downscale }, limit, &out, progress)?;
             println!("{} views: PSNR {:.2} dB, SSIM {:.4}; {}", r.per_image.len(), r.psnr_mean, r.ssim_mean, out.join("metrics.json").display());
         }
-        Command::Render { run, orbit, frames, split, data, downscale, out, npy } => match (orbit, split, data) {
+        Command::Render { run, orbit, frames, split, data, format, downscale, out, npy } => match (orbit, split, data) {
             (true, None, _) => {
                 let gif = render_orbit(&run, frames, &out, npy, progress)?;
                 println!("{frames} frames and depth maps in {}; {}", out.display(), gif.display());
             }
             (false, Some(split), Some(data)) => {
-                let n = render_split(&run, &data, split, downscale, &out, npy, progress)?;
+                let n = render_split(&run, &DataChoice { dir: data, format, split, downscale }, &out, npy, progress)?;
                 println!("{n} views and depth maps in {}", out.display());
             }
             (false, Some(_), None) => bail!("--split needs --data <scene dir>"),
@@ -270,7 +282,7 @@ fn main() -> Result<()> {
             let imported = nerf_export::import::import_nerf_pytorch(&opts)?;
             let b = &imported.bundle;
             let shape = |n: &nerf_core::network::PlainNetwork| format!("{}×{}", n.spec.depth, n.spec.width);
-            let (s, k) = (&b.scene.sampling, &b.scene.camera);
+            let (s, k) = (&b.scene.sampling, &b.scene.camera.camera);
             println!(
                 "nerf-pytorch run ({}): coarse {}, fine {}, {} + {} samples; camera {}×{}, focal {:.2}, {} test poses from {}",
                 imported.args_file.display(),
@@ -280,7 +292,7 @@ fn main() -> Result<()> {
                 s.n_fine,
                 k.width,
                 k.height,
-                k.focal,
+                k.fx,
                 b.scene.poses.test.len(),
                 imported.data.display()
             );
@@ -309,11 +321,11 @@ fn demo(out: PathBuf, minutes: f64, progress: bool) -> Result<()> {
     config.eval_every_min = 0.0;
     config.lr_decay_ksteps = 2.0;
     println!("training for {minutes} min (preset cpu-fast) into {}", run.display());
-    let opts = TrainOptions { data: scene.clone(), run: run.clone(), config, downscale: 1, time_budget_min: Some(minutes), iters: None, progress };
+    let opts = TrainOptions { format: None, data: scene.clone(), run: run.clone(), config, downscale: 1, time_budget_min: Some(minutes), iters: None, progress };
     let s = train(&opts)?;
     println!("trained {} steps, train PSNR {:.2} dB", s.steps, s.train_psnr);
     let eval_dir = out.join("eval");
-    let r = eval(&run, &scene, Split::Val, 1, None, &eval_dir, progress)?;
+    let r = eval(&run, &DataChoice { dir: scene.clone(), format: None, split: CaptureSplit::Val, downscale: 1 }, None, &eval_dir, progress)?;
     let orbit_dir = out.join("orbit");
     let gif = render_orbit(&run, 40, &orbit_dir, false, progress)?;
     println!("\ndemo done in {:.1} min", start.elapsed().as_secs_f64() / 60.0);

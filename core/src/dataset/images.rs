@@ -1,0 +1,122 @@
+//! Decoding a dataset's images, the same way for every format: straight RGBA in `[0, 1]`,
+//! area-downscaled by an integer factor, then composited on the configured background
+//! (reference `load_blender_data` order: average first, composite after).
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::imageio::load_rgba;
+
+/// What transparent pixels show: the colour RGBA images are composited on, and the colour a
+/// render adds where its rays see nothing (`white_background` in a run's configuration).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Background {
+    /// `rgb·a + (1 − a)`: the Blender convention (`white_bkgd`).
+    White,
+    /// `rgb·a`.
+    Black,
+}
+
+impl Background {
+    /// White when `white` is set, else black.
+    pub fn from_white(white: bool) -> Self {
+        if white { Background::White } else { Background::Black }
+    }
+
+    /// A straight RGBA pixel on this background.
+    ///
+    /// Example: (1, 0.5, 0, 0.25) → white (0.25·1 + 0.75, 0.125 + 0.75, 0.75), black (0.25, 0.125, 0).
+    pub fn composite(self, p: [f32; 4]) -> [f32; 3] {
+        let fill = match self {
+            Background::White => 1.0 - p[3],
+            Background::Black => 0.0,
+        };
+        [0, 1, 2].map(|c| p[c] * p[3] + fill)
+    }
+}
+
+/// An error naming `path` when `width × height` is not divisible by `downscale`.
+pub fn check_divisible(path: &Path, width: u32, height: u32, downscale: u32) -> Result<()> {
+    if !width.is_multiple_of(downscale) || !height.is_multiple_of(downscale) {
+        return Err(Error::invalid(
+            path,
+            format!("image is {width}×{height}, not divisible by the downscale factor {downscale}"),
+        ));
+    }
+    Ok(())
+}
+
+/// A decoded image: full-resolution width and height, downscaled composited pixels.
+pub type Decoded = (u32, u32, Vec<[f32; 3]>);
+
+/// Decodes one image and returns its full-resolution size with the downscaled RGB pixels
+/// composited on `background`.
+pub fn load_image(path: &Path, downscale: u32, background: Background) -> Result<Decoded> {
+    let (w, h, rgba) = load_rgba(path)?;
+    check_divisible(path, w, h, downscale)?;
+    let small = downscale_area(&rgba, w as usize, h as usize, downscale as usize);
+    Ok((w, h, small.into_iter().map(|p| background.composite(p)).collect()))
+}
+
+/// Box-filter reduction by an integer `factor` (sides divisible by it): each output pixel is
+/// the mean of its `factor × factor` block of RGBA values (OpenCV's INTER_AREA).
+fn downscale_area(rgba: &[[f32; 4]], width: usize, height: usize, factor: usize) -> Vec<[f32; 4]> {
+    if factor == 1 {
+        return rgba.to_vec();
+    }
+    let (ow, oh) = (width / factor, height / factor);
+    let scale = 1.0 / (factor * factor) as f32;
+    let mut out = vec![[0.0f32; 4]; ow * oh];
+    for j in 0..height {
+        let orow = (j / factor) * ow;
+        for i in 0..width {
+            let o = &mut out[orow + i / factor];
+            let p = rgba[j * width + i];
+            for c in 0..4 {
+                o[c] += p[c];
+            }
+        }
+    }
+    for o in &mut out {
+        for v in o.iter_mut() {
+            *v *= scale;
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn composites_on_either_background() {
+        let p = [1.0, 0.5, 0.0, 0.25];
+        assert_eq!(Background::White.composite(p), [1.0, 0.875, 0.75]);
+        assert_eq!(Background::Black.composite(p), [0.25, 0.125, 0.0]);
+        // Opaque pixels are the same on both.
+        let q = [0.2, 0.4, 0.6, 1.0];
+        assert_eq!(Background::White.composite(q), Background::Black.composite(q));
+        assert_eq!(Background::from_white(false), Background::Black);
+        assert_eq!(serde_json::to_string(&Background::White).unwrap(), "\"white\"");
+    }
+
+    #[test]
+    fn black_background_after_the_area_mean() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("a.png");
+        // 2×2 block: one opaque red pixel and three transparent ones → mean (0.25, 0, 0, 0.25)
+        // → on black 0.25·0.25 = 0.0625 red.
+        image::RgbaImage::from_fn(2, 2, |i, j| image::Rgba(if (i, j) == (0, 0) { [255, 0, 0, 255] } else { [0, 0, 0, 0] }))
+            .save(&path)
+            .unwrap();
+        let (w, h, rgb) = load_image(&path, 2, Background::Black).unwrap();
+        assert_eq!((w, h, rgb.len()), (2, 2, 1));
+        assert!((rgb[0][0] - 0.0625).abs() < 1e-7 && rgb[0][1] == 0.0, "{:?}", rgb[0]);
+        let err = load_image(&path, 3, Background::Black).unwrap_err().to_string();
+        assert!(err.contains("a.png") && err.contains("not divisible by the downscale factor 3"), "{err}");
+    }
+}

@@ -1,0 +1,220 @@
+//! How a capture is placed in the field's cube and viewed: the transform that fits it (decided
+//! once, when a run starts, and recorded), near/far for its rays, and the orbit around it.
+
+use glam::{Mat3, Vec3};
+use serde::{Deserialize, Serialize};
+
+use super::capture::{Capture, centroid, focus_point};
+use crate::camera::Pose;
+use crate::error::{Error, Result};
+use crate::scene_transform::{SceneTransform, pose_from};
+
+/// Near for captures without bounds, as a fraction of the cube's half-size (cameras may sit
+/// inside the cube, so content can be close).
+const BOX_NEAR_FRACTION: f32 = 1.0 / 30.0;
+
+/// The transform (applied after the parser's own) that puts `capture` into the field's cube
+/// `[−bound, bound]³`:
+/// - a file with `aabb_scale` (instant-ngp): its scene box `[−a/2, a/2]³` becomes the cube;
+/// - forward-facing views with depth bounds (LLFF): the cube spans the bounds' depth range,
+///   centred at mid-depth in front of the cameras' centroid along their mean view direction;
+/// - otherwise: centred where the optical axes meet (the centroid when they are parallel),
+///   scaled so that the farthest camera is `bound` away (the object sits inside the ring).
+pub fn fit_to_field(capture: &Capture, bound: f32) -> Result<SceneTransform> {
+    let poses = capture.poses();
+    if let Some(a) = capture.aabb_scale {
+        if !(a > 0.0 && a.is_finite()) {
+            return Err(Error::invalid(&capture.source, format!("aabb_scale {a} must be positive")));
+        }
+        return Ok(SceneTransform { scale: bound / (0.5 * a), ..SceneTransform::identity() });
+    }
+    if capture.forward_facing
+        && let Some((near, far)) = capture.near_far
+    {
+        let forward = poses.iter().map(|p| p.rotation() * Vec3::NEG_Z).sum::<Vec3>().normalize();
+        let centre = centroid(&poses) + forward * (0.5 * (near + far));
+        let half = 0.5 * (far - near);
+        if !(half > 0.0 && centre.is_finite()) {
+            return Err(Error::invalid(&capture.source, format!("bounds ({near}, {far}) give no depth range to fit")));
+        }
+        return Ok(SceneTransform { scale: bound / half, translation: (-centre).to_array(), ..SceneTransform::identity() });
+    }
+    capture.camera_fit(bound)
+}
+
+/// Near and far for rays of a fitted capture (poses in the field's frame): the file's depth
+/// bounds (LLFF: 0.9 · nearest, farthest, as nerf-pytorch without NDC) when it has them, never
+/// past the cube as seen from the farthest camera (`|o| + √3·bound`); otherwise from
+/// `bound / 30` to that distance.
+pub fn field_near_far(capture: &Capture, bound: f32) -> (f32, f32) {
+    let farthest = capture.views.iter().map(|v| v.pose.origin().length()).fold(0.0f32, f32::max);
+    let box_far = farthest + 3f32.sqrt() * bound;
+    let box_near = BOX_NEAR_FRACTION * bound;
+    match capture.near_far {
+        Some((near, far)) if near > 0.0 && far > near => (near.min(box_far * 0.5), far.min(box_far)),
+        _ => (box_near, box_far),
+    }
+}
+
+/// A circle of cameras around a captured scene: centred on the cameras' centroid, in the plane
+/// through it perpendicular to their mean up direction, at their mean distance from that axis,
+/// every camera looking at `target` (where the cameras' axes meet, else the cube's centre)
+/// with `up` up.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct OrbitPath {
+    /// Centre of the circle.
+    pub centre: [f32; 3],
+    /// Unit normal of the circle's plane (the cameras' mean up).
+    pub up: [f32; 3],
+    /// Unit direction from the centre to the first frame.
+    pub start: [f32; 3],
+    /// Radius.
+    pub radius: f32,
+    /// The point every frame looks at.
+    pub target: [f32; 3],
+}
+
+impl OrbitPath {
+    /// The orbit around cameras `poses` (in the field's frame); `None` for no poses or a
+    /// degenerate (non-finite) result.
+    pub fn around(poses: &[Pose]) -> Option<OrbitPath> {
+        let centre = centroid(poses);
+        let up = poses.iter().map(|p| p.rotation() * Vec3::Y).sum::<Vec3>().normalize_or_zero();
+        if up == Vec3::ZERO {
+            return None;
+        }
+        let across = |p: &Pose| {
+            let d = p.origin() - centre;
+            d - d.dot(up) * up
+        };
+        let radius = poses.iter().map(|p| across(p).length()).sum::<f32>() / poses.len() as f32;
+        // Start at the first camera's side (any perpendicular when it sits on the axis).
+        let start = across(&poses[0]).try_normalize().unwrap_or_else(|| up.any_orthonormal_vector());
+        let target = focus_point(poses).unwrap_or(Vec3::ZERO);
+        let path = OrbitPath { centre: centre.to_array(), up: up.to_array(), start: start.to_array(), radius, target: target.to_array() };
+        (centre.is_finite() && radius.is_finite() && target.is_finite()).then_some(path)
+    }
+
+    /// `frames` poses evenly around the circle, the first at `start`.
+    pub fn poses(&self, frames: usize) -> Vec<Pose> {
+        let (centre, up, start) = (Vec3::from(self.centre), Vec3::from(self.up), Vec3::from(self.start));
+        let side = up.cross(start);
+        (0..frames)
+            .map(|k| {
+                let a = std::f32::consts::TAU * k as f32 / frames as f32;
+                let origin = centre + self.radius * (a.cos() * start + a.sin() * side);
+                let back = (origin - Vec3::from(self.target)).normalize();
+                let right = up.cross(back).normalize();
+                pose_from(Mat3::from_cols(right, back.cross(right), back), origin)
+            })
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera_model::{PinholeCamera, PixelCenter};
+    use crate::dataset::{CaptureFormat, CaptureView};
+    use std::path::PathBuf;
+
+    /// A camera at `origin` looking at `target`, +y up.
+    fn look_at(origin: Vec3, target: Vec3) -> Pose {
+        let back = (origin - target).normalize();
+        let right = Vec3::Y.cross(back).normalize();
+        pose_from(Mat3::from_cols(right, back.cross(right), back), origin)
+    }
+
+    fn capture(poses: &[Pose], near_far: Option<(f32, f32)>, forward_facing: bool, aabb_scale: Option<f32>) -> Capture {
+        let camera = PinholeCamera { width: 4, height: 4, fx: 4.0, fy: 4.0, cx: 2.0, cy: 2.0, pixel_center: PixelCenter::HalfPixel, distortion: None };
+        Capture {
+            format: CaptureFormat::Llff,
+            source: PathBuf::from("poses_bounds.npy"),
+            views: poses.iter().map(|&pose| CaptureView { name: "v".into(), image_path: "v.png".into(), camera, pose, bounds: near_far }).collect(),
+            transform: SceneTransform::identity(),
+            near_far,
+            forward_facing,
+            aabb_scale,
+            scale: None,
+            offset: None,
+            explicit_splits: None,
+            warnings: vec![],
+        }
+    }
+
+    /// Eight cameras on a ring of radius 4 about (1, 2, 3), 3 above it, looking at it.
+    fn ring() -> Vec<Pose> {
+        let target = Vec3::new(1.0, 2.0, 3.0);
+        (0..8)
+            .map(|k| {
+                let a = k as f32 * std::f32::consts::TAU / 8.0;
+                look_at(target + Vec3::new(4.0 * a.cos(), 3.0, 4.0 * a.sin()), target)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_ring_is_centred_on_its_focus_with_the_farthest_camera_on_the_bound() {
+        let c = capture(&ring(), None, false, None);
+        let t = fit_to_field(&c, 1.5).unwrap();
+        // Every camera is 5 from the focus (1, 2, 3): scale 1.5/5 = 0.3.
+        assert!((t.scale - 0.3).abs() < 1e-5, "{t:?}");
+        assert!(t.apply_point(Vec3::new(1.0, 2.0, 3.0)).length() < 1e-4);
+        let mut fitted = c.clone();
+        fitted.renormalise(&t);
+        // No bounds: near = 1.5/30, far = 1.5 + √3·1.5.
+        let (near, far) = field_near_far(&fitted, 1.5);
+        assert!((near - 0.05).abs() < 1e-6 && (far - (1.5 + 3f32.sqrt() * 1.5)).abs() < 1e-4, "{near} {far}");
+    }
+
+    #[test]
+    fn an_aabb_becomes_the_cube_and_forward_facing_bounds_span_it() {
+        let c = capture(&ring(), None, false, Some(4.0));
+        let t = fit_to_field(&c, 1.5).unwrap();
+        // [−2, 2]³ → [−1.5, 1.5]³: scale 0.75, no shift.
+        assert_eq!((t.scale, t.translation), (0.75, [0.0; 3]));
+        // Two cameras at x = ±1 looking down −z, bounds (2, 10): mid-depth 6, half-range 4.
+        let rig = [look_at(Vec3::X, Vec3::new(1.0, 0.0, -1.0)), look_at(-Vec3::X, Vec3::new(-1.0, 0.0, -1.0))];
+        let c = capture(&rig, Some((2.0, 10.0)), true, None);
+        let t = fit_to_field(&c, 1.5).unwrap();
+        assert!((t.scale - 0.375).abs() < 1e-6, "{t:?}");
+        assert!(t.apply_point(Vec3::new(0.0, 0.0, -6.0)).length() < 1e-5);
+        // The nearest content (depth 2) lands on the cube's face: z = (−2 + 6)·0.375 = 1.5.
+        assert!((t.apply_point(Vec3::new(0.0, 0.0, -2.0)).z - 1.5).abs() < 1e-5);
+        let mut fitted = c.clone();
+        fitted.renormalise(&t);
+        // Bounds scale by 0.375: (0.75, 3.75); the cube seen from a camera at distance
+        // |(±0.375, 0, 2.25)| = 2.281 reaches 2.281 + 2.598 = 4.879, past 3.75.
+        let (near, far) = field_near_far(&fitted, 1.5);
+        assert!((near - 0.75).abs() < 1e-5 && (far - 3.75).abs() < 1e-5, "{near} {far}");
+        // A single camera gives no scale: a clear error naming the file.
+        let err = fit_to_field(&capture(&ring()[..1], None, false, None), 1.5).unwrap_err().to_string();
+        assert!(err.contains("poses_bounds.npy") && err.contains("farthest camera at distance 0"), "{err}");
+    }
+
+    #[test]
+    fn the_orbit_circles_the_cameras_at_their_height_looking_at_the_centre() {
+        // Cameras on a ring of radius 2 at height 1 about the origin, looking at the origin.
+        let poses: Vec<Pose> = (0..6)
+            .map(|k| {
+                let a = k as f32 * std::f32::consts::TAU / 6.0;
+                look_at(Vec3::new(2.0 * a.cos(), 1.0, 2.0 * a.sin()), Vec3::ZERO)
+            })
+            .collect();
+        let orbit = OrbitPath::around(&poses).unwrap();
+        assert!((Vec3::from(orbit.centre) - Vec3::Y).length() < 1e-5, "{orbit:?}");
+        assert!((orbit.radius - 2.0).abs() < 1e-5);
+        // The cameras' mean up: the ring looks down at 26.6°, their up axes average to +y.
+        assert!((Vec3::from(orbit.up) - Vec3::Y).length() < 1e-5);
+        let frames = orbit.poses(12);
+        assert_eq!(frames.len(), 12);
+        // The first frame is the first camera.
+        assert!((frames[0].origin() - poses[0].origin()).length() < 1e-5);
+        for f in &frames {
+            assert!((f.origin().y - 1.0).abs() < 1e-5 && (f.origin().x.hypot(f.origin().z) - 2.0).abs() < 1e-5);
+            let forward = f.rotation() * Vec3::NEG_Z;
+            assert!((forward - (-f.origin()).normalize()).length() < 1e-5);
+        }
+        assert_eq!(OrbitPath::around(&[]), None);
+    }
+}
