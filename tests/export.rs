@@ -3,16 +3,11 @@
 
 mod common;
 
-use common::{nerf, s, small_scene, tiny_config, trained_run};
+use common::{nerf, python, s, small_scene, tiny_config, trained_run};
 use nerf::run_dir::RunDir;
 use nerf::train::{TrainOptions, train};
 use std::path::Path;
 use std::process::Command;
-
-/// The Python with onnx and onnxruntime (scripts/setup.sh makes one; scripts/env.sh names it).
-fn python() -> String {
-    std::env::var("NERF_PYTHON").unwrap_or_else(|_| "python3".into())
-}
 
 /// Random points in the scene cube and unit directions, with the plain network's answers.
 fn reference(net: &nerf_core::network::PlainNetwork, n: usize, seed: u64) -> serde_json::Value {

@@ -6,7 +6,7 @@
 
 mod common;
 
-use common::{nerf, nerf_render, s, small_scene};
+use common::{nerf, nerf_render, python, s, small_scene};
 use nerf::run_dir::RunDir;
 use nerf::train::{Preset, TrainConfig, TrainOptions, train};
 use nerf_core::frames::load_npy;
@@ -37,10 +37,6 @@ fn tiny_ngp() -> TrainConfig {
 fn train_tiny(scene: &Path, run: &Path, iters: usize) -> nerf::train::TrainSummary {
     let options = TrainOptions { format: None, data: scene.to_path_buf(), run: run.to_path_buf(), config: tiny_ngp(), downscale: 1, time_budget_min: None, iters: Some(iters), progress: false };
     train(&options).unwrap()
-}
-
-fn python() -> String {
-    std::env::var("NERF_PYTHON").unwrap_or_else(|_| "python3".into())
 }
 
 /// `nerf render --npy` of test view 0 (burn) vs `nerf-render --npy` of the bundle

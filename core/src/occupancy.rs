@@ -93,8 +93,19 @@ impl OccupancyGrid {
 
     /// The same grid with another occupancy threshold (render-time tuning: higher skips more).
     pub fn with_threshold(mut self, threshold: f32) -> Self {
-        self.threshold = threshold;
+        self.set_threshold(threshold);
         self
+    }
+
+    /// Change the occupancy threshold in place.
+    pub fn set_threshold(&mut self, threshold: f32) {
+        self.threshold = threshold;
+    }
+
+    /// One occupied cell covering [−bound, bound]³: marching through it evaluates every
+    /// interval inside the cube (for fields defined only there, rendered without their grid).
+    pub fn whole_cube(bound: f32) -> Self {
+        Self::new(1, bound, 0.0)
     }
 
     /// Number of cells.

@@ -72,7 +72,7 @@ impl OrtScene {
             // A hash-grid field is defined inside its box only: without skipping, march the
             // whole box (one occupied cell of the grid's extent).
             let bound = description.occupancy.as_ref().map_or(1.5, |o| o.bound);
-            occupancy = Some(OccupancyGrid::new(1, bound, 0.0));
+            occupancy = Some(OccupancyGrid::whole_cube(bound));
         }
         let mut render_options =
             RenderOptions::new(description.sampling.clone(), description.white_background, options.chunk, options.skip_empty_space);

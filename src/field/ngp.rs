@@ -106,12 +106,17 @@ impl NgpField {
         Ok(NgpField { spec, grid, mlps: NgpMlps::new(&spec, &mut Rng::new(seed).fork(), device) })
     }
 
+    /// World points in the unit cube, and their grid features `[n, L·F]`.
+    fn grid_features(&self, points: &[[f32; 3]], device: &Device) -> (Vec<[f32; 3]>, Tensor<2>) {
+        let unit: Vec<[f32; 3]> = points.iter().map(|&p| self.spec.bound.to_unit(p)).collect();
+        let features = Tensor::<2>::from_data(TensorData::new(self.grid.forward(&unit), [points.len(), self.grid.output_dim()]), device);
+        (unit, features)
+    }
+
     fn encode(&self, points: &[[f32; 3]], viewdirs: &[[f32; 3]], device: &Device) -> (Vec<[f32; 3]>, Tensor<2>, Tensor<2>) {
         assert_eq!(points.len(), viewdirs.len(), "one view direction per point");
-        let n = points.len();
-        let unit: Vec<[f32; 3]> = points.iter().map(|&p| self.spec.bound.to_unit(p)).collect();
-        let features = Tensor::<2>::from_data(TensorData::new(self.grid.forward(&unit), [n, self.grid.output_dim()]), device);
-        let sh = Tensor::<2>::from_data(TensorData::new(sh4_all(viewdirs), [n, SH4_DIM]), device);
+        let (unit, features) = self.grid_features(points, device);
+        let sh = Tensor::<2>::from_data(TensorData::new(sh4_all(viewdirs), [points.len(), SH4_DIM]), device);
         (unit, features, sh)
     }
 
@@ -126,8 +131,7 @@ impl NgpField {
 
     /// σ at world points (the density MLP only; no gradient).
     pub fn density(&self, points: &[[f32; 3]], device: &Device) -> Vec<f32> {
-        let unit: Vec<[f32; 3]> = points.iter().map(|&p| self.spec.bound.to_unit(p)).collect();
-        let features = Tensor::<2>::from_data(TensorData::new(self.grid.forward(&unit), [points.len(), self.grid.output_dim()]), device);
+        let (_, features) = self.grid_features(points, device);
         self.mlps.density(features).into_data().try_to_vec::<f32>().expect("f32 densities")
     }
 
@@ -136,7 +140,7 @@ impl NgpField {
     pub fn whole_box(&self) -> nerf_core::occupancy::OccupancyGrid {
         let b = &self.spec.bound;
         let half = (0..3).map(|k| b.max[k].abs().max(b.min[k].abs())).fold(0.0f32, f32::max);
-        nerf_core::occupancy::OccupancyGrid::new(1, half, 0.0)
+        nerf_core::occupancy::OccupancyGrid::whole_cube(half)
     }
 
     /// [`forward`](Self::forward) on an autodiff device, the grid features a leaf that requires a

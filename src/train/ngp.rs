@@ -96,9 +96,8 @@ impl NgpTrainer {
         let o = &self.config.occupancy;
         self.occupancy.update(&sigma, o.decay);
         if o.threshold_at_most_mean {
-            let grid = std::mem::replace(&mut self.occupancy, OccupancyGrid::new(1, 1.0, 0.0));
-            let threshold = o.threshold.min(grid.mean_density());
-            self.occupancy = grid.with_threshold(threshold);
+            let threshold = o.threshold.min(self.occupancy.mean_density());
+            self.occupancy.set_threshold(threshold);
         }
     }
 

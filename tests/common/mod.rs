@@ -67,6 +67,11 @@ pub fn trained_run(dir: &Path) -> (PathBuf, PathBuf) {
     (scene, run)
 }
 
+/// The Python with numpy, onnx and onnxruntime (`scripts/env.sh` sets `NERF_PYTHON`).
+pub fn python() -> String {
+    std::env::var("NERF_PYTHON").unwrap_or_else(|_| "python3".into())
+}
+
 /// A path as `&str`.
 pub fn s(p: &Path) -> &str {
     p.to_str().unwrap()
