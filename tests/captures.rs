@@ -1,15 +1,17 @@
 //! A captured scene end to end: an instant-ngp `transforms.json` in arbitrary units (the
 //! generated scene's cameras scaled ×10 and moved by (100, 0, 0)) trains, evaluates and renders
 //! through the run's recorded placement, which data given later never changes; its bundle
-//! records the placement and holds test poses in the field's frame.
+//! records the placement and holds test poses in the field's frame. A forward-facing LLFF
+//! capture trains on NDC rays, and burn, onnxruntime and the numpy consumer render it alike.
 
 mod common;
 
-use common::{nerf, nerf_render, s, tiny_config};
+use common::{nerf, nerf_render, python, s, tiny_config, tiny_ngp};
 use glam::Vec3;
 use nerf::run_dir::RunDir;
 use nerf::train::{TrainOptions, train};
-use nerf_core::dataset::{Split, SyntheticSceneConfig, generate_scene, split_poses};
+use nerf_core::{PinholeCamera, PixelCenter, Pose};
+use nerf_core::dataset::{CameraPath, Split, SyntheticSceneConfig, generate_scene, render_reference, split_poses};
 use std::path::{Path, PathBuf};
 
 /// The world of the capture: `x' = 10·x + (100, 0, 0)`.
@@ -49,20 +51,21 @@ fn a_capture_trains_evaluates_and_renders_through_its_recorded_placement() {
     let run = dir.path().join("run");
     let mut config = tiny_config();
     config.iters = 20;
-    train(&TrainOptions { format: None, data: data.clone(), run: run.clone(), config, downscale: 1, time_budget_min: None, iters: None, progress: false }).unwrap();
+    train(&TrainOptions { format: None, data: data.clone(), run: run.clone(), config, ndc: None, downscale: 1, time_budget_min: None, iters: None, progress: false }).unwrap();
 
     // The fit: centred where the cameras look (the capture's (100, 0, 0)), the cameras, 40
-    // units away there, on the cube's bound 1.5.
+    // units away there, at a third of the cube's bound 1.5.
     let source = RunDir::open(&run).unwrap().read_source().unwrap().unwrap();
     let placement = source.placement.unwrap();
     let t = placement.transform;
-    assert!((t.scale - 1.5 / 40.0).abs() < 1e-5, "{t:?}");
+    assert!((t.scale - 0.5 / 40.0).abs() < 1e-5, "{t:?}");
     assert!(t.apply_point(to_capture(Vec3::ZERO)).length() < 1e-4, "{t:?}");
-    // near/far of a capture without bounds: 1.5/30 to 1.5 + √3·1.5, also in config.toml.
+    // near/far of a capture without bounds: 1.5/30 to 0.5 + √3·1.5, also in config.toml.
     let config = RunDir::open(&run).unwrap().read_config().unwrap();
-    assert!((config.sampling.near - 0.05).abs() < 1e-6 && (config.sampling.far - 1.5 * (1.0 + 3f32.sqrt())).abs() < 1e-4);
+    assert!((config.sampling.near - 0.05).abs() < 1e-6 && (config.sampling.far - (0.5 + 1.5 * 3f32.sqrt())).abs() < 1e-4);
     // The orbit circles the cameras around the centre.
-    assert!(Vec3::from(placement.orbit.unwrap().target).length() < 1e-3);
+    let Some(CameraPath::Circle(orbit)) = placement.orbit else { panic!("{:?}", placement.orbit) };
+    assert!(Vec3::from(orbit.target).length() < 1e-3);
 
     // Test = frames 0 and 8 of the 16 (train_0, train_8); eval and render them.
     let eval_dir = dir.path().join("eval");
@@ -98,9 +101,101 @@ fn a_capture_trains_evaluates_and_renders_through_its_recorded_placement() {
     let test0 = scene.poses.test.iter().find(|p| p.name == "train_0").unwrap();
     let pose0 = split_poses(&SyntheticSceneConfig { width: 32, height: 32, n_train: 14, n_val: 0, n_test: 2, seed: 3 }, Split::Train)[0];
     let origin = Vec3::new(test0.transform_matrix[0][3], test0.transform_matrix[1][3], test0.transform_matrix[2][3]);
-    assert!((origin - pose0.origin() * 1.5 / 4.0).length() < 1e-4, "{origin} vs {}", pose0.origin());
+    assert!((origin - pose0.origin() * 0.5 / 4.0).length() < 1e-4, "{origin} vs {}", pose0.origin());
     // nerf-render renders the capture's own test split through the bundle's placement, with metrics.
     let ort = dir.path().join("ort");
     let (ok, text) = nerf_render(&["--bundle", s(&bundle), "--split", "test", "--data", s(&data), "--out", s(&ort)]);
     assert!(ok && text.contains("PSNR"), "{text}");
+}
+
+/// An LLFF capture of the generated scene seen from the front: nine cameras on a 3×3 grid in
+/// the plane z = 4, all looking down −z (forward-facing), 40×30 images, bounds 2.5..6.
+fn forward_facing_capture(dir: &Path) -> PathBuf {
+    let out = dir.join("llff");
+    std::fs::create_dir_all(out.join("images")).unwrap();
+    let (w, h, focal) = (40u32, 30u32, 36.0f32);
+    let camera = PinholeCamera { width: w, height: h, fx: focal, fy: focal, cx: 20.0, cy: 15.0, pixel_center: PixelCenter::Integer, distortion: None };
+    let mut rows = Vec::new();
+    for k in 0..9 {
+        let (x, y) = (0.3 * (k % 3) as f32 - 0.3, 0.2 * (k / 3) as f32 - 0.2);
+        let pose = Pose::from_rows([[1.0, 0.0, 0.0, x], [0.0, 1.0, 0.0, y], [0.0, 0.0, 1.0, 4.0], [0.0, 0.0, 0.0, 1.0]]);
+        let rgba = render_reference(&pose, &camera);
+        let bytes: Vec<u8> = rgba.iter().flat_map(|p| p.map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)).collect();
+        image::RgbaImage::from_raw(w, h, bytes).unwrap().save(out.join(format!("images/{k:03}.png"))).unwrap();
+        // LLFF columns [down, right, back | centre | hwf] (right = +x, up = +y, back = +z).
+        let m = [[0.0, 1.0, 0.0, x, h as f32], [-1.0, 0.0, 0.0, y, w as f32], [0.0, 0.0, 1.0, 4.0, focal]];
+        rows.extend(m.iter().flatten().map(|&v| v as f64));
+        rows.extend([2.5, 6.0]);
+    }
+    // numpy's format 1.0: magic, header length, the dict padded to 64 bytes, then '<f8' data.
+    let mut header = "{'descr': '<f8', 'fortran_order': False, 'shape': (9, 17), }".to_string();
+    while (10 + header.len() + 1) % 64 != 0 {
+        header.push(' ');
+    }
+    header.push('\n');
+    let mut npy = b"\x93NUMPY\x01\x00".to_vec();
+    npy.extend((header.len() as u16).to_le_bytes());
+    npy.extend(header.as_bytes());
+    npy.extend(rows.iter().flat_map(|v| v.to_le_bytes()));
+    std::fs::write(out.join("poses_bounds.npy"), npy).unwrap();
+    out
+}
+
+#[test]
+fn a_forward_facing_capture_trains_on_ndc_rays_and_renders_alike_everywhere() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = forward_facing_capture(dir.path());
+    let run = dir.path().join("run");
+    let mut config = tiny_ngp();
+    config.iters = 60;
+    train(&TrainOptions { format: None, data: data.clone(), run: run.clone(), config, ndc: None, downscale: 1, time_budget_min: None, iters: None, progress: false }).unwrap();
+
+    // NDC was chosen (LLFF, forward-facing): near/far 0..1, the first camera's projection with
+    // nerf-pytorch's near plane 1, random backgrounds for a capture, a spiral for renders.
+    let config = RunDir::open(&run).unwrap().read_config().unwrap();
+    let ndc = config.sampling.ndc.expect("NDC rays for a forward-facing LLFF capture");
+    assert_eq!((config.sampling.near, config.sampling.far), (0.0, 1.0));
+    assert_eq!((ndc.width, ndc.height, ndc.fx, ndc.near), (40.0, 30.0, 36.0, 1.0));
+    assert_eq!(config.train_background, Some(nerf_core::dataset::Background::Random));
+    let placement = RunDir::open(&run).unwrap().read_source().unwrap().unwrap().placement.unwrap();
+    assert_eq!(placement.ndc, Some(ndc));
+    assert!(matches!(placement.orbit, Some(CameraPath::Spiral(_))), "{:?}", placement.orbit);
+
+    // burn and onnxruntime render the held-out view 000 alike, and it shows the scene.
+    let bundle = dir.path().join("bundle");
+    let (ok, text) = nerf(&["export", "--run", s(&run), "--out", s(&bundle)]);
+    assert!(ok, "{text}");
+    let scene_json: serde_json::Value = serde_json::from_slice(&std::fs::read(bundle.join("scene.json")).unwrap()).unwrap();
+    assert_eq!(scene_json["sampling"]["ndc"]["fx"], 36.0);
+    let burn_out = dir.path().join("burn");
+    let (ok, text) = nerf(&["render", "--run", s(&run), "--split", "test", "--data", s(&data), "--out", s(&burn_out), "--npy"]);
+    assert!(ok, "{text}");
+    let ort_out = dir.path().join("ort");
+    let (ok, text) = nerf_render(&["--bundle", s(&bundle), "--split", "test", "--data", s(&data), "--limit", "1", "--out", s(&ort_out), "--npy"]);
+    assert!(ok && text.contains("PSNR"), "{text}");
+    let (_, _, a) = nerf_core::frames::load_npy(&burn_out.join("000.npy")).unwrap();
+    let (_, _, b) = nerf_core::frames::load_npy(&ort_out.join("000.npy")).unwrap();
+    let diff = a.iter().zip(&b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+    let spread = a.chunks_exact(5).map(|p| p[0]).fold(f32::INFINITY, f32::min) < a.chunks_exact(5).map(|p| p[0]).fold(0.0, f32::max) - 0.1;
+    assert!(spread, "a flat image: parity would mean nothing");
+    assert!(diff < 1e-3, "burn vs onnxruntime on NDC rays: max |Δ| {diff}");
+
+    // The numpy consumer warps the rays itself and agrees with nerf-render.
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python/render_rays.py");
+    let out = std::process::Command::new(python())
+        .args([s(&script), s(&bundle), "--npy", s(&ort_out.join("000.npy")), "--test-pose", "0"])
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {} ({e}): run scripts/setup.sh and source scripts/env.sh", python()));
+    let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    assert!(out.status.success(), "{text}");
+
+    // The orbit (a spiral, through NDC rays) renders; with --ndc false the same data trains
+    // in the field's cube instead.
+    let (ok, text) = nerf(&["render", "--run", s(&run), "--orbit", "--frames", "2", "--out", s(&dir.path().join("orbit"))]);
+    assert!(ok && dir.path().join("orbit/orbit.gif").is_file(), "{text}");
+    let cube = dir.path().join("cube");
+    let mut config = tiny_ngp();
+    config.iters = 2;
+    train(&TrainOptions { format: None, data, run: cube.clone(), config, ndc: Some(false), downscale: 1, time_budget_min: None, iters: None, progress: false }).unwrap();
+    assert_eq!(RunDir::open(&cube).unwrap().read_config().unwrap().sampling.ndc, None);
 }

@@ -6,36 +6,18 @@
 
 mod common;
 
-use common::{nerf, nerf_render, python, s, small_scene};
+use common::{nerf, nerf_render, python, s, small_scene, tiny_ngp};
 use nerf::run_dir::RunDir;
-use nerf::train::{Preset, TrainConfig, TrainOptions, train};
+use nerf::train::{TrainConfig, TrainOptions, train};
 use nerf_core::frames::load_npy;
-use nerf_core::hash_grid::HashGridConfig;
 use nerf_core::metrics::psnr;
 use nerf_export::proto::ModelProto;
 use prost::Message;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-/// The `ngp` preset shrunk so that a test trains in seconds.
-fn tiny_ngp() -> TrainConfig {
-    let mut c = Preset::Ngp.config();
-    c.ngp.grid = HashGridConfig { levels: 8, features_per_level: 2, log2_table_size: 14, base_resolution: 8, max_resolution: 128 };
-    c.ngp.density_hidden = 32;
-    c.ngp.color_hidden = 32;
-    c.target_samples = 1 << 13;
-    c.march_steps = 256;
-    c.occupancy.resolution = 32;
-    c.occupancy.warmup_steps = 16;
-    c.occupancy.update_every = 8;
-    c.checkpoint_every = 10_000;
-    c.eval_every_min = 0.0;
-    c.iters = 80;
-    c
-}
-
 fn train_tiny(scene: &Path, run: &Path, iters: usize) -> nerf::train::TrainSummary {
-    let options = TrainOptions { format: None, data: scene.to_path_buf(), run: run.to_path_buf(), config: tiny_ngp(), downscale: 1, time_budget_min: None, iters: Some(iters), progress: false };
+    let options = TrainOptions { format: None, data: scene.to_path_buf(), run: run.to_path_buf(), config: tiny_ngp(), ndc: None, downscale: 1, time_budget_min: None, iters: Some(iters), progress: false };
     train(&options).unwrap()
 }
 

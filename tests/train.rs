@@ -110,6 +110,7 @@ fn resume_continues_exactly_and_runs_are_deterministic() {
         data: scene.clone(),
         run: dir.path().join(run),
         config: config.clone(),
+        ndc: None,
         downscale: 1,
         time_budget_min: None,
         iters: Some(iters),

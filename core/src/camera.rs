@@ -159,6 +159,10 @@ pub struct Rays {
     pub origins: Vec<[f32; 3]>,
     /// Ray directions (unnormalised).
     pub directions: Vec<[f32; 3]>,
+    /// The directions the networks see, when they are not `directions`: rays warped into NDC
+    /// keep their world directions here (nerf-pytorch's `viewdirs` come from the rays before
+    /// `ndc_rays`). Unnormalised, `[n_rays]` when present.
+    pub viewdirs: Option<Vec<[f32; 3]>>,
 }
 
 impl Rays {
@@ -199,20 +203,34 @@ impl Rays {
 
     /// Empty batch with room for `n` rays.
     pub fn with_capacity(n: usize) -> Rays {
-        Rays { origins: Vec::with_capacity(n), directions: Vec::with_capacity(n) }
+        Rays { origins: Vec::with_capacity(n), directions: Vec::with_capacity(n), viewdirs: None }
     }
 
-    /// Unit view directions (the networks' `viewdirs` input).
+    /// Unit view directions (the networks' `viewdirs` input): of [`Rays::viewdirs`] when the
+    /// rays were warped, else of the directions.
     pub fn view_directions(&self) -> Vec<[f32; 3]> {
-        self.directions.iter().map(|d| Vec3::from_array(*d).normalize().to_array()).collect()
+        let source = self.viewdirs.as_ref().unwrap_or(&self.directions);
+        source.iter().map(|d| Vec3::from_array(*d).normalize().to_array()).collect()
     }
 
     /// Rays `range` as a new batch.
     pub fn slice(&self, range: std::ops::Range<usize>) -> Rays {
         Rays {
             origins: self.origins[range.clone()].to_vec(),
-            directions: self.directions[range].to_vec(),
+            directions: self.directions[range.clone()].to_vec(),
+            viewdirs: self.viewdirs.as_ref().map(|v| v[range].to_vec()),
         }
+    }
+
+    /// Appends `other`'s rays (view directions kept per ray when either batch was warped).
+    pub fn extend(&mut self, other: Rays) {
+        if self.viewdirs.is_some() || other.viewdirs.is_some() {
+            let mut mine = self.viewdirs.take().unwrap_or_else(|| self.directions.clone());
+            mine.extend(other.viewdirs.as_ref().unwrap_or(&other.directions));
+            self.viewdirs = Some(mine);
+        }
+        self.origins.extend(other.origins);
+        self.directions.extend(other.directions);
     }
 }
 

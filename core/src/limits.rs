@@ -120,11 +120,21 @@ pub fn check_camera(c: &PinholeCamera, at: Origin) -> Result<()> {
     Ok(())
 }
 
-/// Sampling: finite 0 < near < far, at least one coarse sample, at most
-/// [`MAX_SAMPLES_PER_RAY`] samples per ray in all.
+/// Sampling: finite 0 < near < far (NDC rays: 0 ≤ near < far ≤ 1 and a projection with
+/// positive finite values), at least one coarse sample, at most [`MAX_SAMPLES_PER_RAY`]
+/// samples per ray in all.
 pub fn check_sampling(s: &SamplingConfig, at: Origin) -> Result<()> {
-    if !(s.near.is_finite() && s.far.is_finite() && s.near > 0.0 && s.far > s.near) {
-        return Err(at.error(format!("need finite 0 < near < far, got near {} far {}", s.near, s.far)));
+    match &s.ndc {
+        None if !(s.near.is_finite() && s.far.is_finite() && s.near > 0.0 && s.far > s.near) => {
+            return Err(at.error(format!("need finite 0 < near < far, got near {} far {}", s.near, s.far)));
+        }
+        Some(_) if !(s.near >= 0.0 && s.far > s.near && s.far <= 1.0) => {
+            return Err(at.error(format!("NDC rays need 0 <= near < far <= 1, got near {} far {}", s.near, s.far)));
+        }
+        Some(ndc) if !ndc.is_valid() => {
+            return Err(at.sub_error("ndc", format!("{ndc:?} needs positive finite width, height, fx, fy and near")));
+        }
+        _ => {}
     }
     if s.n_coarse == 0 {
         return Err(at.sub_error("n_coarse", "must be at least 1"));
@@ -255,6 +265,13 @@ mod tests {
         assert!(check_sampling(&s, at).unwrap_err().to_string().contains("sampling.n_coarse"));
         let s = SamplingConfig { far: f32::INFINITY, ..Default::default() };
         assert!(check_sampling(&s, at).unwrap_err().to_string().contains("near < far"));
+        // NDC: near 0 is fine, far past 1 (infinity) or a broken projection is not.
+        let ndc = crate::ndc::Ndc::new(400, 300, 320.0, 1.0);
+        check_sampling(&SamplingConfig { near: 0.0, far: 1.0, ndc: Some(ndc), ..Default::default() }, at).unwrap();
+        let s = SamplingConfig { near: 0.0, far: 2.0, ndc: Some(ndc), ..Default::default() };
+        assert!(check_sampling(&s, at).unwrap_err().to_string().contains("near < far <= 1"));
+        let s = SamplingConfig { near: 0.0, far: 1.0, ndc: Some(crate::ndc::Ndc { fx: f32::NAN, ..ndc }), ..Default::default() };
+        assert!(check_sampling(&s, at).unwrap_err().to_string().contains("sampling.ndc"));
         check_chunk(1024, 192, Origin::Option("--chunk")).unwrap();
         // 21845 · 192 = 4,194,240 ≤ 2²² < 21846 · 192.
         check_chunk(21_845, 192, Origin::Option("--chunk")).unwrap();

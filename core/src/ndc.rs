@@ -7,11 +7,15 @@
 //! (the near plane) to t = 1 (infinity), so training samples `near = 0, far = 1`.
 
 use glam::Vec3;
+use serde::{Deserialize, Serialize};
 
 use crate::camera::Rays;
+use crate::camera_model::PinholeCamera;
 
 /// The NDC projection of one camera: image size, focal length(s) and the near plane.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// Only the ratios `fx/W`, `fy/H` matter, so one projection serves every downscale.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Ndc {
     /// Image width in pixels.
     pub width: f32,
@@ -35,6 +39,16 @@ impl Ndc {
             fy: focal,
             near,
         }
+    }
+
+    /// The projection of `camera` (nerf-pytorch takes the training images' H, W and focal).
+    pub fn for_camera(camera: &PinholeCamera, near: f32) -> Self {
+        Ndc { width: camera.width as f32, height: camera.height as f32, fx: camera.fx, fy: camera.fy, near }
+    }
+
+    /// Whether every value is finite and positive.
+    pub fn is_valid(&self) -> bool {
+        [self.width, self.height, self.fx, self.fy, self.near].iter().all(|v| v.is_finite() && *v > 0.0)
     }
 
     /// A point in camera-aligned world space (z < 0 in front) to NDC.
@@ -61,17 +75,18 @@ impl Ndc {
         (origin, direction)
     }
 
-    /// Every ray of a batch to NDC.
+    /// Every ray of a batch to NDC; the world directions stay the view directions.
     ///
     /// # Shapes
     /// `Rays` of `[n]` → `Rays` of `[n]`.
-    pub fn rays(&self, rays: &Rays) -> Rays {
+    pub fn rays(&self, rays: Rays) -> Rays {
         let mut out = Rays::with_capacity(rays.len());
         for (o, d) in rays.origins.iter().zip(&rays.directions) {
             let (o, d) = self.ray(Vec3::from_array(*o), Vec3::from_array(*d));
             out.origins.push(o.to_array());
             out.directions.push(d.to_array());
         }
+        out.viewdirs = Some(rays.viewdirs.unwrap_or(rays.directions));
         out
     }
 }
@@ -102,8 +117,12 @@ mod tests {
         let rays = Rays {
             origins: vec![[0.5, -0.5, 0.0], [0.0; 3]],
             directions: vec![[1.0, 0.5, -2.0], [0.0, 0.0, -1.0]],
+            viewdirs: None,
         };
-        let out = ndc.rays(&rays);
+        let out = ndc.rays(rays.clone());
+        // The networks still see the world directions (nerf-pytorch's viewdirs).
+        assert_eq!(out.viewdirs.as_ref(), Some(&rays.directions));
+        assert_eq!(out.view_directions()[1], [0.0, 0.0, -1.0]);
         assert_close(
             Vec3::from_array(out.directions[0]),
             Vec3::new(-0.5, 1.0, 2.0),

@@ -1,7 +1,8 @@
 //! Where along each ray the networks are evaluated: stratified samples between near and far,
 //! and inverse-CDF resampling from the coarse weights (the reference `sample_pdf`).
 
-use crate::camera::point_at;
+use crate::camera::{Rays, point_at};
+use crate::ndc::Ndc;
 use crate::rng::Rng;
 use serde::{Deserialize, Serialize};
 
@@ -19,11 +20,26 @@ pub struct SamplingConfig {
     pub n_fine: usize,
     /// Sample linearly in inverse depth instead of depth.
     pub lindisp: bool,
+    /// Forward-facing captures: rays are warped into normalised device coordinates before
+    /// sampling (near/far are then 0 and 1, as nerf-pytorch's LLFF default). Absent: world rays.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ndc: Option<Ndc>,
 }
 
 impl Default for SamplingConfig {
     fn default() -> Self {
-        SamplingConfig { near: 2.0, far: 6.0, n_coarse: 64, n_fine: 128, lindisp: false }
+        SamplingConfig { near: 2.0, far: 6.0, n_coarse: 64, n_fine: 128, lindisp: false, ndc: None }
+    }
+}
+
+impl SamplingConfig {
+    /// World rays into the space samples are taken in: NDC when configured, else unchanged.
+    /// Every ray generator (training, renderers, runtime) goes through here.
+    pub fn warp_rays(&self, rays: Rays) -> Rays {
+        match &self.ndc {
+            Some(ndc) => ndc.rays(rays),
+            None => rays,
+        }
     }
 }
 
@@ -177,7 +193,7 @@ mod tests {
 
     #[test]
     fn stratified_grid_and_jitter_stay_in_intervals() {
-        let cfg = SamplingConfig { near: 2.0, far: 6.0, n_coarse: 5, n_fine: 0, lindisp: false };
+        let cfg = SamplingConfig { near: 2.0, far: 6.0, n_coarse: 5, n_fine: 0, lindisp: false, ndc: None };
         let det = stratified(&cfg, 2, None);
         assert_eq!(det.ray(1), &[2.0, 3.0, 4.0, 5.0, 6.0]);
         let mut rng = Rng::new(1);

@@ -28,7 +28,11 @@ pub const SCENE_FILE: &str = "scene.json";
 pub const CAMERA_CONVENTION: &str = "OpenGL camera-to-world (Blender/NeRF): +x right, +y up, the camera looks along -z; \
      ray through pixel (i, j): o = 0.5 if pixel_center is half_pixel else 0, (xd, yd) = ((i + o - cx)/fx, (j + o - cy)/fy), \
      (x, y) = (xd, yd) with OpenCV distortion (k1, k2, p1, p2) undone (Newton's method), \
-     d = c2w[:3,:3] @ (x, -y, -1), not normalised; origin c2w[:3,3]; samples at t in [near, far] along d; viewdirs = d/|d|";
+     d = c2w[:3,:3] @ (x, -y, -1), not normalised; origin c2w[:3,3]; samples at t in [near, far] along d; viewdirs = d/|d|; \
+     with sampling.ndc {width, height, fx, fy, near} the rays are first warped as nerf-pytorch's ndc_rays \
+     (t0 = -(near + o_z)/d_z, o += t0·d, o' = (-2fx/W·o_x/o_z, -2fy/H·o_y/o_z, 1 + 2near/o_z), \
+     d' = (-2fx/W·(d_x/d_z - o_x/o_z), -2fy/H·(d_y/d_z - o_y/o_z), -2near/o_z)) and samples lie along (o', d'), \
+     while viewdirs stay the world d/|d|";
 
 /// The graph file of a hash-grid bundle.
 pub const NGP_FILE: &str = "field.onnx";
@@ -243,7 +247,7 @@ pub struct WrittenFile {
 /// The contract metadata every graph of a scene carries.
 fn scene_metadata(scene: &SceneDescription, stage: &str) -> Vec<(String, String)> {
     let s = &scene.sampling;
-    vec![
+    let mut metadata = vec![
         ("nerf.stage".into(), stage.into()),
         ("nerf.near".into(), s.near.to_string()),
         ("nerf.far".into(), s.far.to_string()),
@@ -252,7 +256,12 @@ fn scene_metadata(scene: &SceneDescription, stage: &str) -> Vec<(String, String)
         ("nerf.lindisp".into(), s.lindisp.to_string()),
         ("nerf.white_background".into(), scene.white_background.to_string()),
         ("nerf.camera".into(), CAMERA_CONVENTION.into()),
-    ]
+    ];
+    if let Some(n) = &s.ndc {
+        let ndc = format!("width {} height {} fx {} fy {} near {}", n.width, n.height, n.fx, n.fy, n.near);
+        metadata.push(("nerf.ndc".into(), ndc));
+    }
+    metadata
 }
 
 /// Compile both networks and write the bundle to `dir` (replacing an existing bundle only once

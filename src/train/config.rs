@@ -2,6 +2,7 @@
 
 use crate::error::{Error, Result};
 use nerf_core::SamplingConfig;
+use nerf_core::dataset::Background;
 use nerf_core::hash_grid::GridBound;
 use nerf_core::network::{EncodingSpec, FieldKind, NetworkSpec};
 use nerf_core::ngp::NgpSpec;
@@ -53,8 +54,9 @@ impl Preset {
             Preset::Paper => TrainConfig {
                 preset: *self,
                 network: NetworkSpec::paper(),
-                sampling: SamplingConfig { near: 2.0, far: 6.0, n_coarse: 64, n_fine: 128, lindisp: false },
+                sampling: SamplingConfig { near: 2.0, far: 6.0, n_coarse: 64, n_fine: 128, lindisp: false, ndc: None },
                 white_background: true,
+                train_background: None,
                 batch_rays: 1024,
                 iters: 200_000,
                 lr: 5e-4,
@@ -88,7 +90,7 @@ impl Preset {
                     direction_encoding: EncodingSpec { n_frequencies: 4, include_input: true },
                     use_viewdirs: true,
                 },
-                sampling: SamplingConfig { near: 2.0, far: 6.0, n_coarse: 32, n_fine: 64, lindisp: false },
+                sampling: SamplingConfig { near: 2.0, far: 6.0, n_coarse: 32, n_fine: 64, lindisp: false, ndc: None },
                 batch_rays: 256,
                 iters: 20_000,
                 lr: 1e-3,
@@ -101,7 +103,7 @@ impl Preset {
             Preset::Ngp => TrainConfig {
                 preset: *self,
                 field: FieldKind::Ngp,
-                sampling: SamplingConfig { near: 2.0, far: 6.0, n_coarse: 64, n_fine: 0, lindisp: false },
+                sampling: SamplingConfig { near: 2.0, far: 6.0, n_coarse: 64, n_fine: 0, lindisp: false, ndc: None },
                 batch_rays: 256,
                 iters: 100_000,
                 lr: 1e-2,
@@ -144,6 +146,12 @@ pub struct TrainConfig {
     pub sampling: SamplingConfig,
     /// Composite on white (Blender scenes).
     pub white_background: bool,
+    /// What training rays are composited on: `white`, `black` or `random` (a new colour per
+    /// ray, the hash-grid field only). Absent: decided when the run starts (random for the
+    /// hash-grid field on captures, whose opaque photos it teaches full opacity; otherwise
+    /// `white_background`'s colour) and recorded here.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub train_background: Option<Background>,
     /// Rays per step, all from one random training image.
     pub batch_rays: usize,
     /// Steps to train for.
@@ -195,7 +203,8 @@ pub struct TrainConfig {
     #[serde(default = "default_target_samples")]
     pub target_samples: usize,
     /// Intervals over [near, far] when marching through the occupancy grid (training the
-    /// hash-grid field, and rendering any field with a grid).
+    /// hash-grid field, and rendering any field with a grid); NDC runs take at most
+    /// [`NDC_MARCH_STEPS`](super::NDC_MARCH_STEPS).
     #[serde(default = "default_march_steps")]
     pub march_steps: usize,
 }
@@ -281,6 +290,9 @@ impl TrainConfig {
             return Err("precrop_fraction must be in (0, 1]".into());
         }
         limits::check_count(self.march_steps, limits::MAX_SAMPLES_PER_RAY, "steps", Origin::Key("march_steps")).map_err(|e| e.to_string())?;
+        if self.field != FieldKind::Ngp && self.train_background.is_some_and(|b| b != Background::from_white(self.white_background)) {
+            return Err("train_background: the MLP field trains on white_background's colour (random needs field = \"ngp\")".into());
+        }
         if self.field == FieldKind::Ngp {
             self.ngp.validate().map_err(|e| format!("ngp: {e}"))?;
             if !self.skip_empty_space || s.n_fine > 0 {

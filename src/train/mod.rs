@@ -12,7 +12,7 @@ mod step;
 pub use checkpoint::{Checkpoint, CheckpointState, GRID_FILE};
 pub use config::{DEFAULT_TARGET_SAMPLES, Preset, TrainConfig};
 pub use ngp::NgpTrainer;
-pub use run::{TrainOptions, TrainSummary, train};
+pub use run::{NDC_MARCH_STEPS, TrainOptions, TrainSummary, train};
 pub use schedule::learning_rate;
 pub use step::{StepStats, StepTiming, Trainer};
 

@@ -15,7 +15,7 @@ use burn::module::Module;
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::tensor::{Device, Tensor, TensorData};
 use nerf_core::camera::point_at;
-use nerf_core::dataset::{RayBatcher, SplitData};
+use nerf_core::dataset::{Background, RayBatcher, SplitData};
 use nerf_core::hash_grid::{HashGridGradient, SparseAdam, SparseAdamConfig};
 use nerf_core::metrics::psnr_from_mse;
 use nerf_core::occupancy::OccupancyGrid;
@@ -101,24 +101,38 @@ impl NgpTrainer {
         }
     }
 
-    /// This step's rays and their target colours: about `target_samples / samples_per_ray`
-    /// rays, [`RAYS_PER_IMAGE`] from each of several random images.
-    fn draw_rays(&mut self) -> (Rays, Vec<[f32; 3]>) {
+    /// This step's rays, their target colours and the backgrounds they are composited on:
+    /// about `target_samples / samples_per_ray` rays, [`RAYS_PER_IMAGE`] from each of several
+    /// random images. With random backgrounds each ray gets its own colour, and the target is
+    /// the (premultiplied) pixel over it.
+    fn draw_rays(&mut self) -> (Rays, Vec<[f32; 3]>, Vec<[f32; 3]>) {
         let n_rays = ((self.config.target_samples as f32 / self.samples_per_ray.max(1.0)) as usize).clamp(MIN_RAYS, MAX_RAYS);
         let images = n_rays.div_ceil(RAYS_PER_IMAGE);
+        let background = self.config.train_background.unwrap_or(Background::from_white(self.config.white_background));
         let mut rays = Rays::with_capacity(n_rays);
         let mut targets = Vec::with_capacity(n_rays);
+        let mut backgrounds = Vec::with_capacity(n_rays);
         for k in 0..images {
             let part = n_rays * (k + 1) / images - n_rays * k / images;
             let (index, pixels, target) = self.batcher.next_batch(&mut self.rng, part, None);
-            let data = self.batcher.data();
-            let view = &data.views[index];
-            let r = Rays::for_pixels(&view.camera, &view.pose, &pixels);
-            rays.origins.extend(r.origins);
-            rays.directions.extend(r.directions);
-            targets.extend(target);
+            let view = &self.batcher.data().views[index];
+            rays.extend(self.config.sampling.warp_rays(Rays::for_pixels(&view.camera, &view.pose, &pixels)));
+            for (&(i, j), mut t) in pixels.iter().zip(target) {
+                let b = match background {
+                    Background::White => [1.0; 3],
+                    Background::Black => [0.0; 3],
+                    Background::Random => {
+                        let b = [self.rng.uniform(), self.rng.uniform(), self.rng.uniform()];
+                        let a = view.alpha.as_ref().map_or(1.0, |a| a[(j * view.camera.width + i) as usize]);
+                        t = [0, 1, 2].map(|c| t[c] + (1.0 - a) * b[c]);
+                        b
+                    }
+                };
+                targets.push(t);
+                backgrounds.push(b);
+            }
         }
-        (rays, targets)
+        (rays, targets, backgrounds)
     }
 }
 
@@ -141,17 +155,16 @@ impl FieldTrainer for NgpTrainer {
         if self.step >= o.warmup_steps && (self.step - o.warmup_steps) % o.update_every == 0 {
             self.update_occupancy();
         }
-        let (rays, targets) = self.draw_rays();
+        let (rays, targets, backgrounds) = self.draw_rays();
         let s = &self.config.sampling;
         let samples = occupied_samples(&self.occupancy, &rays, s.near, s.far, self.config.march_steps, Some(&mut self.rng));
         let n = samples.t.len();
         self.samples_per_ray = n.max(1) as f32 / rays.len() as f32;
-        let background = if self.config.white_background { [1.0; 3] } else { [0.0; 3] };
         let lr = learning_rate(self.config.lr, self.config.lr_decay_ksteps, self.step);
         self.step += 1;
         if n == 0 {
             // Nothing occupied along these rays: they render the background, nothing to learn.
-            let mse = mean_squared_error(&vec![background; targets.len()], &targets).0;
+            let mse = mean_squared_error(&backgrounds, &targets).0;
             return StepStats { loss: mse, psnr: psnr_from_mse(mse), samples: 0, timing: StepTiming { forward_s: start.elapsed().as_secs_f64(), ..StepTiming::default() } };
         }
         let viewdirs = rays.view_directions();
@@ -167,9 +180,9 @@ impl FieldTrainer for NgpTrainer {
         let (rgb_t, sigma_t, inputs) = field.forward_train(&points, &dirs, &self.device);
         let rgb = tensor_vec3(rgb_t.clone());
         let sigma = sigma_t.clone().into_data().try_to_vec::<f32>().expect("f32 densities");
-        let (colors, _) = composite_packed(&samples, &sigma, &rgb, background);
+        let (colors, _) = composite_packed(&samples, &sigma, &rgb, &backgrounds);
         let (mse, grad_color) = mean_squared_error(&colors, &targets);
-        let (grad_sigma, grad_rgb) = composite_packed_backward(&samples, &sigma, &rgb, background, &grad_color);
+        let (grad_sigma, grad_rgb) = composite_packed_backward(&samples, &sigma, &rgb, &backgrounds, &grad_color);
         let forward_done = Instant::now();
         // Σ rgb·∂L/∂rgb + Σ σ·∂L/∂σ with the factors constant: its gradient is the loss's.
         let grad_rgb = Tensor::<2>::from_data(TensorData::new(grad_rgb.as_flattened().to_vec(), [n, 3]), &self.device);

@@ -5,9 +5,15 @@ use super::{FieldTrainer, TrainConfig, field_trainer};
 use crate::error::{Error, Result};
 use crate::run_dir::{RunDir, RunSource};
 use indicatif::{ProgressBar, ProgressStyle};
-use nerf_core::dataset::{Background, CaptureFormat, CaptureSplit, LoadOptions, SceneFrame, SplitData, load_dataset};
+use nerf_core::dataset::{Background, CaptureFormat, CaptureSplit, LoadOptions, SceneFrame, SplitData, detect_format, load_dataset};
+use nerf_core::network::FieldKind;
 use std::path::PathBuf;
 use std::time::Instant;
+
+/// Most marching intervals over an NDC ray's [0, 1], which spans the frustum to infinity
+/// evenly in disparity. Fern, 3 minutes of the `ngp` preset: 21.99 dB at 256, 21.15 at 512,
+/// 19.88 at 1024 (more intervals, more samples per ray, fewer rays per step).
+pub const NDC_MARCH_STEPS: usize = 256;
 
 /// What `nerf train` was asked to do.
 #[derive(Debug, Clone)]
@@ -18,6 +24,8 @@ pub struct TrainOptions {
     pub format: Option<CaptureFormat>,
     /// Run directory (config, checkpoints, curve).
     pub run: PathBuf,
+    /// NDC rays for a new run: `None` decides from the data (LLFF, forward-facing).
+    pub ndc: Option<bool>,
     /// The configuration for a new run (a resumed run keeps its saved one).
     pub config: TrainConfig,
     /// Image downscale factor.
@@ -108,14 +116,23 @@ fn start_or_resume(run: &RunDir, options: &TrainOptions) -> Result<(Box<dyn Fiel
     };
     let frame = match &recorded {
         Some(p) => SceneFrame::Recorded(p.transform),
-        None => SceneFrame::Fit { bound: config.occupancy.bound },
+        None => SceneFrame::Fit { bound: config.occupancy.bound, ndc: options.ndc },
     };
-    let background = Background::from_white(config.white_background);
-    let load = move |split, frame| {
-        let load = LoadOptions { format: options.format, downscale: options.downscale, images: true, background, frame };
+    let format = match options.format {
+        Some(f) => f,
+        None => detect_format(&options.data)?,
+    };
+    if config.train_background.is_none() {
+        // Captures' photos are opaque: random backgrounds teach the field to be opaque too.
+        // (A run from before this key resumes as it started.)
+        let random = checkpoint.is_none() && format != CaptureFormat::Blender && config.field == FieldKind::Ngp;
+        config.train_background = Some(if random { Background::Random } else { Background::from_white(config.white_background) });
+    }
+    let load = move |split, frame, background| {
+        let load = LoadOptions { format: Some(format), downscale: options.downscale, images: true, background, frame };
         load_dataset(&options.data, split, &load)
     };
-    let train = load(CaptureSplit::Train, frame)?;
+    let train = load(CaptureSplit::Train, frame, config.train_background.expect("decided above"))?;
     for w in &train.warnings {
         eprintln!("warning: {w}");
     }
@@ -123,10 +140,16 @@ fn start_or_resume(run: &RunDir, options: &TrainOptions) -> Result<(Box<dyn Fiel
     if checkpoint.is_none()
         && let Some((near, far)) = placement.near_far
     {
-        // A capture's depth range comes from its bounds or the cube, not the preset's 2..6.
+        // A capture's depth range comes from its bounds or the cube, not the preset's 2..6;
+        // forward-facing ones sample NDC rays over [0, 1].
         config.sampling.near = near;
         config.sampling.far = far;
-        eprintln!("{} capture: near {near:.4}, far {far:.4} in the field's frame (scale {:.4})", placement.format, placement.transform.scale);
+        config.sampling.ndc = placement.ndc;
+        if placement.ndc.is_some() {
+            config.march_steps = config.march_steps.min(NDC_MARCH_STEPS);
+        }
+        let space = if placement.ndc.is_some() { "NDC rays" } else { "the field's frame" };
+        eprintln!("{} capture: near {near:.4}, far {far:.4} in {space} (scale {:.4})", placement.format, placement.transform.scale);
     }
     run.write_config(&config)?;
     let train_data = train.data;
@@ -137,7 +160,8 @@ fn start_or_resume(run: &RunDir, options: &TrainOptions) -> Result<(Box<dyn Fiel
     let transform = placement.transform;
     run.write_source(&RunSource { data, downscale: options.downscale, placement: Some(placement) })?;
     // The validation curve is optional: a scene without val views still trains.
-    let val_data = match load(CaptureSplit::Val, SceneFrame::Recorded(transform)).map(|d| d.data) {
+    // Validation views are scored as eval scores them: on the render background.
+    let val_data = match load(CaptureSplit::Val, SceneFrame::Recorded(transform), Background::from_white(config.white_background)).map(|d| d.data) {
         Ok(v) if !v.views.is_empty() => Some(v),
         Ok(_) => None,
         Err(e) => {

@@ -147,7 +147,7 @@ impl Trainer {
         let batch = self.batcher.next_batch(&mut self.rng, cfg.batch_rays, precrop);
         let data = self.batcher.data();
         let view = &data.views[batch.0];
-        let rays = Rays::for_pixels(&view.camera, &view.pose, &batch.1);
+        let rays = cfg.sampling.warp_rays(Rays::for_pixels(&view.camera, &view.pose, &batch.1));
         let samples_per_ray = cfg.sampling.n_coarse + cfg.sampling.n_fine;
         let concurrent = cfg.concurrent_passes;
         let passes = (rays.len() * samples_per_ray).div_ceil(cfg.pass_points).next_multiple_of(concurrent).min(rays.len());

@@ -3,6 +3,7 @@
 
 use nerf::train::{Preset, TrainConfig};
 use nerf_core::dataset::{SyntheticSceneConfig, generate_scene};
+use nerf_core::hash_grid::HashGridConfig;
 use nerf::train::{TrainOptions, train};
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -25,6 +26,23 @@ pub fn tiny_config() -> TrainConfig {
     c.eval_every_min = 0.0;
     c.chunk = 4096;
     c.precrop_iters = 50;
+    c
+}
+
+/// The `ngp` preset shrunk so that a test trains in seconds.
+pub fn tiny_ngp() -> TrainConfig {
+    let mut c = Preset::Ngp.config();
+    c.ngp.grid = HashGridConfig { levels: 8, features_per_level: 2, log2_table_size: 14, base_resolution: 8, max_resolution: 128 };
+    c.ngp.density_hidden = 32;
+    c.ngp.color_hidden = 32;
+    c.target_samples = 1 << 13;
+    c.march_steps = 256;
+    c.occupancy.resolution = 32;
+    c.occupancy.warmup_steps = 16;
+    c.occupancy.update_every = 8;
+    c.checkpoint_every = 10_000;
+    c.eval_every_min = 0.0;
+    c.iters = 80;
     c
 }
 
@@ -62,7 +80,7 @@ pub fn trained_run(dir: &Path) -> (PathBuf, PathBuf) {
     let run = dir.join("run");
     let mut config = tiny_config();
     config.iters = 20;
-    train(&TrainOptions { format: None, data: scene.clone(), run: run.clone(), config, downscale: 1, time_budget_min: None, iters: None, progress: false })
+    train(&TrainOptions { format: None, data: scene.clone(), run: run.clone(), config, ndc: None, downscale: 1, time_budget_min: None, iters: None, progress: false })
         .unwrap();
     (scene, run)
 }

@@ -9,6 +9,11 @@ The renderer below is the whole recipe a consumer needs (scene.json says the sam
             (x, y) = undistort(xd, yd) (OpenCV k1 k2 p1 p2, Newton) when the camera has distortion;
             d = c2w[:3,:3] @ (x, -y, -1) (not normalised), origin c2w[:3,3]. A bundle with `focal`
             alone: fx = fy = focal, (cx, cy) = (W/2, H/2), integer centres (no +0.5).
+  ndc       when sampling has "ndc" {width, height, fx, fy, near} (forward-facing captures), the
+            rays are warped as nerf-pytorch's ndc_rays: t = -(near + o_z)/d_z, o += t·d, then
+            o' = (-2fx/W·o_x/o_z, -2fy/H·o_y/o_z, 1 + 2near/o_z),
+            d' = (-2fx/W·(d_x/d_z - o_x/o_z), -2fy/H·(d_y/d_z - o_y/o_z), -2near/o_z);
+            everything below uses (o', d'), except viewdirs, which stay the world d/|d|.
   coarse    t_k = near·(1 - k/(n-1)) + far·k/(n-1)  (test time: no jitter; lindisp in 1/t)
   networks  points o + t·d and viewdirs d/|d| → rgb [N,3], sigma [N,1]
   weights   delta = (t_{k+1} - t_k)·|d| (last 1e10·|d|), alpha = 1 - exp(-sigma·delta),
@@ -86,7 +91,13 @@ def check_scene(scene, where):
             raise BundleError(f"{where}: camera.{key}: {cam[key]} is not a finite principal point")
     if cam["distortion"] is not None and not all(np.isfinite(cam["distortion"][k]) for k in ("k1", "k2", "p1", "p2")):
         raise BundleError(f"{where}: camera.distortion: {cam['distortion']} has a non-finite coefficient")
-    if not (np.isfinite(s["near"]) and np.isfinite(s["far"]) and 0 < s["near"] < s["far"]):
+    if s.get("ndc") is not None:
+        ndc = s["ndc"]
+        if not (0 <= s["near"] < s["far"] <= 1):
+            raise BundleError(f"{where}: sampling: NDC rays need 0 <= near < far <= 1, got near {s['near']} far {s['far']}")
+        if not all(np.isfinite(ndc[k]) and ndc[k] > 0 for k in ("width", "height", "fx", "fy", "near")):
+            raise BundleError(f"{where}: sampling.ndc: {ndc} needs positive finite width, height, fx, fy and near")
+    elif not (np.isfinite(s["near"]) and np.isfinite(s["far"]) and 0 < s["near"] < s["far"]):
         raise BundleError(f"{where}: sampling: need finite 0 < near < far, got near {s['near']} far {s['far']}")
     if not (1 <= s["n_coarse"] and 0 <= s["n_fine"] and s["n_coarse"] + s["n_fine"] <= MAX_SAMPLES_PER_RAY):
         raise BundleError(f"{where}: sampling: n_coarse + n_fine = {s['n_coarse'] + s['n_fine']} samples per ray is outside 1..{MAX_SAMPLES_PER_RAY}")
@@ -221,6 +232,17 @@ def camera_rays(scene, c2w, width, height, pixels):
     return o, d
 
 
+def ndc_rays(ndc, o, d):
+    """nerf-pytorch's ndc_rays, term by term, with separate focal lengths."""
+    W, H, fx, fy, near = (F32(ndc[k]) for k in ("width", "height", "fx", "fy", "near"))
+    t = -(near + o[:, 2]) / d[:, 2]
+    o = o + t[:, None] * d
+    ax, ay = F32(-2) * fx / W, F32(-2) * fy / H
+    o2 = np.stack([ax * o[:, 0] / o[:, 2], ay * o[:, 1] / o[:, 2], 1 + 2 * near / o[:, 2]], 1)
+    d2 = np.stack([ax * (d[:, 0] / d[:, 2] - o[:, 0] / o[:, 2]), ay * (d[:, 1] / d[:, 2] - o[:, 1] / o[:, 2]), -2 * near / o[:, 2]], 1)
+    return o2.astype(F32), d2.astype(F32)
+
+
 def weights_of(t, sigma, dnorm):
     delta = np.concatenate([t[:, 1:] - t[:, :-1], np.full((len(t), 1), 1e10, F32)], axis=1) * dnorm[:, None]
     alpha = F32(1) - np.exp(-np.maximum(sigma, 0) * delta)
@@ -245,7 +267,7 @@ def sample_pdf(bins, weights, n):
     return out
 
 
-def march(bundle, o, d, segment=16, min_transmittance=1e-4):
+def march(bundle, o, d, view, segment=16, min_transmittance=1e-4):
     s = bundle.scene["sampling"]
     steps = bundle.scene.get("march_steps", 256)
     near, far = F32(s["near"]), F32(s["far"])
@@ -260,7 +282,7 @@ def march(bundle, o, d, segment=16, min_transmittance=1e-4):
         if len(ts) == 0:
             continue
         norm = np.linalg.norm(d[r]).astype(F32)
-        viewdirs = np.repeat((d[r] / norm)[None], len(ts), 0).astype(F32)
+        viewdirs = np.repeat((view[r] / np.linalg.norm(view[r]))[None], len(ts), 0).astype(F32)
         rgb, sigma = session.run(["rgb", "sigma"], {"points": pts, "viewdirs": viewdirs})
         alpha = F32(1) - np.exp(-np.maximum(sigma[:, 0], 0) * (interval * norm))
         trans = F32(1)
@@ -278,7 +300,7 @@ def march(bundle, o, d, segment=16, min_transmittance=1e-4):
     return out_rgb, out_depth, out_acc
 
 
-def render(bundle, o, d):
+def render(bundle, o, d, view):
     scene = bundle.scene
     s = scene["sampling"]
     near, far, n_coarse, n_fine = F32(s["near"]), F32(s["far"]), s["n_coarse"], s["n_fine"]
@@ -286,7 +308,7 @@ def render(bundle, o, d):
     t = 1 / (1 / near * (1 - k) + 1 / far * k) if s["lindisp"] else near * (1 - k) + far * k
     t = np.broadcast_to(t.astype(F32), (len(o), n_coarse))
     dnorm = np.linalg.norm(d, axis=1).astype(F32)
-    viewdirs = d / dnorm[:, None]
+    viewdirs = view / np.linalg.norm(view, axis=1)[:, None]
 
     def stage(session, t):
         pts = (o[:, None, :] + t[..., None] * d[:, None, :]).reshape(-1, 3).astype(F32)
@@ -339,7 +361,10 @@ def main():
     rows_cols = np.concatenate(picks)
     pixels = rows_cols[:, ::-1]  # (column i, row j)
     o, d = camera_rays(bundle.scene, c2w, width, height, pixels)
-    rgb, depth, acc = render(bundle, o, d) if bundle.occupied is None else march(bundle, o, d)
+    view = d
+    if bundle.scene["sampling"].get("ndc") is not None:
+        o, d = ndc_rays(bundle.scene["sampling"]["ndc"], o, d)
+    rgb, depth, acc = render(bundle, o, d, view) if bundle.occupied is None else march(bundle, o, d, view)
     want = expected[rows_cols[:, 0], rows_cols[:, 1]]
     diff_rgb = np.abs(rgb - want[:, :3]).max()
     diff_acc = np.abs(acc - want[:, 4]).max()

@@ -124,7 +124,7 @@ pub fn load_blender(
         let mut pixels = Vec::with_capacity(decoded.len());
         for (k, (frame, result)) in transforms.frames.iter().zip(decoded).enumerate() {
             // The image's own error names the image; say which frame of which file wants it.
-            let (w, h, rgb) = result.map_err(|e| {
+            let Decoded { width: w, height: h, rgb, alpha } = result.map_err(|e| {
                 Error::invalid(&json_path, format!("frame {k} (file_path {:?}): {e}", frame.file_path))
             })?;
             match size {
@@ -139,14 +139,14 @@ pub fn load_blender(
                 }
                 Some(_) => {}
             }
-            pixels.push(Some(rgb));
+            pixels.push((Some(rgb), alpha));
         }
         let (w, h, _) = size.expect("frames is not empty");
         (w, h, pixels)
     } else {
         let (w, h, probed) = probe_size(dir, split, &transforms, &json_path)?;
         check_divisible(&probed, w, h, downscale)?;
-        (w, h, vec![None; transforms.frames.len()])
+        (w, h, vec![(None, None); transforms.frames.len()])
     };
 
     let full = Intrinsics::from_camera_angle_x(width, height, angle);
@@ -159,7 +159,7 @@ pub fn load_blender(
         .frames
         .into_iter()
         .zip(pixels)
-        .map(|(frame, image)| View {
+        .map(|(frame, (image, alpha))| View {
             name: Path::new(&frame.file_path)
                 .file_stem()
                 .map(|s| s.to_string_lossy().into_owned())
@@ -168,6 +168,7 @@ pub fn load_blender(
             pose: Pose::from_rows(frame.transform_matrix),
             file_path: frame.file_path,
             image,
+            alpha,
         })
         .collect();
     Ok(SplitData { split: split.into(), views })

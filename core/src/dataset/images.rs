@@ -18,6 +18,10 @@ pub enum Background {
     White,
     /// `rgb·a`.
     Black,
+    /// Training only (instant-ngp's default): every ray sees a new random colour, so whatever
+    /// the field leaves transparent is wrong, and opaque photos teach full opacity. Images load
+    /// premultiplied (`rgb·a`) with their alpha kept ([`Decoded`]).
+    Random,
 }
 
 impl Background {
@@ -32,7 +36,7 @@ impl Background {
     pub fn composite(self, p: [f32; 4]) -> [f32; 3] {
         let fill = match self {
             Background::White => 1.0 - p[3],
-            Background::Black => 0.0,
+            Background::Black | Background::Random => 0.0,
         };
         [0, 1, 2].map(|c| p[c] * p[3] + fill)
     }
@@ -49,16 +53,27 @@ pub fn check_divisible(path: &Path, width: u32, height: u32, downscale: u32) -> 
     Ok(())
 }
 
-/// A decoded image: full-resolution width and height, downscaled composited pixels.
-pub type Decoded = (u32, u32, Vec<[f32; 3]>);
+/// A decoded image.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Decoded {
+    /// Full-resolution width.
+    pub width: u32,
+    /// Full-resolution height.
+    pub height: u32,
+    /// Downscaled pixels, composited on the background (premultiplied for `Random`).
+    pub rgb: Vec<[f32; 3]>,
+    /// Downscaled alpha, kept for `Random` when some pixel is not opaque (`None`: opaque).
+    pub alpha: Option<Vec<f32>>,
+}
 
 /// Decodes one image and returns its full-resolution size with the downscaled RGB pixels
 /// composited on `background`.
 pub fn load_image(path: &Path, downscale: u32, background: Background) -> Result<Decoded> {
-    let (w, h, rgba) = load_rgba(path)?;
-    check_divisible(path, w, h, downscale)?;
-    let small = downscale_area(&rgba, w as usize, h as usize, downscale as usize);
-    Ok((w, h, small.into_iter().map(|p| background.composite(p)).collect()))
+    let (width, height, rgba) = load_rgba(path)?;
+    check_divisible(path, width, height, downscale)?;
+    let small = downscale_area(&rgba, width as usize, height as usize, downscale as usize);
+    let alpha = (background == Background::Random && small.iter().any(|p| p[3] < 1.0)).then(|| small.iter().map(|p| p[3]).collect());
+    Ok(Decoded { width, height, rgb: small.into_iter().map(|p| background.composite(p)).collect(), alpha })
 }
 
 /// Box-filter reduction by an integer `factor` (sides divisible by it): each output pixel is
@@ -113,9 +128,12 @@ mod tests {
         image::RgbaImage::from_fn(2, 2, |i, j| image::Rgba(if (i, j) == (0, 0) { [255, 0, 0, 255] } else { [0, 0, 0, 0] }))
             .save(&path)
             .unwrap();
-        let (w, h, rgb) = load_image(&path, 2, Background::Black).unwrap();
-        assert_eq!((w, h, rgb.len()), (2, 2, 1));
+        let Decoded { width, height, rgb, alpha } = load_image(&path, 2, Background::Black).unwrap();
+        assert_eq!((width, height, rgb.len(), alpha), (2, 2, 1, None));
         assert!((rgb[0][0] - 0.0625).abs() < 1e-7 && rgb[0][1] == 0.0, "{:?}", rgb[0]);
+        // For random backgrounds: the same premultiplied colour, and the alpha kept.
+        let random = load_image(&path, 2, Background::Random).unwrap();
+        assert_eq!((random.rgb, random.alpha), (rgb, Some(vec![0.25])));
         let err = load_image(&path, 3, Background::Black).unwrap_err().to_string();
         assert!(err.contains("a.png") && err.contains("not divisible by the downscale factor 3"), "{err}");
     }

@@ -17,7 +17,7 @@ mod synthetic;
 
 pub use blender::{Frame, Transforms, image_path, load_blender, load_split, transforms_path};
 pub use images::{Background, check_divisible, load_image};
-pub use scene_fit::{OrbitPath, field_near_far, fit_to_field};
+pub use scene_fit::{CameraPath, OrbitPath, SpiralPath, field_near_far, fit_to_field};
 pub use source::{Dataset, LoadOptions, SceneFrame, ScenePlacement, load_dataset};
 pub use capture::{
     Capture, CaptureFormat, CaptureSplit, CaptureView, ExplicitSplits, FORWARD_FACING_MAX_DEG,
@@ -105,9 +105,12 @@ pub struct View {
     pub camera: PinholeCamera,
     /// Camera-to-world pose.
     pub pose: Pose,
-    /// The image (row-major RGB in `[0, 1]`, composited on white, at the loaded resolution),
-    /// or `None` when loaded without pixels.
+    /// The image (row-major RGB in `[0, 1]`, composited on the loading background, at the
+    /// loaded resolution), or `None` when loaded without pixels.
     pub image: Option<Vec<[f32; 3]>>,
+    /// Its alpha when loaded for random backgrounds and not opaque (`image` is then
+    /// premultiplied); `None`: opaque.
+    pub alpha: Option<Vec<f32>>,
 }
 
 /// A loaded split: its views, each with its camera.
@@ -272,6 +275,7 @@ mod tests {
                         .flat_map(|j| (0..width).map(move |i| [k as f32, i as f32, j as f32]))
                         .collect(),
                 ),
+                alpha: None,
             })
             .collect();
         SplitData {

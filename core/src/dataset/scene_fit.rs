@@ -5,6 +5,7 @@ use glam::{Mat3, Vec3};
 use serde::{Deserialize, Serialize};
 
 use super::capture::{Capture, centroid, focus_point};
+use super::llff::poses_avg;
 use crate::camera::Pose;
 use crate::error::{Error, Result};
 use crate::scene_transform::{SceneTransform, pose_from};
@@ -13,13 +14,23 @@ use crate::scene_transform::{SceneTransform, pose_from};
 /// inside the cube, so content can be close).
 const BOX_NEAR_FRACTION: f32 = 1.0 / 30.0;
 
+/// Where the farthest camera of a capture fitted by its cameras sits, as a fraction of the
+/// cube's half-size. A 360° capture sees the room around its object: with the cameras at a
+/// third of the bound, content up to three times the ring's radius from the centre lies inside
+/// the field (bird's ring of radius ≈ 4 sees walls at ≈ 10); what lies farther is drawn on the
+/// cube's faces. The choice over a scene contraction (mip-NeRF 360): the field, its ONNX graph
+/// and every renderer stay as they are, at the cost of a third of the grid's resolution on the
+/// object.
+pub const RING_FRACTION: f32 = 1.0 / 3.0;
+
 /// The transform (applied after the parser's own) that puts `capture` into the field's cube
 /// `[−bound, bound]³`:
 /// - a file with `aabb_scale` (instant-ngp): its scene box `[−a/2, a/2]³` becomes the cube;
 /// - forward-facing views with depth bounds (LLFF): the cube spans the bounds' depth range,
 ///   centred at mid-depth in front of the cameras' centroid along their mean view direction;
 /// - otherwise: centred where the optical axes meet (the centroid when they are parallel),
-///   scaled so that the farthest camera is `bound` away (the object sits inside the ring).
+///   scaled so that the farthest camera is `RING_FRACTION · bound` away (the object sits
+///   inside the ring, the room around it inside the cube).
 pub fn fit_to_field(capture: &Capture, bound: f32) -> Result<SceneTransform> {
     let poses = capture.poses();
     if let Some(a) = capture.aabb_scale {
@@ -39,7 +50,7 @@ pub fn fit_to_field(capture: &Capture, bound: f32) -> Result<SceneTransform> {
         }
         return Ok(SceneTransform { scale: bound / half, translation: (-centre).to_array(), ..SceneTransform::identity() });
     }
-    capture.camera_fit(bound)
+    capture.camera_fit(RING_FRACTION * bound)
 }
 
 /// Near and far for rays of a fitted capture (poses in the field's frame): the file's depth
@@ -111,6 +122,100 @@ impl OrbitPath {
     }
 }
 
+/// A camera path for rendering a capture: the circle around an object, or nerf-pytorch's
+/// spiral in front of a forward-facing capture. Serialised without a tag (the spiral's fields
+/// tell them apart; files written before the spiral hold a circle).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum CameraPath {
+    /// nerf-pytorch's `render_path_spiral` (forward-facing captures).
+    Spiral(SpiralPath),
+    /// A circle around the cameras' centre ([`OrbitPath`]).
+    Circle(OrbitPath),
+}
+
+impl CameraPath {
+    /// `frames` poses along the path.
+    pub fn poses(&self, frames: usize) -> Vec<Pose> {
+        match self {
+            CameraPath::Spiral(s) => s.poses(frames),
+            CameraPath::Circle(c) => c.poses(frames),
+        }
+    }
+}
+
+/// nerf-pytorch's `render_path_spiral` for LLFF captures: the camera moves on an ellipse in the
+/// average camera's frame (`cos θ·r_x` right, `−sin θ·r_y` up, `−sin(θ/2)·r_z` back) for two
+/// turns, always looking at the point `focus_depth` in front of the average camera.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SpiralPath {
+    /// The average camera's centre.
+    pub centre: [f32; 3],
+    /// The average camera's axes (right, up, back), each a unit vector.
+    pub axes: [[f32; 3]; 3],
+    /// Semi-axes of the ellipse: the 90th percentile of the cameras' offsets on each axis.
+    pub radii: [f32; 3],
+    /// Distance in front of the average camera that every frame looks at.
+    pub focus_depth: f32,
+    /// Turns over the whole path (nerf-pytorch: 2).
+    pub rotations: f32,
+}
+
+impl SpiralPath {
+    /// The spiral of forward-facing cameras `poses` whose content lies between `near` and `far`
+    /// (in the same frame): focus at `1/(0.25/near + 0.75/(5·far))`, nerf-pytorch's
+    /// `close_depth = 0.9·min bound` (its `near`), `inf_depth = 5·max bound`, `dt = 0.75`.
+    /// `None` for no poses or non-finite results.
+    pub fn around(poses: &[Pose], near: f32, far: f32) -> Option<SpiralPath> {
+        if poses.is_empty() {
+            return None;
+        }
+        let average = poses_avg(poses);
+        let r = average.rotation();
+        let centre = average.origin();
+        let mut radii = [0.0f32; 3];
+        for (axis, radius) in radii.iter_mut().enumerate() {
+            let mut offsets: Vec<f32> = poses.iter().map(|p| (r.transpose() * (p.origin() - centre))[axis].abs()).collect();
+            *radius = percentile(&mut offsets, 90.0);
+        }
+        let focus_depth = 1.0 / (0.25 / near + 0.75 / (5.0 * far));
+        let axes = [r.x_axis.to_array(), r.y_axis.to_array(), r.z_axis.to_array()];
+        let path = SpiralPath { centre: centre.to_array(), axes, radii, focus_depth, rotations: 2.0 };
+        let finite = centre.is_finite() && radii.iter().all(|v| v.is_finite()) && focus_depth.is_finite() && focus_depth > 0.0;
+        finite.then_some(path)
+    }
+
+    /// `frames` poses along the spiral, the first at angle 0 (nerf-pytorch drops its last
+    /// of N + 1 angles, as here).
+    pub fn poses(&self, frames: usize) -> Vec<Pose> {
+        let [x, y, z] = self.axes.map(Vec3::from);
+        let centre = Vec3::from(self.centre);
+        let [rx, ry, rz] = self.radii;
+        let target = centre - self.focus_depth * z;
+        (0..frames)
+            .map(|k| {
+                let theta = std::f32::consts::TAU * self.rotations * k as f32 / frames.max(1) as f32;
+                let origin = centre + theta.cos() * rx * x - theta.sin() * ry * y - (0.5 * theta).sin() * rz * z;
+                let back = (origin - target).normalize();
+                let right = y.cross(back).normalize();
+                pose_from(Mat3::from_cols(right, back.cross(right).normalize(), back), origin)
+            })
+            .collect()
+    }
+}
+
+/// numpy's default (linear) percentile `q` of `values` (sorted in place); 0 for none.
+fn percentile(values: &mut [f32], q: f32) -> f32 {
+    if values.is_empty() {
+        return 0.0;
+    }
+    values.sort_by(f32::total_cmp);
+    let rank = q / 100.0 * (values.len() - 1) as f32;
+    let (lo, hi) = (rank.floor() as usize, rank.ceil() as usize);
+    values[lo] + (rank - lo as f32) * (values[hi] - values[lo])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -157,14 +262,14 @@ mod tests {
     fn a_ring_is_centred_on_its_focus_with_the_farthest_camera_on_the_bound() {
         let c = capture(&ring(), None, false, None);
         let t = fit_to_field(&c, 1.5).unwrap();
-        // Every camera is 5 from the focus (1, 2, 3): scale 1.5/5 = 0.3.
-        assert!((t.scale - 0.3).abs() < 1e-5, "{t:?}");
+        // Every camera is 5 from the focus (1, 2, 3) and lands at 1.5/3: scale 0.5/5 = 0.1.
+        assert!((t.scale - 0.1).abs() < 1e-6, "{t:?}");
         assert!(t.apply_point(Vec3::new(1.0, 2.0, 3.0)).length() < 1e-4);
         let mut fitted = c.clone();
         fitted.renormalise(&t);
-        // No bounds: near = 1.5/30, far = 1.5 + √3·1.5.
+        // No bounds: near = 1.5/30, far = 0.5 + √3·1.5.
         let (near, far) = field_near_far(&fitted, 1.5);
-        assert!((near - 0.05).abs() < 1e-6 && (far - (1.5 + 3f32.sqrt() * 1.5)).abs() < 1e-4, "{near} {far}");
+        assert!((near - 0.05).abs() < 1e-6 && (far - (0.5 + 3f32.sqrt() * 1.5)).abs() < 1e-4, "{near} {far}");
     }
 
     #[test]

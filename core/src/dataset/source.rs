@@ -10,12 +10,13 @@ use serde::{Deserialize, Serialize};
 
 use super::blender::load_blender;
 use super::capture::{Capture, CaptureFormat, CaptureSplit, detect_format};
-use super::images::{Background, check_divisible, load_image};
+use super::images::{Background, Decoded, check_divisible, load_image};
 use super::instant_ngp::load_instant_ngp;
 use super::llff::load_llff;
-use super::scene_fit::{OrbitPath, field_near_far, fit_to_field};
+use super::scene_fit::{CameraPath, OrbitPath, SpiralPath, field_near_far, fit_to_field};
 use super::{Split, SplitData, View};
 use crate::error::{Error, Result};
+use crate::ndc::Ndc;
 use crate::scene_transform::SceneTransform;
 
 /// Which frame the poses are returned in.
@@ -25,6 +26,9 @@ pub enum SceneFrame {
     Fit {
         /// The field's half-size (the occupancy grid's bound).
         bound: f32,
+        /// NDC rays: `Some(true)`/`Some(false)` as asked, `None` for LLFF captures whose
+        /// cameras all face one way ([`Capture::forward_facing`]), as nerf-pytorch's default.
+        ndc: Option<bool>,
     },
     /// The transform a run or bundle recorded, from the file's world: everything after the
     /// run started (evaluation data never changes it).
@@ -53,10 +57,15 @@ pub struct ScenePlacement {
     pub format: CaptureFormat,
     /// The file's world → the field's frame.
     pub transform: SceneTransform,
-    /// Near and far for the field (captures; Blender keeps the configured 2, 6).
+    /// Near and far for the field (captures; Blender keeps the configured 2, 6). With NDC
+    /// rays, (0, 1).
     pub near_far: Option<(f32, f32)>,
-    /// The orbit around the capture's cameras (captures; Blender keeps the reference orbit).
-    pub orbit: Option<OrbitPath>,
+    /// The camera path for renders of the capture (Blender keeps the reference orbit): a
+    /// circle around the cameras, or a spiral in front of forward-facing ones.
+    pub orbit: Option<CameraPath>,
+    /// NDC rays (forward-facing captures): the projection, in the field's frame.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ndc: Option<Ndc>,
 }
 
 /// A loaded split and where its scene sits.
@@ -114,17 +123,20 @@ fn load_blender_dataset(dir: &Path, split: CaptureSplit, options: &LoadOptions) 
             v.pose = transform.apply_pose(&v.pose);
         }
     }
-    let placement = ScenePlacement { format: CaptureFormat::Blender, transform, near_far: None, orbit: None };
+    let placement = ScenePlacement { format: CaptureFormat::Blender, transform, near_far: None, orbit: None, ndc: None };
     Ok(Dataset { data: SplitData { split, views }, placement, warnings: vec![] })
 }
 
 fn load_capture_dataset(mut capture: Capture, split: CaptureSplit, options: &LoadOptions) -> Result<Dataset> {
     let placement = match options.frame {
-        SceneFrame::Fit { bound } => {
+        SceneFrame::Fit { ndc, .. } if ndc.unwrap_or(capture.format == CaptureFormat::Llff && capture.forward_facing) => {
+            ndc_placement(&capture)?
+        }
+        SceneFrame::Fit { bound, .. } => {
             let fit = fit_to_field(&capture, bound)?;
             capture.renormalise(&fit);
-            let orbit = OrbitPath::around(&capture.poses());
-            ScenePlacement { format: capture.format, transform: capture.transform, near_far: Some(field_near_far(&capture, bound)), orbit }
+            let orbit = OrbitPath::around(&capture.poses()).map(CameraPath::Circle);
+            ScenePlacement { format: capture.format, transform: capture.transform, near_far: Some(field_near_far(&capture, bound)), orbit, ndc: None }
         }
         SceneFrame::Recorded(recorded) => {
             // From the parser's frame back to the file's world, then the recorded mapping.
@@ -132,7 +144,7 @@ fn load_capture_dataset(mut capture: Capture, split: CaptureSplit, options: &Loa
             for v in &mut capture.views {
                 v.pose = recorded.apply_pose(&parsed.invert_pose(&v.pose));
             }
-            ScenePlacement { format: capture.format, transform: recorded, near_far: None, orbit: None }
+            ScenePlacement { format: capture.format, transform: recorded, near_far: None, orbit: None, ndc: None }
         }
     };
     let d = options.downscale;
@@ -140,35 +152,56 @@ fn load_capture_dataset(mut capture: Capture, split: CaptureSplit, options: &Loa
     for v in &chosen {
         check_divisible(&v.image_path, v.camera.width, v.camera.height, d)?;
     }
-    let images: Vec<Option<Vec<[f32; 3]>>> = if options.images {
-        let decoded: Vec<Result<Vec<[f32; 3]>>> = chosen
+    let images: Vec<(Option<Vec<[f32; 3]>>, Option<Vec<f32>>)> = if options.images {
+        let decoded: Vec<Result<Decoded>> = chosen
             .par_iter()
             .map(|v| {
-                let (w, h, rgb) = load_image(&v.image_path, d, options.background)?;
-                if (w, h) != (v.camera.width, v.camera.height) {
-                    let problem = format!("image is {w}×{h} but its camera is {}×{}", v.camera.width, v.camera.height);
+                let decoded = load_image(&v.image_path, d, options.background)?;
+                if (decoded.width, decoded.height) != (v.camera.width, v.camera.height) {
+                    let problem = format!("image is {}×{} but its camera is {}×{}", decoded.width, decoded.height, v.camera.width, v.camera.height);
                     return Err(Error::invalid(&v.image_path, problem));
                 }
-                Ok(rgb)
+                Ok(decoded)
             })
             .collect();
-        decoded.into_iter().map(|r| r.map(Some)).collect::<Result<_>>()?
+        decoded.into_iter().map(|r| r.map(|d| (Some(d.rgb), d.alpha))).collect::<Result<_>>()?
     } else {
-        vec![None; chosen.len()]
+        vec![(None, None); chosen.len()]
     };
     let views = chosen
         .iter()
         .zip(images)
-        .map(|(v, image)| View {
+        .map(|(v, (image, alpha))| View {
             name: v.name.clone(),
             file_path: v.image_path.display().to_string(),
             camera: v.camera.resized(v.camera.width / d, v.camera.height / d),
             pose: v.pose,
             image,
+            alpha,
         })
         .collect();
     Ok(Dataset { data: SplitData { split, views }, placement, warnings: capture.warnings })
 }
+
+/// NDC placement, as nerf-pytorch for LLFF: the poses stay in the parser's frame (recentred,
+/// nearest bound at 1/0.75), the near plane is z = −1 in front of the average camera, the
+/// projection is the first camera's, and rays sample t in [0, 1]. Needs the file's depth
+/// bounds: without them nothing says where the near plane may go.
+fn ndc_placement(capture: &Capture) -> Result<ScenePlacement> {
+    let (Some((near, far)), Some(first)) = (capture.near_far, capture.views.first()) else {
+        return Err(Error::invalid(&capture.source, "NDC rays need depth bounds (LLFF poses_bounds.npy) and at least one view; train without --ndc"));
+    };
+    let ndc = Ndc::for_camera(&first.camera, NDC_NEAR);
+    if !(near > NDC_NEAR && ndc.is_valid()) {
+        let problem = format!("NDC rays need all content beyond the near plane z = -{NDC_NEAR}, but the nearest bound is {near}; train without --ndc");
+        return Err(Error::invalid(&capture.source, problem));
+    }
+    let orbit = SpiralPath::around(&capture.poses(), near, far).map(CameraPath::Spiral);
+    Ok(ScenePlacement { format: capture.format, transform: capture.transform, near_far: Some((0.0, 1.0)), orbit, ndc: Some(ndc) })
+}
+
+/// nerf-pytorch's near plane for NDC rays (`ndc_rays(H, W, K[0][0], 1., rays_o, rays_d)`).
+const NDC_NEAR: f32 = 1.0;
 
 #[cfg(test)]
 mod tests {
@@ -209,7 +242,7 @@ mod tests {
     fn captures_split_every_eighth_skip_missing_images_and_composite() {
         let dir = tempfile::tempdir().unwrap();
         ngp_capture(dir.path());
-        let fit = SceneFrame::Fit { bound: 1.5 };
+        let fit = SceneFrame::Fit { bound: 1.5, ndc: None };
         let all = load_dataset(dir.path(), CaptureSplit::All, &options(fit, 1, Background::White)).unwrap();
         // 9 of 10 frames have an image; the missing one is named in a warning.
         assert_eq!(all.data.views.len(), 9);
@@ -243,7 +276,7 @@ mod tests {
     fn the_fit_is_recorded_and_a_recorded_transform_is_used_as_is() {
         let dir = tempfile::tempdir().unwrap();
         ngp_capture(dir.path());
-        let fit = load_dataset(dir.path(), CaptureSplit::All, &options(SceneFrame::Fit { bound: 1.5 }, 1, Background::White)).unwrap();
+        let fit = load_dataset(dir.path(), CaptureSplit::All, &options(SceneFrame::Fit { bound: 1.5, ndc: None }, 1, Background::White)).unwrap();
         let p = &fit.placement;
         // instant-ngp's default mapping (scale 0.33, offset 0.5), then aabb_scale 2 → ±1.5: ×1.5.
         assert!((p.transform.scale - 0.33 * 1.5).abs() < 1e-6, "{:?}", p.transform);
@@ -253,7 +286,7 @@ mod tests {
         assert!(near > 0.0 && far > near);
         // The orbit circles the 9 cameras (ring radius 3·0.495, centroid a little off the
         // ring's centre as one camera is missing) and looks where their axes meet.
-        let orbit = p.orbit.unwrap();
+        let Some(CameraPath::Circle(orbit)) = p.orbit else { panic!("{:?}", p.orbit) };
         assert!((1.4..1.5).contains(&orbit.radius), "{orbit:?}");
         assert!((Vec3::from(orbit.target) - Vec3::new(2.475, 0.0, 0.0)).length() < 1e-3, "{orbit:?}");
         // Loading again with the recorded transform gives the same poses.
@@ -275,7 +308,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let cfg = SyntheticSceneConfig { width: 8, height: 8, n_train: 3, n_val: 2, n_test: 1, ..Default::default() };
         generate_scene(dir.path(), &cfg).unwrap();
-        let o = options(SceneFrame::Fit { bound: 1.5 }, 1, Background::White);
+        let o = options(SceneFrame::Fit { bound: 1.5, ndc: None }, 1, Background::White);
         let all = load_dataset(dir.path(), CaptureSplit::All, &o).unwrap();
         assert_eq!(all.data.views.len(), 6);
         assert_eq!(all.placement.transform, SceneTransform::identity());

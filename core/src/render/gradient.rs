@@ -12,13 +12,16 @@ use super::packed::PackedSamples;
 use crate::compositing::{RayAccumulator, alpha_from_density};
 use rayon::prelude::*;
 
-/// Per-ray colour and opacity of packed samples, composited over `background`.
+/// Per-ray colour and opacity of packed samples, each ray composited over its own background
+/// (a constant colour, or a random one per ray when training on random backgrounds).
 ///
 /// # Shapes
-/// `sigma`: `[n_samples]`, `rgb`: `[n_samples]` of 3 → `[n_rays]` colours and opacities.
-pub fn composite_packed(samples: &PackedSamples, sigma: &[f32], rgb: &[[f32; 3]], background: [f32; 3]) -> (Vec<[f32; 3]>, Vec<f32>) {
+/// `sigma`: `[n_samples]`, `rgb`: `[n_samples]` of 3, `backgrounds`: `[n_rays]` of 3 →
+/// `[n_rays]` colours and opacities.
+pub fn composite_packed(samples: &PackedSamples, sigma: &[f32], rgb: &[[f32; 3]], backgrounds: &[[f32; 3]]) -> (Vec<[f32; 3]>, Vec<f32>) {
     assert_eq!(sigma.len(), samples.t.len(), "one density per sample");
     assert_eq!(rgb.len(), samples.t.len(), "one colour per sample");
+    assert_eq!(backgrounds.len(), samples.n_rays(), "one background per ray");
     (0..samples.n_rays())
         .into_par_iter()
         .map(|r| {
@@ -28,7 +31,7 @@ pub fn composite_packed(samples: &PackedSamples, sigma: &[f32], rgb: &[[f32; 3]]
             }
             let out = ray.finish(false);
             let light = ray.transmittance();
-            ([0, 1, 2].map(|c| out.rgb[c] + light * background[c]), out.acc)
+            ([0, 1, 2].map(|c| out.rgb[c] + light * backgrounds[r][c]), out.acc)
         })
         .unzip()
 }
@@ -42,10 +45,11 @@ pub fn composite_packed_backward(
     samples: &PackedSamples,
     sigma: &[f32],
     rgb: &[[f32; 3]],
-    background: [f32; 3],
+    backgrounds: &[[f32; 3]],
     grad_color: &[[f32; 3]],
 ) -> (Vec<f32>, Vec<[f32; 3]>) {
     assert_eq!(grad_color.len(), samples.n_rays(), "one colour gradient per ray");
+    assert_eq!(backgrounds.len(), samples.n_rays(), "one background per ray");
     let mut grad_sigma = vec![0.0f32; sigma.len()];
     let mut grad_rgb = vec![[0.0f32; 3]; rgb.len()];
     // Split the outputs ray by ray so that rays run in parallel.
@@ -73,7 +77,7 @@ pub fn composite_packed_backward(
             foreground += transmittance * alpha * dot(rgb[i]);
             transmittance *= 1.0 - alpha;
         }
-        let behind_all = transmittance * dot(background);
+        let behind_all = transmittance * dot(backgrounds[r]);
         // Second pass: Sᵢ = foreground − prefix up to i + T_N·b.
         let mut t_i = 1.0f32;
         let mut prefix = 0.0f32;
@@ -112,7 +116,7 @@ mod tests {
     }
 
     /// loss = Σ_rays Σ_c g_c · C_c with fixed random g: its gradient is the backward's output.
-    fn loss(samples: &PackedSamples, sigma: &[f32], rgb: &[[f32; 3]], bg: [f32; 3], g: &[[f32; 3]]) -> f64 {
+    fn loss(samples: &PackedSamples, sigma: &[f32], rgb: &[[f32; 3]], bg: &[[f32; 3]], g: &[[f32; 3]]) -> f64 {
         let (colors, _) = composite_packed(samples, sigma, rgb, bg);
         colors.iter().zip(g).map(|(c, g)| (0..3).map(|k| c[k] as f64 * g[k] as f64).sum::<f64>()).sum()
     }
@@ -121,7 +125,9 @@ mod tests {
     fn backward_matches_finite_differences() {
         let mut rng = Rng::new(7);
         let (samples, sigma, rgb) = random_rays(&mut rng);
-        let bg = [1.0, 0.3, 0.0];
+        // A different background on every ray (random-background training).
+        let bg: Vec<[f32; 3]> = (0..samples.n_rays()).map(|_| [rng.uniform(), rng.uniform(), rng.uniform()]).collect();
+        let bg = bg.as_slice();
         let g: Vec<[f32; 3]> = (0..samples.n_rays()).map(|_| [rng.uniform() - 0.5, rng.uniform() - 0.5, rng.uniform() - 0.5]).collect();
         let (gs, gr) = composite_packed_backward(&samples, &sigma, &rgb, bg, &g);
         let h = 1e-2f32;
@@ -155,14 +161,14 @@ mod tests {
         let samples = PackedSamples { t: vec![1.0, 2.0], delta: vec![1.0, 1.0], offsets: vec![0, 2] };
         let sigma = [2f32.ln(); 2];
         let rgb = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
-        let (c, acc) = composite_packed(&samples, &sigma, &rgb, [1.0, 1.0, 1.0]);
+        let (c, acc) = composite_packed(&samples, &sigma, &rgb, &[[1.0, 1.0, 1.0]]);
         let want = [0.5 + 0.25, 0.25 + 0.25, 0.25];
         for k in 0..3 {
             assert!((c[0][k] - want[k]).abs() < 1e-6, "{c:?}");
         }
         assert!((acc[0] - 0.75).abs() < 1e-6);
         // ∂C_red/∂σ₀ = δ·(T₁·1 − S₀), S₀ = w₁·0 + T_N·1 = 0.25, T₁ = 0.5 → 0.25.
-        let (gs, gr) = composite_packed_backward(&samples, &sigma, &rgb, [1.0, 1.0, 1.0], &[[1.0, 0.0, 0.0]]);
+        let (gs, gr) = composite_packed_backward(&samples, &sigma, &rgb, &[[1.0, 1.0, 1.0]], &[[1.0, 0.0, 0.0]]);
         assert!((gs[0] - 0.25).abs() < 1e-6, "{gs:?}");
         // ∂C_red/∂σ₁ = δ·(T₂·0 − T_N·1) = −0.25.
         assert!((gs[1] + 0.25).abs() < 1e-6, "{gs:?}");

@@ -173,7 +173,7 @@ pub fn render_image<F: Field>(
     let mut row = 0;
     while row < camera.height {
         let end = (row + rows_per_chunk).min(camera.height);
-        let rays = Rays::for_rows(camera, pose, row..end);
+        let rays = options.sampling.warp_rays(Rays::for_rows(camera, pose, row..end));
         let mut start = 0;
         while start < rays.len() {
             let stop = (start + chunk).min(rays.len());

@@ -121,7 +121,7 @@ mod tests {
     fn packed_march_composites_each_ray_and_stops_opaque_ones() {
         // Ray 0 along +x from the origin: 3 samples at t = 1, 2, 3 with δ = 1 (α = 0.5 each).
         // Ray 1: no samples. Ray 2 along +x: 40 samples of δ = 10 (α ≈ 1 − 2⁻¹⁰ each).
-        let rays = Rays { origins: vec![[0.0; 3]; 3], directions: vec![[1.0, 0.0, 0.0]; 3] };
+        let rays = Rays { origins: vec![[0.0; 3]; 3], directions: vec![[1.0, 0.0, 0.0]; 3], viewdirs: None };
         let mut samples = PackedSamples { t: vec![1.0, 2.0, 3.0], delta: vec![1.0; 3], offsets: vec![0, 3, 3] };
         samples.t.extend((0..40).map(|k| k as f32));
         samples.delta.extend([10.0; 40]);

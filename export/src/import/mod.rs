@@ -180,7 +180,7 @@ pub fn import_nerf_pytorch(opts: &NerfPytorchImport) -> Result<Imported, ImportE
     let test = load_split(&data, Split::Test, downscale, false).map_err(|e| ImportError::Data(e.to_string()))?;
     let camera: PinholeCamera = test.camera().ok_or_else(|| ImportError::Data(format!("{}: the test split has no views", data.display())))?;
     let (near, far) = BLENDER_NEAR_FAR;
-    let sampling = SamplingConfig { near, far, n_coarse: args.n_samples, n_fine: args.n_importance, lindisp: args.lindisp };
+    let sampling = SamplingConfig { near, far, n_coarse: args.n_samples, n_fine: args.n_importance, lindisp: args.lindisp, ndc: None };
     let mut scene = SceneDescription::new(&camera, &sampling, args.white_bkgd, &coarse, fine.is_some());
     scene.poses.orbit = Pose::orbit(ORBIT_FRAMES).iter().map(pose_matrix).collect();
     scene.poses.test = test.views.iter().map(|v| NamedPose { name: v.name.clone(), transform_matrix: pose_matrix(&v.pose) }).collect();

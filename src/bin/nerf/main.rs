@@ -30,6 +30,10 @@ enum Command {
         /// The dataset's format: blender, instant-ngp or llff (default: detected from the files).
         #[arg(long)]
         format: Option<CaptureFormat>,
+        /// Normalised device coordinates for the rays (nerf-pytorch's LLFF default): `true` or
+        /// `false`; default: on for LLFF captures whose cameras all face one way.
+        #[arg(long)]
+        ndc: Option<bool>,
         /// TOML file overriding the preset's settings (any subset of the keys of config.toml).
         #[arg(long)]
         config: Option<PathBuf>,
@@ -236,7 +240,7 @@ fn main() -> Result<()> {
     let cli = Cli::parse();
     let progress = std::io::stderr().is_terminal();
     match cli.command {
-        Command::Train { data, format, config, preset, downscale, iters, time_budget_min, seed, out } => {
+        Command::Train { data, format, ndc, config, preset, downscale, iters, time_budget_min, seed, out } => {
             let mut cfg = match &config {
                 Some(path) => TrainConfig::from_toml_file(path, preset)?,
                 None => preset.unwrap_or(Preset::DEFAULT).config(),
@@ -244,7 +248,7 @@ fn main() -> Result<()> {
             if let Some(seed) = seed {
                 cfg.seed = seed;
             }
-            let opts = TrainOptions { format, data, run: out.clone(), config: cfg, downscale, time_budget_min, iters, progress };
+            let opts = TrainOptions { format, data, run: out.clone(), config: cfg, ndc, downscale, time_budget_min, iters, progress };
             let s = train(&opts)?;
             println!(
                 "trained {} steps in {:.1} min: train PSNR {:.2} dB{}; run in {}",
@@ -321,7 +325,7 @@ fn demo(out: PathBuf, minutes: f64, progress: bool) -> Result<()> {
     config.eval_every_min = 0.0;
     config.lr_decay_ksteps = 2.0;
     println!("training for {minutes} min (preset cpu-fast) into {}", run.display());
-    let opts = TrainOptions { format: None, data: scene.clone(), run: run.clone(), config, downscale: 1, time_budget_min: Some(minutes), iters: None, progress };
+    let opts = TrainOptions { format: None, data: scene.clone(), run: run.clone(), config, ndc: None, downscale: 1, time_budget_min: Some(minutes), iters: None, progress };
     let s = train(&opts)?;
     println!("trained {} steps, train PSNR {:.2} dB", s.steps, s.train_psnr);
     let eval_dir = out.join("eval");
