@@ -16,6 +16,11 @@ use std::path::{Path, PathBuf};
 
 /// File name of the metrics written when the frames have ground truth.
 pub const METRICS_FILE: &str = "metrics.json";
+/// File name of the contact sheet written with metrics: ground truth | render | depth, one row
+/// per view, for the first [`SHEET_VIEWS`] views.
+pub const SHEET_FILE: &str = "contact_sheet.png";
+/// Views on the contact sheet.
+pub const SHEET_VIEWS: usize = 4;
 /// File name of the orbit animation.
 pub const GIF_FILE: &str = "orbit.gif";
 /// Milliseconds per GIF frame.
@@ -100,6 +105,7 @@ pub fn render_frames<E: From<Error>>(
     let total = frames.len();
     let mut per_image = Vec::new();
     let mut gif_frames = Vec::new();
+    let mut sheet = ContactSheet::default();
     for (k, frame) in frames.iter().enumerate() {
         let bar = frame_bar(out.progress, &format!("{} {}/{total}", frame.name, k + 1));
         bar.set_length(frame.camera.num_pixels() as u64);
@@ -113,6 +119,10 @@ pub fn render_frames<E: From<Error>>(
             };
             bar.finish_with_message(format!("PSNR {:.2} dB, SSIM {:.3}", m.psnr, m.ssim));
             per_image.push(m);
+            if k < SHEET_VIEWS {
+                let depth = depth_to_rgb(&image.rays.depth, &image.rays.acc, out.depth_range.0, out.depth_range.1);
+                sheet.add_row(image.width, image.height, &[target, &image.rays.rgb, &depth]);
+            }
         } else {
             bar.finish();
         }
@@ -123,6 +133,7 @@ pub fn render_frames<E: From<Error>>(
     let metrics = if with_metrics {
         let report = EvalReport::from_images(per_image);
         report.write_json(&out.dir.join(METRICS_FILE))?;
+        sheet.save(&out.dir.join(SHEET_FILE))?;
         Some(report)
     } else {
         None
@@ -137,6 +148,42 @@ pub fn render_frames<E: From<Error>>(
         _ => None,
     };
     Ok(FramesReport { frames: total, metrics, gif })
+}
+
+/// Images side by side, rows stacked; rows narrower than the widest are padded with white.
+#[derive(Debug, Default)]
+struct ContactSheet {
+    rows: Vec<(u32, u32, Vec<[f32; 3]>)>,
+}
+
+impl ContactSheet {
+    /// A row of `images`, each `width × height`, row-major.
+    fn add_row(&mut self, width: u32, height: u32, images: &[&[[f32; 3]]]) {
+        let (w, h) = (width as usize, height as usize);
+        let mut row = Vec::with_capacity(w * h * images.len());
+        for j in 0..h {
+            for image in images {
+                row.extend_from_slice(&image[j * w..(j + 1) * w]);
+            }
+        }
+        self.rows.push((width * images.len() as u32, height, row));
+    }
+
+    fn save(&self, path: &Path) -> Result<()> {
+        let width = self.rows.iter().map(|r| r.0).max().unwrap_or(0);
+        let height = self.rows.iter().map(|r| r.1).sum::<u32>();
+        if width == 0 || height == 0 {
+            return Ok(());
+        }
+        let mut pixels = Vec::with_capacity((width * height) as usize);
+        for (w, h, row) in &self.rows {
+            for line in row.chunks_exact(*w as usize).take(*h as usize) {
+                pixels.extend_from_slice(line);
+                pixels.extend(std::iter::repeat_n([1.0; 3], (width - w) as usize));
+            }
+        }
+        save_png(path, width, height, &pixels)
+    }
 }
 
 /// Write `<dir>/<name>.png`, `<dir>/<name>_depth.png` and, with `raw`, `<dir>/<name>.npy`.
@@ -254,6 +301,15 @@ mod tests {
         let m = report.metrics.unwrap();
         assert!((m.per_image[1].psnr - 20.0).abs() < 1e-3, "{}", m.per_image[1].psnr);
         assert_eq!(EvalReport::read_json(&out.dir.join(METRICS_FILE)).unwrap().per_image.len(), 2);
+        // The contact sheet: two rows of truth | render | depth, 9×4 pixels; row 1 starts with
+        // its target (0.1 below the render), then the render itself.
+        let (w, h, sheet) = crate::imageio::load_rgba(&out.dir.join(SHEET_FILE)).unwrap();
+        assert_eq!((w, h), (9, 4));
+        let at = |i: usize, j: usize| sheet[j * 9 + i];
+        let byte = |v: f32| (v.clamp(0.0, 1.0) * 255.0).round() / 255.0;
+        assert_eq!(at(1, 2)[0], byte(0.1 - 0.1));
+        assert_eq!(at(4, 2)[0], byte(0.1));
+        assert_eq!(at(4, 3)[0], byte(0.4));
         // A renderer error stops the run with its message.
         let err = render_frames(FrameSpec::orbit(&k, &[pose]), &out, |_, _| Err(Error::Argument("network exploded".into()))).unwrap_err();
         assert_eq!(err.to_string(), "network exploded");

@@ -259,7 +259,7 @@ mod tests {
     }
 
     #[test]
-    fn a_ring_is_centred_on_its_focus_with_the_farthest_camera_on_the_bound() {
+    fn a_ring_is_centred_on_its_focus_with_the_farthest_camera_at_a_third_of_the_bound() {
         let c = capture(&ring(), None, false, None);
         let t = fit_to_field(&c, 1.5).unwrap();
         // Every camera is 5 from the focus (1, 2, 3) and lands at 1.5/3: scale 0.5/5 = 0.1.
@@ -295,6 +295,38 @@ mod tests {
         // A single camera gives no scale: a clear error naming the file.
         let err = fit_to_field(&capture(&ring()[..1], None, false, None), 1.5).unwrap_err().to_string();
         assert!(err.contains("poses_bounds.npy") && err.contains("farthest camera at distance 0"), "{err}");
+    }
+
+    #[test]
+    fn the_spiral_is_nerf_pytorchs_render_path_spiral() {
+        // Five cameras facing −z: at the origin, (±1, 0, 0) and (0, ±0.5, 0). The average camera
+        // is the identity; the 90th percentiles of |x|, |y|, |z| are 1, 0.5, 0 (numpy's linear
+        // rule: sorted [0, 0, 0, 1, 1] at rank 3.6 → 1).
+        let at = |x: f32, y: f32| pose_from(Mat3::IDENTITY, Vec3::new(x, y, 0.0));
+        let poses = [at(0.0, 0.0), at(1.0, 0.0), at(-1.0, 0.0), at(0.0, 0.5), at(0.0, -0.5)];
+        let spiral = SpiralPath::around(&poses, 1.0, 10.0).unwrap();
+        assert!((Vec3::from(spiral.centre)).length() < 1e-6);
+        assert_eq!(spiral.radii, [1.0, 0.5, 0.0]);
+        // focus = 1/(0.25/1 + 0.75/(5·10)) = 1/0.265.
+        assert!((spiral.focus_depth - 1.0 / 0.265).abs() < 1e-4, "{}", spiral.focus_depth);
+        let frames = spiral.poses(8);
+        // θ = 2π·2·k/8: k = 0 at (r_x, 0, 0); k = 1 at θ = π/2: (0, −r_y, −sin(π/4)·r_z).
+        assert!((frames[0].origin() - Vec3::X).length() < 1e-6);
+        assert!((frames[1].origin() - Vec3::new(0.0, -0.5, 0.0)).length() < 1e-6);
+        let target = Vec3::new(0.0, 0.0, -spiral.focus_depth);
+        for f in &frames {
+            let forward = f.rotation() * Vec3::NEG_Z;
+            assert!((forward - (target - f.origin()).normalize()).length() < 1e-5);
+            // Upright: the right axis stays horizontal (no roll), as viewmatrix with up = +y.
+            assert!((f.rotation() * Vec3::X).y.abs() < 1e-6);
+        }
+        // A path written by an older version (a circle) still reads back as one.
+        let circle = CameraPath::Circle(OrbitPath::around(&ring()).unwrap());
+        let json = serde_json::to_string(&circle).unwrap();
+        assert_eq!(serde_json::from_str::<CameraPath>(&json).unwrap(), circle);
+        let json = serde_json::to_string(&CameraPath::Spiral(spiral)).unwrap();
+        assert_eq!(serde_json::from_str::<CameraPath>(&json).unwrap(), CameraPath::Spiral(spiral));
+        assert_eq!(SpiralPath::around(&[], 1.0, 10.0), None);
     }
 
     #[test]
