@@ -1,17 +1,19 @@
 //! A captured scene end to end: an instant-ngp `transforms.json` in arbitrary units (the
-//! generated scene's cameras scaled ×10 and moved by (100, 0, 0)) trains, evaluates and renders
-//! through the run's recorded placement, which data given later never changes; its bundle
-//! records the placement and holds test poses in the field's frame. A forward-facing LLFF
-//! capture trains on NDC rays, and burn, onnxruntime and the numpy consumer render it alike.
+//! generated scene's cameras scaled ×10 and moved by (100, 0, 0)), seen through a phone's
+//! camera (fx ≠ fy, cx ≠ W/2, distortion), trains, evaluates and renders through the run's
+//! recorded placement, which data given later never changes; its bundle records the placement
+//! and holds test poses in the field's frame. A forward-facing LLFF capture trains on NDC rays.
+//! burn, onnxruntime and the numpy consumer render both alike.
 
 mod common;
 
-use common::{nerf, nerf_render, python, s, tiny_config, tiny_ngp};
+use common::{nerf, nerf_render, python, s, tiny_ngp};
 use glam::Vec3;
 use nerf::run_dir::RunDir;
 use nerf::train::{TrainOptions, train};
-use nerf_core::{PinholeCamera, PixelCenter, Pose};
-use nerf_core::dataset::{CameraPath, Split, SyntheticSceneConfig, generate_scene, render_reference, split_poses};
+use nerf_core::imageio::save_png_rgba;
+use nerf_core::{OpenCvDistortion, PinholeCamera, PixelCenter, Pose};
+use nerf_core::dataset::{CameraPath, Split, SyntheticSceneConfig, render_reference, split_poses};
 use std::path::{Path, PathBuf};
 
 /// The world of the capture: `x' = 10·x + (100, 0, 0)`.
@@ -19,29 +21,58 @@ fn to_capture(p: Vec3) -> Vec3 {
     10.0 * p + Vec3::new(100.0, 0.0, 0.0)
 }
 
+/// The capture's camera as a phone would have it: fx ≠ fy, the principal point off the centre,
+/// half-pixel centres and OpenCV distortion.
+fn phone_camera() -> PinholeCamera {
+    let focal = 16.0 / (0.5 * nerf_core::dataset::CAMERA_ANGLE_X).tan();
+    let distortion = Some(OpenCvDistortion { k1: 0.01, k2: -0.002, p1: 0.001, p2: -0.0005 });
+    PinholeCamera { width: 32, height: 32, fx: focal, fy: 1.05 * focal, cx: 15.3, cy: 16.6, pixel_center: PixelCenter::HalfPixel, distortion }
+}
+
 /// A transforms.json (nerfstudio style: no aabb_scale) over the generated scene's train and
-/// test views, with its images under `images/`.
+/// test poses, its images (under `images/`) rendered through [`phone_camera`].
 fn capture(dir: &Path) -> PathBuf {
     let cfg = SyntheticSceneConfig { width: 32, height: 32, n_train: 14, n_val: 0, n_test: 2, seed: 3 };
-    let scene = dir.join("scene");
-    generate_scene(&scene, &cfg).unwrap();
     let out = dir.join("capture");
     std::fs::create_dir_all(out.join("images")).unwrap();
+    let camera = phone_camera();
     let mut frames = Vec::new();
     for split in [Split::Train, Split::Test] {
         for (k, pose) in split_poses(&cfg, split).iter().enumerate() {
             let name = format!("{split}_{k}.png");
-            std::fs::copy(scene.join(format!("{split}/r_{k}.png")), out.join("images").join(&name)).unwrap();
+            save_png_rgba(&out.join("images").join(&name), 32, 32, &render_reference(pose, &camera)).unwrap();
             let o = to_capture(pose.origin());
             let r = pose.0;
             let m = [[r[0][0], r[0][1], r[0][2], o.x], [r[1][0], r[1][1], r[1][2], o.y], [r[2][0], r[2][1], r[2][2], o.z], [0.0, 0.0, 0.0, 1.0]];
             frames.push(serde_json::json!({"file_path": format!("images/{name}"), "transform_matrix": m}));
         }
     }
-    let focal = 16.0 / (0.5 * nerf_core::dataset::CAMERA_ANGLE_X).tan();
-    let file = serde_json::json!({"fl_x": focal, "fl_y": focal, "cx": 16.0, "cy": 16.0, "w": 32, "h": 32, "k1": 0.01, "frames": frames});
+    let d = camera.distortion.unwrap();
+    let file = serde_json::json!({"fl_x": camera.fx, "fl_y": camera.fy, "cx": camera.cx, "cy": camera.cy, "w": 32, "h": 32,
+        "k1": d.k1, "k2": d.k2, "p1": d.p1, "p2": d.p2, "frames": frames});
     std::fs::write(out.join("transforms.json"), serde_json::to_string_pretty(&file).unwrap()).unwrap();
     out
+}
+
+/// `nerf render --npy` (burn) vs the `nerf-render --npy` frame at `ort_npy` (onnxruntime) for
+/// view `name` of `data`'s test split: the largest difference, after checking that the frame
+/// is not flat (parity on a blank image would mean nothing). Then the numpy consumer renders
+/// rays of test pose 0 and must agree with onnxruntime.
+fn check_parity(run: &Path, bundle: &Path, data: &Path, name: &str, ort_npy: &Path, out: &Path) -> f32 {
+    let (ok, text) = nerf(&["render", "--run", s(run), "--split", "test", "--data", s(data), "--out", s(out), "--npy"]);
+    assert!(ok, "{text}");
+    let (_, _, a) = nerf_core::frames::load_npy(&out.join(format!("{name}.npy"))).unwrap();
+    let (_, _, b) = nerf_core::frames::load_npy(ort_npy).unwrap();
+    let red = || a.chunks_exact(5).map(|p| p[0]);
+    assert!(red().fold(f32::INFINITY, f32::min) < red().fold(0.0, f32::max) - 0.1, "a flat image: parity would mean nothing");
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python/render_rays.py");
+    let py = std::process::Command::new(python())
+        .args([s(&script), s(bundle), "--npy", s(ort_npy), "--test-pose", "0"])
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {} ({e}): run scripts/setup.sh and source scripts/env.sh", python()));
+    let text = format!("{}{}", String::from_utf8_lossy(&py.stdout), String::from_utf8_lossy(&py.stderr));
+    assert!(py.status.success(), "render_rays.py: {text}");
+    a.iter().zip(&b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max)
 }
 
 #[test]
@@ -49,8 +80,8 @@ fn a_capture_trains_evaluates_and_renders_through_its_recorded_placement() {
     let dir = tempfile::tempdir().unwrap();
     let data = capture(dir.path());
     let run = dir.path().join("run");
-    let mut config = tiny_config();
-    config.iters = 20;
+    let mut config = tiny_ngp();
+    config.iters = 60;
     train(&TrainOptions { format: None, data: data.clone(), run: run.clone(), config, ndc: None, downscale: 1, time_budget_min: None, iters: None, progress: false }).unwrap();
 
     // The fit: centred where the cameras look (the capture's (100, 0, 0)), the cameras, 40
@@ -97,15 +128,18 @@ fn a_capture_trains_evaluates_and_renders_through_its_recorded_placement() {
     assert!(ok, "{text}");
     let scene = nerf_export::read_scene(&bundle).unwrap();
     assert_eq!(scene.placement.as_ref().unwrap().transform, t);
-    assert_eq!(scene.camera.camera.distortion.unwrap().k1, 0.01);
+    assert_eq!(scene.camera.camera, phone_camera());
     let test0 = scene.poses.test.iter().find(|p| p.name == "train_0").unwrap();
     let pose0 = split_poses(&SyntheticSceneConfig { width: 32, height: 32, n_train: 14, n_val: 0, n_test: 2, seed: 3 }, Split::Train)[0];
     let origin = Vec3::new(test0.transform_matrix[0][3], test0.transform_matrix[1][3], test0.transform_matrix[2][3]);
     assert!((origin - pose0.origin() * 0.5 / 4.0).length() < 1e-4, "{origin} vs {}", pose0.origin());
     // nerf-render renders the capture's own test split through the bundle's placement, with metrics.
     let ort = dir.path().join("ort");
-    let (ok, text) = nerf_render(&["--bundle", s(&bundle), "--split", "test", "--data", s(&data), "--out", s(&ort)]);
+    let (ok, text) = nerf_render(&["--bundle", s(&bundle), "--split", "test", "--data", s(&data), "--out", s(&ort), "--npy"]);
     assert!(ok && text.contains("PSNR"), "{text}");
+    // burn, onnxruntime and the numpy consumer agree on the captured camera's rays.
+    let diff = check_parity(&run, &bundle, &data, "train_0", &ort.join("train_0.npy"), &dir.path().join("burn"));
+    assert!(diff < 1e-3, "burn vs onnxruntime on a captured scene: max |Δ| {diff}");
 }
 
 /// An LLFF capture of the generated scene seen from the front: nine cameras on a 3×3 grid in
@@ -161,33 +195,18 @@ fn a_forward_facing_capture_trains_on_ndc_rays_and_renders_alike_everywhere() {
     assert_eq!(placement.ndc, Some(ndc));
     assert!(matches!(placement.orbit, Some(CameraPath::Spiral(_))), "{:?}", placement.orbit);
 
-    // burn and onnxruntime render the held-out view 000 alike, and it shows the scene.
+    // burn, onnxruntime and numpy render the held-out view 000 alike, and it shows the scene.
     let bundle = dir.path().join("bundle");
     let (ok, text) = nerf(&["export", "--run", s(&run), "--out", s(&bundle)]);
     assert!(ok, "{text}");
     let scene_json: serde_json::Value = serde_json::from_slice(&std::fs::read(bundle.join("scene.json")).unwrap()).unwrap();
     assert_eq!(scene_json["sampling"]["ndc"]["fx"], 36.0);
-    let burn_out = dir.path().join("burn");
-    let (ok, text) = nerf(&["render", "--run", s(&run), "--split", "test", "--data", s(&data), "--out", s(&burn_out), "--npy"]);
-    assert!(ok, "{text}");
     let ort_out = dir.path().join("ort");
     let (ok, text) = nerf_render(&["--bundle", s(&bundle), "--split", "test", "--data", s(&data), "--limit", "1", "--out", s(&ort_out), "--npy"]);
     assert!(ok && text.contains("PSNR"), "{text}");
-    let (_, _, a) = nerf_core::frames::load_npy(&burn_out.join("000.npy")).unwrap();
-    let (_, _, b) = nerf_core::frames::load_npy(&ort_out.join("000.npy")).unwrap();
-    let diff = a.iter().zip(&b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
-    let spread = a.chunks_exact(5).map(|p| p[0]).fold(f32::INFINITY, f32::min) < a.chunks_exact(5).map(|p| p[0]).fold(0.0, f32::max) - 0.1;
-    assert!(spread, "a flat image: parity would mean nothing");
+    // The numpy consumer warps the rays itself (check_parity runs it).
+    let diff = check_parity(&run, &bundle, &data, "000", &ort_out.join("000.npy"), &dir.path().join("burn"));
     assert!(diff < 1e-3, "burn vs onnxruntime on NDC rays: max |Δ| {diff}");
-
-    // The numpy consumer warps the rays itself and agrees with nerf-render.
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python/render_rays.py");
-    let out = std::process::Command::new(python())
-        .args([s(&script), s(&bundle), "--npy", s(&ort_out.join("000.npy")), "--test-pose", "0"])
-        .output()
-        .unwrap_or_else(|e| panic!("cannot run {} ({e}): run scripts/setup.sh and source scripts/env.sh", python()));
-    let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
-    assert!(out.status.success(), "{text}");
 
     // The orbit (a spiral, through NDC rays) renders; with --ndc false the same data trains
     // in the field's cube instead.

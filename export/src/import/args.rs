@@ -154,10 +154,10 @@ impl NerfPytorchArgs {
         match self.dataset_type.as_str() {
             "blender" => {}
             "llff" if !self.no_ndc => {
-                return unsupported("dataset_type", "llff (no_ndc = False)".into(), "LLFF runs render through normalised device coordinates (NDC rays), which this project does not support yet");
+                return unsupported("dataset_type", "llff (no_ndc = False)".into(), "importing LLFF runs is not supported yet: their NDC rays exist here (nerf train on LLFF data uses them), but the import does not yet rebuild nerf-pytorch's LLFF poses, bounds and NDC projection");
             }
             "llff" => {
-                return unsupported("dataset_type", "llff".into(), "LLFF scenes are not supported yet (their near/far come from poses_bounds.npy, and there is no LLFF loader)");
+                return unsupported("dataset_type", "llff".into(), "importing LLFF runs is not supported yet (their near/far come from poses_bounds.npy, which the import does not read)");
             }
             other => return unsupported("dataset_type", other.into(), "only Blender scenes (dataset_type = blender) are supported"),
         }
