@@ -75,14 +75,19 @@ fn check_parity(run: &Path, bundle: &Path, data: &Path, name: &str, ort_npy: &Pa
     a.iter().zip(&b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max)
 }
 
+/// Train the tiny hash-grid field on `data` for `iters` steps, NDC as `ndc` says.
+fn train_capture(data: &Path, run: &Path, iters: usize, ndc: Option<bool>) {
+    let config = tiny_ngp();
+    let options = TrainOptions { format: None, data: data.to_path_buf(), run: run.to_path_buf(), config, ndc, downscale: 1, time_budget_min: None, iters: Some(iters), progress: false };
+    train(&options).unwrap();
+}
+
 #[test]
 fn a_capture_trains_evaluates_and_renders_through_its_recorded_placement() {
     let dir = tempfile::tempdir().unwrap();
     let data = capture(dir.path());
     let run = dir.path().join("run");
-    let mut config = tiny_ngp();
-    config.iters = 60;
-    train(&TrainOptions { format: None, data: data.clone(), run: run.clone(), config, ndc: None, downscale: 1, time_budget_min: None, iters: None, progress: false }).unwrap();
+    train_capture(&data, &run, 60, None);
 
     // The fit: centred where the cameras look (the capture's (100, 0, 0)), the cameras, 40
     // units away there, at a third of the cube's bound 1.5.
@@ -180,9 +185,7 @@ fn a_forward_facing_capture_trains_on_ndc_rays_and_renders_alike_everywhere() {
     let dir = tempfile::tempdir().unwrap();
     let data = forward_facing_capture(dir.path());
     let run = dir.path().join("run");
-    let mut config = tiny_ngp();
-    config.iters = 60;
-    train(&TrainOptions { format: None, data: data.clone(), run: run.clone(), config, ndc: None, downscale: 1, time_budget_min: None, iters: None, progress: false }).unwrap();
+    train_capture(&data, &run, 60, None);
 
     // NDC was chosen (LLFF, forward-facing): near/far 0..1, the first camera's projection with
     // nerf-pytorch's near plane 1, random backgrounds for a capture, a spiral for renders.
@@ -213,8 +216,6 @@ fn a_forward_facing_capture_trains_on_ndc_rays_and_renders_alike_everywhere() {
     let (ok, text) = nerf(&["render", "--run", s(&run), "--orbit", "--frames", "2", "--out", s(&dir.path().join("orbit"))]);
     assert!(ok && dir.path().join("orbit/orbit.gif").is_file(), "{text}");
     let cube = dir.path().join("cube");
-    let mut config = tiny_ngp();
-    config.iters = 2;
-    train(&TrainOptions { format: None, data, run: cube.clone(), config, ndc: Some(false), downscale: 1, time_budget_min: None, iters: None, progress: false }).unwrap();
+    train_capture(&data, &cube, 2, Some(false));
     assert_eq!(RunDir::open(&cube).unwrap().read_config().unwrap().sampling.ndc, None);
 }
