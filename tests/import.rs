@@ -26,17 +26,24 @@ struct Agreement {
     rgb_std: f32,
 }
 
-/// Import `run/checkpoint`, render the first `views.len()` test views at `size`² with
-/// `nerf-render --npy`, and compare each with nerf-pytorch's render `run/<view>.npy`.
-fn import_and_compare(run: &str, checkpoint: &str, size: u32, views: &[&str]) -> Vec<Agreement> {
+/// Import the checkpoint `fixtures/<checkpoint>` (with `fixtures/<args>` when given) trained on
+/// `data`, render the first `views.len()` test views at `width`×`height` with
+/// `nerf-render --npy`, and compare each with nerf-pytorch's render `fixtures/<run>/<view>.npy`.
+fn import_and_compare(run: &str, checkpoint: &str, args: Option<&str>, data: &Path, (width, height): (u32, u32), views: &[&str]) -> Vec<Agreement> {
     let dir = tempfile::tempdir().unwrap();
     let bundle = dir.path().join("bundle");
-    let (ok, text) = nerf(&["import", "nerf-pytorch", "--checkpoint", s(&fixture(run).join(checkpoint)), "--data", s(&lego()), "--out", s(&bundle)]);
+    let checkpoint = fixture(checkpoint);
+    let mut cli = vec!["import", "nerf-pytorch", "--checkpoint", s(&checkpoint), "--data", s(data), "--out", s(&bundle)];
+    let args = args.map(fixture);
+    if let Some(a) = &args {
+        cli.extend(["--args", s(a)]);
+    }
+    let (ok, text) = nerf(&cli);
     assert!(ok, "import failed:\n{text}");
     let out = dir.path().join("render");
-    let size = size.to_string();
+    let (width, height) = (width.to_string(), height.to_string());
     let limit = views.len().to_string();
-    let args = ["--bundle", s(&bundle), "--split", "test", "--limit", &limit, "--width", &size, "--height", &size, "--npy", "--threads", "1", "--out", s(&out)];
+    let args = ["--bundle", s(&bundle), "--split", "test", "--limit", &limit, "--width", &width, "--height", &height, "--npy", "--threads", "1", "--out", s(&out)];
     let (ok, text) = nerf_render(&args);
     assert!(ok, "nerf-render failed:\n{text}");
     views
@@ -72,7 +79,7 @@ fn import_and_compare(run: &str, checkpoint: &str, size: u32, views: &[&str]) ->
 fn trained_checkpoint_renders_as_nerf_pytorch_renders_it() {
     // Coarse 4×64 (no skip) + fine 6×64 (skip after layer 4), view-dependent, 32 + 32 samples,
     // trained by nerf-pytorch on lego; zip format.
-    for a in import_and_compare("trained", "001000.tar", 100, &["r_0", "r_1"]) {
+    for a in import_and_compare("trained", "trained/001000.tar", None, &lego(), (100, 100), &["r_0", "r_1"]) {
         assert!(a.rgb_std > 0.05, "nerf-pytorch's render is nearly flat: the comparison would mean little");
         assert!(a.psnr_db >= 50.0, "{:.1} dB", a.psnr_db);
         assert!(a.max_acc < 1e-3, "acc differs by {}", a.max_acc);
@@ -83,7 +90,7 @@ fn trained_checkpoint_renders_as_nerf_pytorch_renders_it() {
 fn coarse_only_legacy_checkpoint_without_viewdirs_imports() {
     // 2×32, use_viewdirs False (output_linear), N_importance 0 (network_fine_state_dict None),
     // saved in torch's legacy (pre-1.6) format.
-    for a in import_and_compare("coarse-only", "000000.tar", 40, &["r_0"]) {
+    for a in import_and_compare("coarse-only", "coarse-only/000000.tar", None, &lego(), (40, 40), &["r_0"]) {
         // The untrained network's colours vary little, so hold it to its own scale.
         assert!(a.psnr_db >= 60.0 && a.max_rgb < 1e-4, "{:.1} dB, max |Δ| {}", a.psnr_db, a.max_rgb);
         assert!(a.max_acc < 1e-4, "acc differs by {}", a.max_acc);
@@ -94,10 +101,30 @@ fn coarse_only_legacy_checkpoint_without_viewdirs_imports() {
 fn paper_size_checkpoint_imports() {
     // The paper's 8×256 network (skip after layer 4, L = 10 / 4, view-dependent), untrained
     // (seed 0), coarse only (N_importance 0) so that the fixture stays at 2.4 MB; 64 samples.
-    for a in import_and_compare("paper-coarse", "000000.tar", 32, &["r_0"]) {
+    for a in import_and_compare("paper-coarse", "paper-coarse/000000.tar", None, &lego(), (32, 32), &["r_0"]) {
         assert!(a.rgb_std > 0.05, "nerf-pytorch's render is nearly flat: the comparison would mean little");
         assert!(a.psnr_db >= 50.0, "{:.1} dB", a.psnr_db);
         assert!(a.max_acc < 1e-3, "acc differs by {}", a.max_acc);
+    }
+}
+
+#[test]
+fn llff_checkpoint_renders_through_ndc_rays_as_nerf_pytorch_renders_it() {
+    // Trained by nerf-pytorch on fern (factor 1, llffhold 8, NDC rays): coarse 2×32, fine 6×32
+    // (skip after layer 4), 16 + 16 samples; test view image001 at 40×30 (a tenth).
+    let fern = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/real/fern");
+    assert!(fern.join("poses_bounds.npy").is_file(), "{} is missing (CI provides ../shared)", fern.display());
+    for a in import_and_compare("llff", "llff/001500.tar", None, &fern, (40, 30), &["image001"]) {
+        assert!(a.rgb_std > 0.05, "nerf-pytorch's render is nearly flat: the comparison would mean little");
+        assert!(a.psnr_db >= 50.0, "{:.1} dB", a.psnr_db);
+        assert!(a.max_acc < 1e-3, "acc differs by {}", a.max_acc);
+    }
+    // The same networks with no_ndc: world rays between 0.9 · the nearest bound and the farthest.
+    // Fed world points, far from the NDC ones it was trained on, the network is steep: one pixel
+    // of the 1,200 differs by 1.5e-2 (rounding moves a fine sample), 8 by more than 1e-4.
+    for a in import_and_compare("llff-no-ndc", "llff/001500.tar", Some("llff-no-ndc/args.txt"), &fern, (40, 30), &["image001"]) {
+        assert!(a.rgb_std > 0.05, "nerf-pytorch's render is nearly flat: the comparison would mean little");
+        assert!(a.psnr_db >= 60.0, "{:.1} dB", a.psnr_db);
     }
 }
 
@@ -165,7 +192,10 @@ fn bad_input_gets_a_clear_error_and_no_bundle() {
 
     // Settings a bundle cannot express.
     import_fails(&trained, Some(&args_with(tmp.path(), "i_embed", "i_embed = -1")), Some(&lego), "i_embed = -1 is not supported");
-    import_fails(&trained, Some(&args_with(tmp.path(), "dataset_type", "dataset_type = llff")), Some(&lego), "NDC rays");
+    let sphere = run_args_with(tmp.path(), "llff", "spherify", "spherify = True");
+    import_fails(&fixture("llff/001500.tar"), Some(&sphere), Some(&lego), "spherify = True is not supported");
+    // An LLFF run given a Blender scene: the missing file is named.
+    import_fails(&trained, Some(&args_with(tmp.path(), "dataset_type", "dataset_type = llff")), Some(&lego), "poses_bounds.npy");
 
     // No dataset: say what to give.
     let no_data = args_with(tmp.path(), "datadir", "datadir = /nonexistent/lego");

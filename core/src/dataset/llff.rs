@@ -136,6 +136,12 @@ pub fn llff_images(images_dir: &Path) -> Result<Vec<PathBuf>> {
 /// rows different from the images, a non-finite row, a non-positive bound or focal, images of
 /// different sizes, or an `[H, W]` whose aspect ratio differs from the images'.
 pub fn load_llff(dir: &Path) -> Result<Capture> {
+    load_llff_images(dir, "images")
+}
+
+/// [`load_llff`] with the images of `dir/<images>` (nerf-pytorch's `factor = 8` reads
+/// `images_8`): the cameras follow those images' size.
+pub fn load_llff_images(dir: &Path, images: &str) -> Result<Capture> {
     let npy_path = dir.join("poses_bounds.npy");
     let array = read_npy(&npy_path)?;
     if array.shape.len() != 2 || array.shape[1] != 17 {
@@ -147,7 +153,8 @@ pub fn load_llff(dir: &Path) -> Result<Capture> {
             ),
         ));
     }
-    let images = llff_images(&dir.join("images"))?;
+    let images_dir = dir.join(images);
+    let images = llff_images(&images_dir)?;
     let n = array.shape[0];
     if n != images.len() || n == 0 {
         return Err(Error::invalid(
@@ -155,7 +162,7 @@ pub fn load_llff(dir: &Path) -> Result<Capture> {
             format!(
                 "{n} poses but {} images in {}",
                 images.len(),
-                dir.join("images").display()
+                images_dir.display()
             ),
         ));
     }

@@ -28,7 +28,7 @@ pub use instant_ngp::{
     camera_from_fields, load_instant_ngp, resolve_image,
 };
 pub use llff::{
-    BD_FACTOR, LlffRow, bd_factor_scale, llff_images, llff_normalisation, llff_row, load_llff,
+    BD_FACTOR, LlffRow, bd_factor_scale, llff_images, llff_normalisation, llff_row, load_llff, load_llff_images,
     poses_avg, recenter_poses,
 };
 pub use synthetic::{

@@ -43,6 +43,12 @@ pub struct NerfPytorchArgs {
     pub half_res: bool,
     /// LLFF without normalised device coordinates.
     pub no_ndc: bool,
+    /// LLFF images downsampled by this factor (`images_<factor>`).
+    pub factor: usize,
+    /// LLFF test views: every `llffhold`-th image.
+    pub llffhold: usize,
+    /// LLFF 360° captures re-posed on a sphere (not supported).
+    pub spherify: bool,
     /// Where the run's data was (as nerf-pytorch saw it).
     pub datadir: Option<String>,
 }
@@ -68,16 +74,19 @@ impl Default for NerfPytorchArgs {
             dataset_type: "llff".into(),
             half_res: false,
             no_ndc: false,
+            factor: 8,
+            llffhold: 8,
+            spherify: false,
             datadir: None,
         }
     }
 }
 
 /// Settings the importer reads; everything else in the file (expname, lrate, …) is ignored.
-const KNOWN: [&str; 18] = [
+const KNOWN: [&str; 21] = [
     "netdepth", "netwidth", "netdepth_fine", "netwidth_fine", "multires", "multires_views", "i_embed", "use_viewdirs",
     "N_samples", "N_importance", "white_bkgd", "lindisp", "perturb", "raw_noise_std", "dataset_type", "half_res", "no_ndc",
-    "datadir",
+    "factor", "llffhold", "spherify", "datadir",
 ];
 
 impl NerfPytorchArgs {
@@ -139,6 +148,9 @@ impl NerfPytorchArgs {
             "dataset_type" => self.dataset_type = value.to_string(),
             "half_res" => self.half_res = flag(value)?,
             "no_ndc" => self.no_ndc = flag(value)?,
+            "factor" => self.factor = int(value)?,
+            "llffhold" => self.llffhold = int(value)?,
+            "spherify" => self.spherify = flag(value)?,
             "datadir" => self.datadir = Some(value.to_string()),
             _ => unreachable!("KNOWN lists the keys handled here"),
         }
@@ -153,13 +165,14 @@ impl NerfPytorchArgs {
         }
         match self.dataset_type.as_str() {
             "blender" => {}
-            "llff" if !self.no_ndc => {
-                return unsupported("dataset_type", "llff (no_ndc = False)".into(), "importing LLFF runs is not supported yet: their NDC rays exist here (nerf train on LLFF data uses them), but the import does not yet rebuild nerf-pytorch's LLFF poses, bounds and NDC projection");
+            "llff" if self.spherify => {
+                return unsupported("spherify", "True".into(), "LLFF runs re-posed on a sphere (spherify) are not supported; forward-facing ones (NDC rays or no_ndc) are");
             }
-            "llff" => {
-                return unsupported("dataset_type", "llff".into(), "importing LLFF runs is not supported yet (their near/far come from poses_bounds.npy, which the import does not read)");
+            "llff" if self.llffhold == 0 => {
+                return unsupported("llffhold", "0".into(), "the test views must be every llffhold-th image (llffhold > 0)");
             }
-            other => return unsupported("dataset_type", other.into(), "only Blender scenes (dataset_type = blender) are supported"),
+            "llff" => {}
+            other => return unsupported("dataset_type", other.into(), "only Blender and LLFF scenes (dataset_type = blender or llff) are supported"),
         }
         if self.n_samples < 2 || (self.n_importance > 0 && self.n_samples < 3) {
             return unsupported("N_samples", self.n_samples.to_string(), "need at least 2 coarse samples (3 with N_importance > 0)");
@@ -191,17 +204,20 @@ mod tests {
         let a = NerfPytorchArgs::parse("# lego\nexpname = x\ndataset_type = blender\nuse_viewdirs: true\n").unwrap();
         assert_eq!((a.netdepth, a.netwidth, a.n_samples, a.n_importance, a.multires), (8, 256, 64, 0, 10));
         assert!(a.use_viewdirs && !a.white_bkgd);
-        // nerf-pytorch's default dataset is LLFF with NDC rays.
+        // nerf-pytorch's default dataset is LLFF with NDC rays, images_8, every 8th view held out.
         let d = NerfPytorchArgs::parse("netdepth = 8\n").unwrap();
-        assert_eq!(d.check_supported().unwrap_err().0, "dataset_type");
+        assert_eq!((d.dataset_type.as_str(), d.no_ndc, d.factor, d.llffhold, d.spherify), ("llff", false, 8, 8, false));
+        assert!(d.check_supported().is_ok());
     }
 
     #[test]
     fn refuses_what_a_bundle_cannot_express() {
         let a = NerfPytorchArgs::parse("dataset_type = blender\ni_embed = -1\n").unwrap();
         assert_eq!(a.check_supported().unwrap_err().0, "i_embed");
-        let llff = NerfPytorchArgs::parse("dataset_type = llff\n").unwrap();
-        assert!(llff.check_supported().unwrap_err().2.contains("NDC"));
+        let sphere = NerfPytorchArgs::parse("dataset_type = llff\nspherify = True\n").unwrap();
+        assert_eq!(sphere.check_supported().unwrap_err().0, "spherify");
+        let no_test = NerfPytorchArgs::parse("dataset_type = llff\nllffhold = 0\n").unwrap();
+        assert_eq!(no_test.check_supported().unwrap_err().0, "llffhold");
         let dv = NerfPytorchArgs::parse("dataset_type = deepvoxels\n").unwrap();
         assert_eq!(dv.check_supported().unwrap_err().1, "deepvoxels");
     }

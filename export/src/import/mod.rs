@@ -6,7 +6,8 @@
 //! The conventions already agree (rays without a half-pixel offset, OpenGL camera-to-world,
 //! `[x, sin(2ᵏx), cos(2ᵏx)]` encodings, skips as `[input, h]`, ReLU density, `sample_pdf` on
 //! `weights[1:-1]` with `det = True`, white background as `rgb + 1 − acc`), so importing is a
-//! mapping of names and layouts ([`checkpoint`]) plus the run's sampling and camera.
+//! mapping of names and layouts ([`checkpoint`]) plus the run's sampling and camera (LLFF runs:
+//! its poses, bounds and NDC rays, through the same LLFF parser and NDC warp as `nerf train`).
 
 pub mod args;
 pub mod checkpoint;
@@ -17,7 +18,9 @@ use args::NerfPytorchArgs;
 use checkpoint::{ExpectedNetwork, MappingError, read_checkpoint, to_plain_network};
 use nerf_core::PinholeCamera;
 use nerf_core::camera::Pose;
-use nerf_core::dataset::{Split, load_split};
+use nerf_core::dataset::{CameraPath, CaptureFormat, ScenePlacement, Split, SpiralPath, load_llff_images, load_split};
+use nerf_core::ndc::Ndc;
+use nerf_core::network::PlainNetwork;
 use nerf_core::network::EncodingSpec;
 use nerf_core::sampling::SamplingConfig;
 use std::path::{Path, PathBuf};
@@ -91,7 +94,7 @@ pub struct NerfPytorchImport {
     pub checkpoint: PathBuf,
     /// `args.txt` or `config.txt`; default: `args.txt` beside the checkpoint, else `config.txt`.
     pub args: Option<PathBuf>,
-    /// The Blender scene the run was trained on (camera, test poses); default: the run's
+    /// The scene the run was trained on, Blender or LLFF (camera, test poses); default: the run's
     /// `datadir` when it exists here.
     pub data: Option<PathBuf>,
 }
@@ -120,19 +123,61 @@ fn find_args(checkpoint: &Path, explicit: Option<&Path>) -> Result<PathBuf, Impo
     })
 }
 
-/// The scene directory: `explicit`, else the run's `datadir` when it is a Blender scene here.
+/// The scene directory: `explicit`, else the run's `datadir` when it holds the run's kind of
+/// scene here (Blender `transforms_test.json`, LLFF `poses_bounds.npy`).
 fn find_data(explicit: Option<&Path>, args: &NerfPytorchArgs) -> Result<PathBuf, ImportError> {
     if let Some(p) = explicit {
         return Ok(p.to_path_buf());
     }
+    let (marker, kind) = if args.dataset_type == "llff" { ("poses_bounds.npy", "LLFF capture") } else { ("transforms_test.json", "Blender scene") };
     match &args.datadir {
-        Some(d) if Path::new(d).join("transforms_test.json").is_file() => Ok(PathBuf::from(d)),
+        Some(d) if Path::new(d).join(marker).is_file() => Ok(PathBuf::from(d)),
         other => Err(ImportError::Data(format!(
-            "the camera (image size, focal) and the test poses come from the dataset: give --data <scene dir>, the Blender scene \
+            "the camera (image size, focal) and the test poses come from the dataset: give --data <scene dir>, the {kind} \
              the model was trained on{}",
-            other.as_ref().map(|d| format!(" (the run's datadir {d} is not a Blender scene here)")).unwrap_or_default()
+            other.as_ref().map(|d| format!(" (the run's datadir {d} is not a {kind} here)")).unwrap_or_default()
         ))),
     }
+}
+
+/// The scene of a Blender run: nerf-pytorch's near/far 2, 6, the test split's camera (halved
+/// with `half_res`) and poses, the reference orbit.
+fn blender_scene(data: &Path, args: &NerfPytorchArgs, coarse: &PlainNetwork, has_fine: bool) -> Result<SceneDescription, ImportError> {
+    // nerf-pytorch halves the images (and the focal) with half_res.
+    let downscale = if args.half_res { 2 } else { 1 };
+    let test = load_split(data, Split::Test, downscale, false).map_err(|e| ImportError::Data(e.to_string()))?;
+    let camera: PinholeCamera = test.camera().ok_or_else(|| ImportError::Data(format!("{}: the test split has no views", data.display())))?;
+    let (near, far) = BLENDER_NEAR_FAR;
+    let sampling = SamplingConfig { near, far, n_coarse: args.n_samples, n_fine: args.n_importance, lindisp: args.lindisp, ndc: None };
+    let mut scene = SceneDescription::new(&camera, &sampling, args.white_bkgd, coarse, has_fine);
+    scene.poses.orbit = Pose::orbit(ORBIT_FRAMES).iter().map(pose_matrix).collect();
+    scene.poses.test = test.views.iter().map(|v| NamedPose { name: v.name.clone(), transform_matrix: pose_matrix(&v.pose) }).collect();
+    Ok(scene)
+}
+
+/// The scene of an LLFF run, as nerf-pytorch's `load_llff_data(factor, recenter=True,
+/// bd_factor=.75, spherify=False)` and `train()` set it up: the images of `images_<factor>`
+/// (else `images/`), poses recentred and scaled, NDC rays with near plane 1 over t in [0, 1]
+/// (lindisp ignored, as nerf-pytorch ignores it there) or, with `no_ndc`, near/far = 0.9 · the
+/// smallest bound and the largest; test views every `llffhold`-th image; the spiral path.
+fn llff_scene(data: &Path, args: &NerfPytorchArgs, coarse: &PlainNetwork, has_fine: bool) -> Result<SceneDescription, ImportError> {
+    let factored = format!("images_{}", args.factor);
+    let images = if args.factor > 1 && data.join(&factored).is_dir() { factored.as_str() } else { "images" };
+    let capture = load_llff_images(data, images).map_err(|e| ImportError::Data(e.to_string()))?;
+    let camera = capture.views[0].camera;
+    let bounds = capture.near_far.ok_or_else(|| ImportError::Data(format!("{}: no depth bounds", capture.source.display())))?;
+    let (near, far, ndc, lindisp) = if args.no_ndc { (bounds.0, bounds.1, None, args.lindisp) } else { (0.0, 1.0, Some(Ndc::for_camera(&camera, 1.0)), false) };
+    let sampling = SamplingConfig { near, far, n_coarse: args.n_samples, n_fine: args.n_importance, lindisp, ndc };
+    let mut scene = SceneDescription::new(&camera, &sampling, args.white_bkgd, coarse, has_fine);
+    let spiral = SpiralPath::around(&capture.poses(), bounds.0, bounds.1).map(CameraPath::Spiral);
+    scene.poses.orbit = spiral.map(|p| p.poses(ORBIT_FRAMES)).unwrap_or_default().iter().map(pose_matrix).collect();
+    // nerf-pytorch's i_test = np.arange(N)[::llffhold].
+    scene.poses.test = (0..capture.views.len())
+        .step_by(args.llffhold)
+        .map(|k| NamedPose { name: capture.views[k].name.clone(), transform_matrix: pose_matrix(&capture.views[k].pose) })
+        .collect();
+    scene.placement = Some(ScenePlacement { format: CaptureFormat::Llff, transform: capture.transform, near_far: Some((near, far)), orbit: spiral, ndc });
+    Ok(scene)
 }
 
 /// Read a nerf-pytorch run and build its bundle (nothing is written).
@@ -175,14 +220,9 @@ pub fn import_nerf_pytorch(opts: &NerfPytorchImport) -> Result<Imported, ImportE
     };
 
     let data = find_data(opts.data.as_deref(), &args)?;
-    // nerf-pytorch halves the images (and the focal) with half_res.
-    let downscale = if args.half_res { 2 } else { 1 };
-    let test = load_split(&data, Split::Test, downscale, false).map_err(|e| ImportError::Data(e.to_string()))?;
-    let camera: PinholeCamera = test.camera().ok_or_else(|| ImportError::Data(format!("{}: the test split has no views", data.display())))?;
-    let (near, far) = BLENDER_NEAR_FAR;
-    let sampling = SamplingConfig { near, far, n_coarse: args.n_samples, n_fine: args.n_importance, lindisp: args.lindisp, ndc: None };
-    let mut scene = SceneDescription::new(&camera, &sampling, args.white_bkgd, &coarse, fine.is_some());
-    scene.poses.orbit = Pose::orbit(ORBIT_FRAMES).iter().map(pose_matrix).collect();
-    scene.poses.test = test.views.iter().map(|v| NamedPose { name: v.name.clone(), transform_matrix: pose_matrix(&v.pose) }).collect();
+    let scene = match args.dataset_type.as_str() {
+        "llff" => llff_scene(&data, &args, &coarse, fine.is_some())?,
+        _ => blender_scene(&data, &args, &coarse, fine.is_some())?,
+    };
     Ok(Imported { bundle: Bundle { coarse, fine, scene, occupancy: None }, args_file, data, args })
 }

@@ -206,7 +206,7 @@ enum ImportSource {
         /// The run's args.txt or config.txt (default: beside the checkpoint).
         #[arg(long)]
         args: Option<PathBuf>,
-        /// The Blender scene it was trained on: camera and test poses (default: the run's
+        /// The scene it was trained on, Blender or LLFF: camera and test poses (default: the run's
         /// datadir, when it exists here).
         #[arg(long)]
         data: Option<PathBuf>,
