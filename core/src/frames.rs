@@ -17,10 +17,12 @@ use std::path::{Path, PathBuf};
 /// File name of the metrics written when the frames have ground truth.
 pub const METRICS_FILE: &str = "metrics.json";
 /// File name of the contact sheet written with metrics: ground truth | render | depth, one row
-/// per view, for the first [`SHEET_VIEWS`] views.
+/// per view, for the first [`SHEET_VIEWS`] views (at most [`SHEET_MAX_WIDTH`] pixels wide each).
 pub const SHEET_FILE: &str = "contact_sheet.png";
 /// Views on the contact sheet.
 pub const SHEET_VIEWS: usize = 4;
+/// Widest image on the contact sheet: wider views are shrunk by an integer factor.
+pub const SHEET_MAX_WIDTH: u32 = 256;
 /// File name of the orbit animation.
 pub const GIF_FILE: &str = "orbit.gif";
 /// Milliseconds per GIF frame.
@@ -157,16 +159,26 @@ struct ContactSheet {
 }
 
 impl ContactSheet {
-    /// A row of `images`, each `width × height`, row-major.
+    /// A row of `images`, each `width × height`, row-major, shrunk by the integer factor that
+    /// brings the width to at most [`SHEET_MAX_WIDTH`] (the mean of each factor² block).
     fn add_row(&mut self, width: u32, height: u32, images: &[&[[f32; 3]]]) {
+        let f = width.div_ceil(SHEET_MAX_WIDTH).max(1) as usize;
         let (w, h) = (width as usize, height as usize);
-        let mut row = Vec::with_capacity(w * h * images.len());
-        for j in 0..h {
+        let (sw, sh) = (w / f, h / f);
+        let mut row = Vec::with_capacity(sw * sh * images.len());
+        for j in 0..sh {
             for image in images {
-                row.extend_from_slice(&image[j * w..(j + 1) * w]);
+                for i in 0..sw {
+                    let mut sum = [0.0f32; 3];
+                    for (dj, di) in (0..f).flat_map(|dj| (0..f).map(move |di| (dj, di))) {
+                        let p = image[(j * f + dj) * w + i * f + di];
+                        sum = [0, 1, 2].map(|c| sum[c] + p[c]);
+                    }
+                    row.push(sum.map(|v| v / (f * f) as f32));
+                }
             }
         }
-        self.rows.push((width * images.len() as u32, height, row));
+        self.rows.push(((sw * images.len()) as u32, sh as u32, row));
     }
 
     fn save(&self, path: &Path) -> Result<()> {
@@ -277,6 +289,21 @@ mod tests {
         std::fs::write(&path, &bytes[..bytes.len() - 4]).unwrap();
         let err = load_npy(&path).unwrap_err().to_string();
         assert!(err.contains("x.npy") && err.contains("truncated"), "{err}");
+    }
+
+    #[test]
+    fn wide_views_are_shrunk_on_the_contact_sheet() {
+        // 600 px wide → factor 3 (600/256 rounded up): 200×1 from 600×3, each pixel the mean
+        // of a 3×3 block. Pixel (i, j) of the image holds i + 1000·j in red.
+        let image: Vec<[f32; 3]> = (0..3).flat_map(|j| (0..600).map(move |i| [(i + 1000 * j) as f32, 0.0, 1.0])).collect();
+        let mut sheet = ContactSheet::default();
+        sheet.add_row(600, 3, &[&image, &image]);
+        let (w, h, row) = &sheet.rows[0];
+        assert_eq!((*w, *h, row.len()), (400, 1, 400));
+        // Block 0: columns 0..3, rows 0..3: mean of i = 1, of 1000·j = 1000.
+        assert_eq!(row[0], [1001.0, 0.0, 1.0]);
+        // The second image starts at 200; block 5 covers columns 15..18: 16 + 1000.
+        assert_eq!(row[205], [1016.0, 0.0, 1.0]);
     }
 
     #[test]
