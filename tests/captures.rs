@@ -147,15 +147,16 @@ fn a_capture_trains_evaluates_and_renders_through_its_recorded_placement() {
     assert!(diff < 1e-3, "burn vs onnxruntime on a captured scene: max |Δ| {diff}");
 }
 
-/// An LLFF capture of the generated scene seen from the front: nine cameras on a 3×3 grid in
-/// the plane z = 4, all looking down −z (forward-facing), 40×30 images, bounds 2.5..6.
-fn forward_facing_capture(dir: &Path) -> PathBuf {
-    let out = dir.join("llff");
+/// An LLFF capture of the generated scene seen from the front: of nine cameras on a 3×3 grid
+/// in the plane z = 4, all looking down −z (forward-facing), the views `keep`; 40×30 images,
+/// bounds 2.5..6; written to `dir/name`.
+fn forward_facing_capture(dir: &Path, name: &str, keep: &[usize]) -> PathBuf {
+    let out = dir.join(name);
     std::fs::create_dir_all(out.join("images")).unwrap();
     let (w, h, focal) = (40u32, 30u32, 36.0f32);
     let camera = PinholeCamera { width: w, height: h, fx: focal, fy: focal, cx: 20.0, cy: 15.0, pixel_center: PixelCenter::Integer, distortion: None };
     let mut rows = Vec::new();
-    for k in 0..9 {
+    for &k in keep {
         let (x, y) = (0.3 * (k % 3) as f32 - 0.3, 0.2 * (k / 3) as f32 - 0.2);
         let pose = Pose::from_rows([[1.0, 0.0, 0.0, x], [0.0, 1.0, 0.0, y], [0.0, 0.0, 1.0, 4.0], [0.0, 0.0, 0.0, 1.0]]);
         let rgba = render_reference(&pose, &camera);
@@ -167,7 +168,7 @@ fn forward_facing_capture(dir: &Path) -> PathBuf {
         rows.extend([2.5, 6.0]);
     }
     // numpy's format 1.0: magic, header length, the dict padded to 64 bytes, then '<f8' data.
-    let mut header = "{'descr': '<f8', 'fortran_order': False, 'shape': (9, 17), }".to_string();
+    let mut header = format!("{{'descr': '<f8', 'fortran_order': False, 'shape': ({}, 17), }}", keep.len());
     while (10 + header.len() + 1) % 64 != 0 {
         header.push(' ');
     }
@@ -183,7 +184,7 @@ fn forward_facing_capture(dir: &Path) -> PathBuf {
 #[test]
 fn a_forward_facing_capture_trains_on_ndc_rays_and_renders_alike_everywhere() {
     let dir = tempfile::tempdir().unwrap();
-    let data = forward_facing_capture(dir.path());
+    let data = forward_facing_capture(dir.path(), "llff", &(0..9).collect::<Vec<_>>());
     let run = dir.path().join("run");
     train_capture(&data, &run, 60, None);
 
@@ -210,6 +211,15 @@ fn a_forward_facing_capture_trains_on_ndc_rays_and_renders_alike_everywhere() {
     // The numpy consumer warps the rays itself (check_parity runs it).
     let diff = check_parity(&run, &bundle, &data, "000", &ort_out.join("000.npy"), &dir.path().join("burn"));
     assert!(diff < 1e-3, "burn vs onnxruntime on NDC rays: max |Δ| {diff}");
+    // Views the run never had, in a folder of their own (its poses_bounds.npy normalises
+    // differently): --split all renders them through the run's placement, as the test split.
+    let held = forward_facing_capture(dir.path(), "held", &[0]);
+    let (ok, text) = nerf(&["render", "--run", s(&run), "--split", "all", "--data", s(&held), "--out", s(&dir.path().join("held-out")), "--npy"]);
+    assert!(ok, "{text}");
+    let (_, _, a) = nerf_core::frames::load_npy(&dir.path().join("held-out/000.npy")).unwrap();
+    let (_, _, b) = nerf_core::frames::load_npy(&dir.path().join("burn/000.npy")).unwrap();
+    let moved = a.iter().zip(&b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+    assert!(moved < 1e-3, "a view given in another file renders elsewhere: max |Δ| {moved}");
 
     // The orbit (a spiral, through NDC rays) renders; with --ndc false the same data trains
     // in the field's cube instead.
