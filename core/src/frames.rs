@@ -238,24 +238,12 @@ pub fn save_npy(path: &Path, image: &RenderedImage) -> Result<()> {
 
 /// Read back the `[H, W, 5]` float32 arrays [`save_npy`] writes: (height, width, values).
 pub fn load_npy(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    let bad = |what: &str| Error::invalid(path, format!("not a float32 [H, W, 5] .npy file: {what}"));
-    if bytes.len() < 10 || &bytes[..8] != b"\x93NUMPY\x01\x00" {
-        return Err(bad("bad magic"));
-    }
-    let header_len = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
-    let header = std::str::from_utf8(bytes.get(10..10 + header_len).ok_or_else(|| bad("truncated header"))?).map_err(|_| bad("header"))?;
-    if !header.contains("'<f4'") || header.contains("'fortran_order': True") {
-        return Err(bad("need little-endian float32 in C order"));
-    }
-    let shape = header.split("'shape': (").nth(1).and_then(|s| s.split(')').next()).ok_or_else(|| bad("no shape"))?;
-    let dims: Vec<usize> = shape.split(',').filter(|s| !s.trim().is_empty()).map(|s| s.trim().parse()).collect::<std::result::Result<_, _>>().map_err(|_| bad("shape"))?;
-    let [h, w, 5] = dims[..] else { return Err(bad("shape is not [H, W, 5]")) };
-    let data = &bytes[10 + header_len..];
-    if data.len() != h * w * 5 * 4 {
-        return Err(bad("data length does not match the shape (truncated?)"));
-    }
-    Ok((h, w, data.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()))
+    let array = crate::npy::read_npy(path)?;
+    let [h, w, 5] = array.shape[..] else {
+        return Err(Error::invalid(path, format!("shape {:?}: not the [H, W, 5] of a rendered frame", array.shape)));
+    };
+    // float32 files widen to f64 exactly and narrow back exactly.
+    Ok((h, w, array.data.iter().map(|&v| v as f32).collect()))
 }
 
 #[cfg(test)]

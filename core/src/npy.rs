@@ -102,8 +102,9 @@ pub fn parse_npy(path: &Path, bytes: &[u8]) -> Result<NpyArray> {
         .ok_or_else(|| bad(format!("shape {:?} overflows", header.shape)))?;
     let available = bytes.len() - data_start;
     if available != expected {
+        let what = if available < expected { "truncated" } else { "extra bytes after the data" };
         return Err(bad(format!(
-            "shape {:?} of {} needs {expected} bytes of data, the file has {available}",
+            "shape {:?} of {} needs {expected} bytes of data, the file has {available} ({what})",
             header.shape,
             header.descr()
         )));
