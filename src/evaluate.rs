@@ -106,12 +106,18 @@ pub fn render_split(run: &Path, data: &DataChoice, out: &Path, raw: bool, progre
     Ok(loaded.render_frames(FrameSpec::from_split(scene), out, false, raw, progress)?.frames)
 }
 
-/// Render the run's 360° orbit (around a capture's cameras, else the reference orbit):
+/// Render the run's orbit (around a capture's cameras, a spiral in front of forward-facing
+/// ones, else the reference orbit) at the training resolution divided by `downscale`:
 /// `frame_NNN.png`, depth maps (`.npy` with `raw`) and `orbit.gif`.
-pub fn render_orbit(run: &Path, frames: usize, out: &Path, raw: bool, progress: bool) -> Result<PathBuf> {
+pub fn render_orbit(run: &Path, frames: usize, downscale: u32, out: &Path, raw: bool, progress: bool) -> Result<PathBuf> {
     nerf_core::limits::check_count(frames, nerf_core::limits::MAX_FRAMES, "frames", nerf_core::limits::Origin::Option("--frames"))?;
     let loaded = LoadedRun::open(run)?;
-    let specs = FrameSpec::orbit(&loaded.camera, &loaded.orbit(frames));
+    let k = loaded.camera;
+    let (width, height) = (k.width.checked_div(downscale).unwrap_or(0), k.height.checked_div(downscale).unwrap_or(0));
+    if width == 0 || height == 0 {
+        return Err(Error::Config(format!("--downscale {downscale} leaves nothing of the {}×{} training camera", k.width, k.height)));
+    }
+    let specs = FrameSpec::orbit(&k.resized(width, height), &loaded.orbit(frames));
     let report = loaded.render_frames(specs, out, true, raw, progress)?;
     report.gif.ok_or_else(|| Error::Config("an orbit needs at least one frame".into()))
 }

@@ -31,6 +31,13 @@ fn eval_and_render_write_named_outputs() {
     use image::AnimationDecoder;
     assert_eq!(decoder.into_frames().count(), 3);
     assert!(orbit.join("frame_002_depth.png").exists());
+    // --downscale shrinks the orbit's camera (32 → 10 px); 0 is refused.
+    let small = dir.path().join("small-orbit");
+    let (ok, text) = nerf(&["render", "--run", s(&run), "--orbit", "--frames", "1", "--downscale", "3", "--out", s(&small)]);
+    assert!(ok, "{text}");
+    assert_eq!(image::open(small.join("frame_000.png")).unwrap().width(), 10);
+    let (ok, text) = nerf(&["render", "--run", s(&run), "--orbit", "--frames", "1", "--downscale", "0", "--out", s(&small)]);
+    assert!(!ok && text.contains("--downscale 0"), "{text}");
 
     let test = dir.path().join("test");
     let (ok, text) = nerf(&["render", "--run", s(&run), "--split", "test", "--data", s(&scene), "--out", s(&test)]);

@@ -86,7 +86,8 @@ enum Command {
         #[arg(long)]
         run: PathBuf,
         /// Render the run's orbit at the training resolution: the reference one (radius 4,
-        /// elevation −30°) for Blender scenes, around the cameras at their height for captures.
+        /// elevation −30°) for Blender scenes, around the cameras at their height for captures,
+        /// nerf-pytorch's spiral for forward-facing ones.
         #[arg(long)]
         orbit: bool,
         /// Frames in the orbit.
@@ -101,7 +102,8 @@ enum Command {
         /// The dataset's format: blender, instant-ngp or llff (default: detected).
         #[arg(long)]
         format: Option<CaptureFormat>,
-        /// Image downscale factor (with --split).
+        /// Image downscale factor (with --split: the dataset's images; with --orbit: the
+        /// training camera, any size).
         #[arg(long, default_value_t = 1)]
         downscale: u32,
         /// Output directory.
@@ -265,7 +267,7 @@ fn main() -> Result<()> {
         }
         Command::Render { run, orbit, frames, split, data, format, downscale, out, npy } => match (orbit, split, data) {
             (true, None, _) => {
-                let gif = render_orbit(&run, frames, &out, npy, progress)?;
+                let gif = render_orbit(&run, frames, downscale, &out, npy, progress)?;
                 println!("{frames} frames and depth maps in {}; {}", out.display(), gif.display());
             }
             (false, Some(split), Some(data)) => {
@@ -331,7 +333,7 @@ fn demo(out: PathBuf, minutes: f64, progress: bool) -> Result<()> {
     let eval_dir = out.join("eval");
     let r = eval(&run, &DataChoice { dir: scene.clone(), format: None, split: CaptureSplit::Val, downscale: 1 }, None, &eval_dir, progress)?;
     let orbit_dir = out.join("orbit");
-    let gif = render_orbit(&run, 40, &orbit_dir, false, progress)?;
+    let gif = render_orbit(&run, 40, 1, &orbit_dir, false, progress)?;
     println!("\ndemo done in {:.1} min", start.elapsed().as_secs_f64() / 60.0);
     println!("  val PSNR {:.2} dB, SSIM {:.4} over {} views: {}", r.psnr_mean, r.ssim_mean, r.per_image.len(), eval_dir.join("metrics.json").display());
     println!("  renders and depth maps: {}", eval_dir.display());
