@@ -248,6 +248,12 @@ mod tests {
         assert_eq!(all.data.views.len(), 9);
         assert!(all.warnings.len() == 1 && all.warnings[0].contains("03"), "{:?}", all.warnings);
         assert_eq!(all.placement.format, CaptureFormat::InstantNgp);
+        // A ring is not forward-facing: no NDC unless asked, and asked without depth bounds
+        // it is refused naming the file.
+        assert_eq!(all.placement.ndc, None);
+        let forced = options(SceneFrame::Fit { bound: 1.5, ndc: Some(true) }, 1, Background::White);
+        let err = load_dataset(dir.path(), CaptureSplit::All, &forced).unwrap_err().to_string();
+        assert!(err.contains("transforms.json") && err.contains("NDC rays need depth bounds"), "{err}");
         // Test = views 0 and 8 of the 9 (files 00 and 09), train the other 7, val = test.
         let test = load_dataset(dir.path(), CaptureSplit::Test, &options(fit, 1, Background::White)).unwrap();
         let names: Vec<&str> = test.data.views.iter().map(|v| v.name.as_str()).collect();
