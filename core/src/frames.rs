@@ -112,7 +112,7 @@ pub fn render_frames<E: From<Error>>(
         let bar = frame_bar(out.progress, &format!("{} {}/{total}", frame.name, k + 1));
         bar.set_length(frame.camera.num_pixels() as u64);
         let image = render(frame, &mut |done, _| bar.set_position(done as u64))?;
-        save_frame(&image, &out.dir, &frame.name, out.depth_range, out.raw)?;
+        let depth = save_frame(&image, &out.dir, &frame.name, out.depth_range, out.raw)?;
         if let Some(target) = frame.target.as_ref().filter(|_| with_metrics) {
             let m = ImageMetrics {
                 name: frame.name.clone(),
@@ -122,7 +122,6 @@ pub fn render_frames<E: From<Error>>(
             bar.finish_with_message(format!("PSNR {:.2} dB, SSIM {:.3}", m.psnr, m.ssim));
             per_image.push(m);
             if k < SHEET_VIEWS {
-                let depth = depth_to_rgb(&image.rays.depth, &image.rays.acc, out.depth_range.0, out.depth_range.1);
                 sheet.add_row(image.width, image.height, &[target, &image.rays.rgb, &depth]);
             }
         } else {
@@ -198,8 +197,9 @@ impl ContactSheet {
     }
 }
 
-/// Write `<dir>/<name>.png`, `<dir>/<name>_depth.png` and, with `raw`, `<dir>/<name>.npy`.
-pub fn save_frame(image: &RenderedImage, dir: &Path, name: &str, depth_range: (f32, f32), raw: bool) -> Result<()> {
+/// Write `<dir>/<name>.png`, `<dir>/<name>_depth.png` and, with `raw`, `<dir>/<name>.npy`;
+/// returns the depth map's colours (for the contact sheet).
+pub fn save_frame(image: &RenderedImage, dir: &Path, name: &str, depth_range: (f32, f32), raw: bool) -> Result<Vec<[f32; 3]>> {
     let (w, h) = (image.width, image.height);
     save_png(&dir.join(format!("{name}.png")), w, h, &image.rays.rgb)?;
     let depth = depth_to_rgb(&image.rays.depth, &image.rays.acc, depth_range.0, depth_range.1);
@@ -207,7 +207,7 @@ pub fn save_frame(image: &RenderedImage, dir: &Path, name: &str, depth_range: (f
     if raw {
         save_npy(&dir.join(format!("{name}.npy")), image)?;
     }
-    Ok(())
+    Ok(depth)
 }
 
 /// `[H, W, 5]` little-endian float32 `.npy` (format 1.0) of r, g, b, depth, acc per pixel.

@@ -20,8 +20,7 @@ use nerf_core::PinholeCamera;
 use nerf_core::camera::Pose;
 use nerf_core::dataset::{CameraPath, CaptureFormat, ScenePlacement, Split, SpiralPath, load_llff_images, load_split};
 use nerf_core::ndc::Ndc;
-use nerf_core::network::PlainNetwork;
-use nerf_core::network::EncodingSpec;
+use nerf_core::network::{EncodingSpec, PlainNetwork};
 use nerf_core::sampling::SamplingConfig;
 use std::path::{Path, PathBuf};
 
