@@ -11,7 +11,7 @@ use nerf_core::Rng;
 use nerf_core::camera::{Intrinsics, Pose, length};
 use nerf_core::PinholeCamera;
 use nerf_core::dataset::{Split, SyntheticSceneConfig, generate_scene, load_split};
-use nerf_core::network::{NetworkSpec, PlainNetwork};
+use nerf_core::field::mlp::{NetworkSpec, PlainNetwork};
 use nerf_core::render::{RenderedImage, render_image};
 use std::path::Path;
 use std::time::Instant;
@@ -248,7 +248,7 @@ pub fn burn_frame(model: &NerfModel, config: &TrainConfig, camera: &PinholeCamer
 
 /// `render(progress)` under a progress bar labelled `what` over `pixels`, and its seconds.
 pub fn timed_frame<R>(show: bool, what: &str, pixels: usize, render: impl FnOnce(&mut dyn FnMut(usize, usize)) -> R) -> (R, f64) {
-    let bar = nerf_core::frames::frame_bar(show, what);
+    let bar = nerf_core::io::frames::frame_bar(show, what);
     bar.set_length(pixels as u64);
     let start = Instant::now();
     let out = render(&mut |done, _| bar.set_position(done as u64));

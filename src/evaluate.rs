@@ -1,5 +1,5 @@
 //! `nerf eval` and `nerf render`: test-time rendering of a trained run through the shared
-//! renderer and frame writer (`nerf_core::frames`), the same ones `nerf-render` uses.
+//! renderer and frame writer (`nerf_core::io::frames`), the same ones `nerf-render` uses.
 
 use crate::error::{Error, Result};
 use crate::field::TrainedField;
@@ -8,9 +8,9 @@ use crate::train::TrainConfig;
 use nerf_core::PinholeCamera;
 use nerf_core::camera::Pose;
 use nerf_core::dataset::{Background, CaptureFormat, CaptureSplit, LoadOptions, SceneFrame, ScenePlacement, SplitData, load_dataset};
-use nerf_core::frames::{FrameOutput, FrameSpec, FramesReport, render_frames};
-use nerf_core::metrics::EvalReport;
-use nerf_core::occupancy::OccupancyGrid;
+use nerf_core::io::frames::{FrameOutput, FrameSpec, FramesReport, render_frames};
+use nerf_core::render::metrics::EvalReport;
+use nerf_core::sample::occupancy::OccupancyGrid;
 use nerf_core::render::RenderedImage;
 use std::path::{Path, PathBuf};
 
@@ -110,7 +110,7 @@ pub fn render_split(run: &Path, data: &DataChoice, out: &Path, raw: bool, progre
 /// ones, else the reference orbit) at the training resolution divided by `downscale`:
 /// `frame_NNN.png`, depth maps (`.npy` with `raw`) and `orbit.gif`.
 pub fn render_orbit(run: &Path, frames: usize, downscale: u32, out: &Path, raw: bool, progress: bool) -> Result<PathBuf> {
-    nerf_core::limits::check_count(frames, nerf_core::limits::MAX_FRAMES, "frames", nerf_core::limits::Origin::Option("--frames"))?;
+    nerf_core::io::limits::check_count(frames, nerf_core::io::limits::MAX_FRAMES, "frames", nerf_core::io::limits::Origin::Option("--frames"))?;
     let loaded = LoadedRun::open(run)?;
     let k = loaded.camera;
     let (width, height) = (k.width.checked_div(downscale).unwrap_or(0), k.height.checked_div(downscale).unwrap_or(0));

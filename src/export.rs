@@ -10,9 +10,9 @@ use nerf_core::PinholeCamera;
 use nerf_core::camera::Pose;
 use nerf_core::dataset::ScenePlacement;
 use nerf_core::dataset::{CaptureFormat, CaptureSplit};
-use nerf_core::occupancy::OccupancyGrid;
+use nerf_core::sample::occupancy::OccupancyGrid;
 use nerf_export::bundle::{NamedPose, WrittenFile, pose_matrix};
-use nerf_core::network::FieldKind;
+use nerf_core::field::FieldKind;
 use nerf_export::{Bundle, NgpBundle, SceneDescription, write_bundle, write_ngp_bundle};
 use std::path::Path;
 

@@ -2,8 +2,8 @@
 
 use crate::field::{NerfMlp, NerfModel, NgpField};
 use burn::tensor::{Device, Tensor, TensorData};
-use nerf_core::network::EncodingSpec;
-use nerf_core::render::{Field, FieldOutput, Stage};
+use nerf_core::field::mlp::EncodingSpec;
+use nerf_core::field::{Field, FieldOutput, Stage};
 
 /// `[n]` 3-vectors as an `[n, 3]` tensor.
 pub fn vec3_tensor(v: &[[f32; 3]], device: &Device) -> Tensor<2> {

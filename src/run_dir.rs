@@ -1,5 +1,5 @@
 //! A training run's directory: the one place that knows its layout and reads or writes its
-//! files (each written whole or not at all, [`nerf_core::atomic`]).
+//! files (each written whole or not at all, [`nerf_core::io::atomic`]).
 //!
 //! | path | written | content |
 //! |---|---|---|
@@ -14,13 +14,13 @@ use crate::error::{Error, Result};
 use crate::field::{NerfModel, NgpField, TrainedField};
 use crate::train::{Checkpoint, CheckpointState, TrainConfig};
 use burn::tensor::Device;
-use nerf_core::atomic::write_atomic;
+use nerf_core::io::atomic::write_atomic;
 use nerf_core::PinholeCamera;
 use nerf_core::SceneTransform;
 use nerf_core::dataset::ScenePlacement;
-use nerf_core::limits;
-use nerf_core::network::FieldKind;
-use nerf_core::occupancy::OccupancyGrid;
+use nerf_core::io::limits;
+use nerf_core::field::FieldKind;
+use nerf_core::sample::occupancy::OccupancyGrid;
 use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::{Path, PathBuf};

@@ -1,13 +1,13 @@
 //! Differentiable volume rendering for training: the burn twin of
-//! [`nerf_core::compositing`], tested against it.
+//! [`nerf_core::render::compositing`], tested against it.
 //!
 //! The transmittance is computed as exp(exclusive cumsum(log(1 − α + 1e-10))), which is the
 //! reference's exclusive cumulative product written so its gradient needs no division.
 
 use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor, TensorData};
-use nerf_core::compositing::{TRANSMITTANCE_EPS, deltas};
-use nerf_core::sampling::DenseSamples;
+use nerf_core::render::compositing::{TRANSMITTANCE_EPS, deltas};
+use nerf_core::sample::stratified::DenseSamples;
 
 /// Rendered rays with gradients.
 ///
@@ -57,7 +57,7 @@ pub fn composite(raw_sigma: Tensor<2>, rgb: Tensor<3>, deltas: Tensor<2>, white_
 mod tests {
     use super::*;
     use nerf_core::Rng;
-    use nerf_core::compositing;
+    use nerf_core::render::compositing;
 
     #[test]
     fn matches_the_core_compositing_and_the_four_sample_example() {
@@ -65,7 +65,7 @@ mod tests {
         let mut rng = Rng::new(11);
         let (n_rays, n) = (7, 12);
         let cfg = nerf_core::SamplingConfig { n_coarse: n, ..Default::default() };
-        let samples = nerf_core::sampling::stratified(&cfg, n_rays, Some(&mut rng));
+        let samples = nerf_core::sample::stratified::stratified(&cfg, n_rays, Some(&mut rng));
         let dirs: Vec<[f32; 3]> = (0..n_rays).map(|_| [rng.uniform() - 0.5, rng.uniform() - 0.5, -1.0]).collect();
         let sigma: Vec<f32> = (0..n_rays * n).map(|_| rng.uniform() * 6.0 - 1.0).collect();
         let rgb: Vec<[f32; 3]> = (0..n_rays * n).map(|_| [rng.uniform(), rng.uniform(), rng.uniform()]).collect();

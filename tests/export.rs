@@ -10,7 +10,7 @@ use std::path::Path;
 use std::process::Command;
 
 /// Random points in the scene cube and unit directions, with the plain network's answers.
-fn reference(net: &nerf_core::network::PlainNetwork, n: usize, seed: u64) -> serde_json::Value {
+fn reference(net: &nerf_core::field::mlp::PlainNetwork, n: usize, seed: u64) -> serde_json::Value {
     let (points, dirs) = nerf::bench::random_points(n, seed);
     let out: Vec<_> = points.iter().zip(&dirs).map(|(p, d)| net.forward(*p, *d)).collect();
     serde_json::json!({

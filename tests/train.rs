@@ -53,7 +53,7 @@ fn lego_brief_training_beats_a_blank_image() {
     let val = load_split(&data, Split::Val, 8, true).unwrap();
     let target = val.views[0].image.as_ref().unwrap();
     let white = vec![[1.0f32; 3]; target.len()];
-    let blank = nerf_core::metrics::psnr(&white, target);
+    let blank = nerf_core::render::metrics::psnr(&white, target);
     let mut config = tiny_config();
     config.precrop_iters = 100;
     let mut t = new_trainer(&data, config, 8);

@@ -1,6 +1,6 @@
 //! Scene bundles: `coarse.onnx` and `fine.onnx` (NeRF MLPs) or `field.onnx` (a hash-grid
 //! field), `occupancy.bin` and `scene.json` in one directory, written whole
-//! or not at all ([`nerf_core::atomic::write_dir_atomic`]): a failed or killed export leaves
+//! or not at all ([`nerf_core::io::atomic::write_dir_atomic`]): a failed or killed export leaves
 //! the previous bundle as it was.
 
 use crate::ExportError;
@@ -9,13 +9,14 @@ use crate::proto::ModelProto;
 use nerf_core::PinholeCamera;
 use nerf_core::dataset::ScenePlacement;
 use nerf_core::camera::Pose;
-use nerf_core::limits::{self, MAX_FRAMES, Origin};
+use nerf_core::io::limits::{self, MAX_FRAMES, Origin};
 use crate::hash_grid::HashOps;
 use crate::ngp::compile_ngp;
-use nerf_core::network::{EncodingSpec, FieldKind, PlainNetwork};
-use nerf_core::ngp::PlainNgp;
-use nerf_core::occupancy::{self, OccupancyGrid};
-use nerf_core::sampling::SamplingConfig;
+use nerf_core::field::mlp::{EncodingSpec, PlainNetwork};
+use nerf_core::field::FieldKind;
+use nerf_core::field::ngp::PlainNgp;
+use nerf_core::sample::occupancy::{self, OccupancyGrid};
+use nerf_core::sample::stratified::SamplingConfig;
 use prost::Message;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -69,7 +70,7 @@ pub struct SceneDescription {
     pub networks: NetworkFiles,
     /// Camera-to-world poses to render.
     pub poses: ScenePoses,
-    /// The occupancy grid for empty-space skipping (format in [`nerf_core::occupancy`]);
+    /// The occupancy grid for empty-space skipping (format in [`nerf_core::sample::occupancy`]);
     /// renderers without it sample densely.
     #[serde(default)]
     pub occupancy: Option<OccupancyDescription>,
@@ -312,7 +313,7 @@ pub fn write_ngp_bundle(dir: &Path, bundle: &NgpBundle, opset: i64) -> Result<Ve
 
 /// Write `files` (name, bytes) as the directory `dir`, whole or not at all.
 fn write_files(dir: &Path, files: Vec<(String, Vec<u8>)>) -> Result<Vec<WrittenFile>, ExportError> {
-    nerf_core::atomic::write_dir_atomic(dir, |tmp| {
+    nerf_core::io::atomic::write_dir_atomic(dir, |tmp| {
         for (file, bytes) in &files {
             let p = tmp.join(file);
             std::fs::write(&p, bytes).map_err(|e| nerf_core::Error::io(&p, e))?;
@@ -355,7 +356,7 @@ pub fn read_scene(dir: &Path) -> nerf_core::Result<SceneDescription> {
 
 impl SceneDescription {
     /// Everything a renderer relies on, checked before it allocates or opens anything:
-    /// the format, the camera and sampling within [`nerf_core::limits`], file names that are
+    /// the format, the camera and sampling within [`nerf_core::io::limits`], file names that are
     /// plain names inside the bundle, at most [`MAX_FRAMES`] poses, pose names that are plain
     /// file names (they name output files), a grid resolution within the limit.
     pub fn check(&self, path: &Path) -> nerf_core::Result<()> {

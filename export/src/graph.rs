@@ -17,7 +17,8 @@
 
 use crate::proto::*;
 use crate::ExportError;
-use nerf_core::network::{DenseLayer, EncodingSpec, NetworkSpec, PlainNetwork};
+use nerf_core::field::mlp::{EncodingSpec, NetworkSpec, PlainNetwork};
+use nerf_core::field::DenseLayer;
 
 /// Opsets this compiler writes (`Gemm`, `Unsqueeze`-with-axes-input, `Slice`, `Reshape` are
 /// stable across them).

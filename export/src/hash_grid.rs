@@ -4,7 +4,7 @@
 //! # The encoding, op by op (`points [N, 3]` → `features [N, L·F]`)
 //! 1. `Sub` the bound's min, `Mul` by its f32 scale, `Clip` to [0, 1]: the unit-cube point,
 //!    the same f32 operations as [`GridBound::to_unit`] and the clamp in
-//!    [`nerf_core::hash_grid::corners`].
+//!    [`nerf_core::field::ngp::hash_grid::corners`].
 //! 2. `Unsqueeze` to `[N, 1, 3]`, `Mul` by the level scales `[L, 1]`, `Add` 0.5: positions
 //!    `[N, L, 3]`; `Floor`, `Sub` (fractions), `Cast` to int64 (cells).
 //! 3. Per axis d (`Slice`): corner coordinates `cell_d + bit_d(k)` for the 8 corners `[N, L, 8]`,
@@ -34,8 +34,8 @@
 use crate::ExportError;
 use crate::graph::{Builder, OPSETS, int_attribute, model_proto, value_info};
 use crate::proto::*;
-use nerf_core::hash_grid::{GridBound, HashGrid};
-use nerf_core::spherical_harmonics::{SH4_CONSTANTS, SH4_DIM};
+use nerf_core::field::ngp::hash_grid::{GridBound, HashGrid};
+use nerf_core::field::ngp::spherical_harmonics::{SH4_CONSTANTS, SH4_DIM};
 
 /// How the spatial hash's XOR and `mod T` are written.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -161,7 +161,7 @@ pub(crate) fn lower_hash_grid(g: &mut Builder, input: &str, grid: &HashGrid, bou
     let one_minus = g.node("Sub", &[&one, &frac], "grid.one_minus_frac", vec![]);
     let cell = g.node("Cast", &[&floor], "grid.cell", vec![int_attribute("to", data_type::INT64 as i64)]);
     // 3. Per-axis corner terms and weights, [N, L, 8].
-    let per_level = |v: &dyn Fn(&nerf_core::hash_grid::LevelLayout) -> i64| levels.iter().map(v).collect::<Vec<i64>>();
+    let per_level = |v: &dyn Fn(&nerf_core::field::ngp::hash_grid::LevelLayout) -> i64| levels.iter().map(v).collect::<Vec<i64>>();
     let mut terms = Vec::new();
     let mut weights = Vec::new();
     for d in 0..3i64 {
@@ -173,7 +173,7 @@ pub(crate) fn lower_hash_grid(g: &mut Builder, input: &str, grid: &HashGrid, bou
         let term = if d == 0 {
             coord // stride 1 for dense and hashed levels alike
         } else {
-            let stride = per_level(&|v| if v.dense { (v.resolution as i64).pow(d as u32) } else { nerf_core::hash_grid::config::PRIMES[d as usize] as i64 });
+            let stride = per_level(&|v| if v.dense { (v.resolution as i64).pow(d as u32) } else { nerf_core::field::ngp::hash_grid::config::PRIMES[d as usize] as i64 });
             let stride = i64_tensor(g, &format!("grid.stride{d}"), &[l, 1], &stride);
             g.node("Mul", &[&coord, &stride], &format!("grid.term{d}"), vec![])
         };
@@ -238,7 +238,7 @@ fn xor_low_bits(g: &mut Builder, terms: &[String], k: u32) -> String {
 }
 
 /// The 16 spherical harmonics of unit directions `input [N, 3]` → `[N, 16]`, the operations of
-/// [`nerf_core::spherical_harmonics::sh4`] in the same order.
+/// [`nerf_core::field::ngp::spherical_harmonics::sh4`] in the same order.
 pub(crate) fn lower_sh4(g: &mut Builder, input: &str) -> String {
     let [x, y, z] = [0, 1, 2].map(|d| slice(g, input, (d, d + 1), 1, &format!("sh.{}", ["x", "y", "z"][d as usize])));
     let c: Vec<String> = SH4_CONSTANTS.iter().enumerate().map(|(i, &v)| f32_scalar(g, &format!("sh.c{i}"), v)).collect();
@@ -295,7 +295,7 @@ pub(crate) fn lower_sh4(g: &mut Builder, input: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nerf_core::hash_grid::HashGridConfig;
+    use nerf_core::field::ngp::hash_grid::HashGridConfig;
 
     fn grid() -> HashGrid {
         HashGrid::new(HashGridConfig { levels: 4, features_per_level: 2, log2_table_size: 9, base_resolution: 4, max_resolution: 17 }, 1).unwrap()

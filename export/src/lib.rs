@@ -1,4 +1,4 @@
-//! The ONNX compiler: turns plain NeRF networks ([`nerf_core::network::PlainNetwork`]) into
+//! The ONNX compiler: turns plain NeRF networks ([`nerf_core::field::mlp::PlainNetwork`]) into
 //! ONNX graphs written with our own prost messages, and writes scene bundles
 //! (`coarse.onnx`, `fine.onnx`, `scene.json`) that a renderer needs nothing else to use.
 //!

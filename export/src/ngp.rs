@@ -11,13 +11,13 @@ use crate::ExportError;
 use crate::graph::{Builder, contract_inputs, contract_outputs, float_initializer};
 use crate::hash_grid::{HashOps, check_opset, lower_hash_grid, lower_sh4, model, slice};
 use crate::proto::*;
-use nerf_core::hash_grid::HashGrid;
-use nerf_core::network::DenseLayer;
-use nerf_core::ngp::{NgpSpec, PlainNgp};
+use nerf_core::field::ngp::hash_grid::HashGrid;
+use nerf_core::field::DenseLayer;
+use nerf_core::field::ngp::{NgpSpec, PlainNgp};
 
 /// Metadata key naming the field kind.
 pub const FIELD_KEY: &str = "nerf.field";
-/// Metadata key holding the [`nerf_core::ngp::NgpSpec`] as JSON.
+/// Metadata key holding the [`nerf_core::field::ngp::NgpSpec`] as JSON.
 pub const NGP_KEY: &str = "nerf.ngp";
 
 /// Compile `field` into a model named `name`; `metadata` is added to the contract entries.

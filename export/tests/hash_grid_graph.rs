@@ -4,10 +4,10 @@
 //! max(1, σ)), for the bitwise lowering and the bitwise-free one.
 
 use nerf_core::Rng;
-use nerf_core::hash_grid::{GridBound, HashGrid, HashGridConfig};
-use nerf_core::spherical_harmonics::sh4_all;
-use nerf_core::network::DenseLayer;
-use nerf_core::ngp::{NgpSpec, PlainNgp};
+use nerf_core::field::ngp::hash_grid::{GridBound, HashGrid, HashGridConfig};
+use nerf_core::field::ngp::spherical_harmonics::sh4_all;
+use nerf_core::field::DenseLayer;
+use nerf_core::field::ngp::{NgpSpec, PlainNgp};
 use nerf_export::hash_grid::{HashOps, compile_encodings};
 use nerf_export::ngp::compile_ngp;
 use prost::Message;

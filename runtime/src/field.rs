@@ -2,7 +2,7 @@
 
 use crate::error::{Result, RuntimeError};
 use crate::network::OrtNetwork;
-use nerf_core::render::{Field, FieldOutput, Stage};
+use nerf_core::field::{Field, FieldOutput, Stage};
 
 /// A scene's networks in onnxruntime.
 pub struct OrtField {

@@ -6,8 +6,8 @@ use nerf_core::PinholeCamera;
 use nerf_core::camera::Pose;
 use nerf_core::SceneTransform;
 use nerf_core::dataset::{Background, CaptureFormat, CaptureSplit, LoadOptions, SceneFrame, load_dataset};
-use nerf_core::frames::{FrameOutput, FrameSpec, render_frames};
-use nerf_core::limits::{self, Origin};
+use nerf_core::io::frames::{FrameOutput, FrameSpec, render_frames};
+use nerf_core::io::limits::{self, Origin};
 use nerf_runtime::{OpenOptions, OrtScene, scene::DEFAULT_CHUNK};
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -170,7 +170,7 @@ fn run(cli: Cli) -> Result<()> {
         cli.out.display()
     );
     if let Some(m) = &report.metrics {
-        println!("PSNR {:.2} dB, SSIM {:.4} over {} views: {}", m.psnr_mean, m.ssim_mean, m.per_image.len(), cli.out.join(nerf_core::frames::METRICS_FILE).display());
+        println!("PSNR {:.2} dB, SSIM {:.4} over {} views: {}", m.psnr_mean, m.ssim_mean, m.per_image.len(), cli.out.join(nerf_core::io::frames::METRICS_FILE).display());
     }
     if let Some(gif) = &report.gif {
         println!("orbit: {}", gif.display());

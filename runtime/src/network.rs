@@ -3,7 +3,7 @@
 
 use crate::environment::environment;
 use crate::error::{Result, RuntimeError};
-use nerf_core::render::FieldOutput;
+use nerf_core::field::FieldOutput;
 use nerf_export::check_contract;
 use nerf_export::proto::ModelProto;
 use ort::session::Session;
@@ -25,7 +25,7 @@ impl OrtNetwork {
     /// Load `path`, checking it decodes and follows the contract before onnxruntime sees it.
     /// `threads`: onnxruntime's intra-op threads (`None`: one per core).
     pub fn load(path: &Path, threads: Option<usize>) -> Result<Self> {
-        let bytes = nerf_core::limits::read_bounded(path, nerf_export::bundle::MAX_GRAPH_BYTES)
+        let bytes = nerf_core::io::limits::read_bounded(path, nerf_export::bundle::MAX_GRAPH_BYTES)
             .map_err(|e| RuntimeError::bundle(path, format!("cannot read the graph: {e}")))?;
         let model = ModelProto::decode(bytes.as_slice())
             .map_err(|e| RuntimeError::bundle(path, format!("not a valid ONNX file (truncated?): {e}")))?;

@@ -1,7 +1,7 @@
-//! Positional encoding as burn tensor ops (same layout as [`nerf_core::network::EncodingSpec`]).
+//! Positional encoding as burn tensor ops (same layout as [`nerf_core::field::mlp::EncodingSpec`]).
 
 use burn::tensor::Tensor;
-use nerf_core::network::EncodingSpec;
+use nerf_core::field::mlp::EncodingSpec;
 
 /// `[x, sin(2⁰x), cos(2⁰x), …]` along the last axis.
 ///

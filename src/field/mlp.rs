@@ -4,7 +4,8 @@ use burn::module::{Module, Param};
 use burn::nn::{Linear, LinearConfig};
 use burn::tensor::activation::{relu, sigmoid};
 use burn::tensor::{Device, Tensor, TensorData};
-use nerf_core::network::{DenseLayer, NetworkSpec, PlainNetwork};
+use nerf_core::field::mlp::{NetworkSpec, PlainNetwork};
+use nerf_core::field::DenseLayer;
 
 use super::encode;
 
@@ -197,7 +198,7 @@ fn add_bias(layer: &Linear, x: Tensor<2>) -> Tensor<2> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nerf_core::network::EncodingSpec;
+    use nerf_core::field::mlp::EncodingSpec;
 
     fn small_spec(use_viewdirs: bool) -> NetworkSpec {
         NetworkSpec {

@@ -4,7 +4,7 @@
 mod encoding;
 mod mlp;
 mod model;
-mod ngp;
+pub mod ngp;
 mod trained;
 
 pub use encoding::encode;

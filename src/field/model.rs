@@ -3,7 +3,7 @@
 use super::NerfMlp;
 use burn::module::Module;
 use burn::tensor::Device;
-use nerf_core::network::NetworkSpec;
+use nerf_core::field::mlp::NetworkSpec;
 
 /// The coarse and fine networks trained together (one optimizer, one checkpoint).
 #[derive(Module, Debug)]

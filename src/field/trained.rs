@@ -6,8 +6,8 @@ use crate::inference::{BurnField, BurnNgpField};
 use burn::tensor::Device;
 use nerf_core::PinholeCamera;
 use nerf_core::camera::Pose;
-use nerf_core::network::FieldKind;
-use nerf_core::occupancy::OccupancyGrid;
+use nerf_core::field::FieldKind;
+use nerf_core::sample::occupancy::OccupancyGrid;
 use nerf_core::render::{RenderOptions, RenderedImage, render_image};
 
 /// The networks of a run, by [`FieldKind`].

@@ -9,13 +9,14 @@ use burn::optim::ModuleOptimizer;
 use burn::store::{BurnpackStore, ModuleSnapshot};
 use burn::tensor::Bytes;
 use nerf_core::Rng;
-use nerf_core::hash_grid::{HashGrid, HashGridConfig, SparseAdam, SparseAdamConfig};
-use nerf_core::atomic::{remove_stale_temporaries, write_atomic, write_dir_atomic};
-use nerf_core::occupancy::{self, OccupancyGrid};
+use crate::field::ngp::adam::{SparseAdam, SparseAdamConfig};
+use nerf_core::field::ngp::hash_grid::{HashGrid, HashGridConfig};
+use nerf_core::io::atomic::{remove_stale_temporaries, write_atomic, write_dir_atomic};
+use nerf_core::sample::occupancy::{self, OccupancyGrid};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
-/// The hash grid's table and Adam state in a checkpoint ([`nerf_core::hash_grid::state`]).
+/// The hash grid's table and Adam state in a checkpoint ([`nerf_core::field::ngp::hash_grid::state`]).
 pub const GRID_FILE: &str = "grid.bin";
 const FORMAT: &str = "nerf-rs-checkpoint-1";
 const PREFIX: &str = "step-";
@@ -113,7 +114,7 @@ impl Checkpoint {
     /// The saved training state.
     pub fn state(&self) -> Result<CheckpointState> {
         let path = self.dir.join("state.json");
-        let bytes = nerf_core::limits::read_bounded(&path, nerf_core::limits::MAX_JSON_BYTES)?;
+        let bytes = nerf_core::io::limits::read_bounded(&path, nerf_core::io::limits::MAX_JSON_BYTES)?;
         let state: CheckpointState =
             serde_json::from_slice(&bytes).map_err(|e| Error::invalid(&path, format!("not a checkpoint state ({e})")))?;
         if state.format != FORMAT {
@@ -150,7 +151,7 @@ impl Checkpoint {
     pub fn load_grid(&self, config: &HashGridConfig, adam: SparseAdamConfig) -> Result<(HashGrid, SparseAdam)> {
         let path = self.dir.join(GRID_FILE);
         let bytes = read(&path)?;
-        Ok(nerf_core::hash_grid::state::state_from_bytes(&bytes, config, adam, &path)?)
+        Ok(crate::field::ngp::state::state_from_bytes(&bytes, config, adam, &path)?)
     }
 
     /// Load the optimizer state into `optim`.

@@ -3,11 +3,12 @@
 use crate::error::{Error, Result};
 use nerf_core::SamplingConfig;
 use nerf_core::dataset::Background;
-use nerf_core::hash_grid::GridBound;
-use nerf_core::network::{EncodingSpec, FieldKind, NetworkSpec};
-use nerf_core::ngp::NgpSpec;
-use nerf_core::occupancy::OccupancyConfig;
-use nerf_core::limits::{self, Origin};
+use nerf_core::field::ngp::hash_grid::GridBound;
+use nerf_core::field::mlp::{EncodingSpec, NetworkSpec};
+use nerf_core::field::FieldKind;
+use nerf_core::field::ngp::NgpSpec;
+use nerf_core::sample::occupancy::OccupancyConfig;
+use nerf_core::io::limits::{self, Origin};
 use nerf_core::render::{DEFAULT_MARCH_STEPS, RenderOptions};
 use serde::{Deserialize, Serialize};
 use std::path::Path;

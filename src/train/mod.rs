@@ -4,6 +4,7 @@
 
 mod checkpoint;
 mod config;
+mod packed;
 mod ngp;
 mod run;
 mod schedule;
@@ -19,7 +20,7 @@ pub use step::{StepStats, StepTiming, Trainer};
 use crate::error::Result;
 use crate::run_dir::RunDir;
 use nerf_core::dataset::SplitData;
-use nerf_core::occupancy::OccupancyGrid;
+use nerf_core::sample::occupancy::OccupancyGrid;
 
 /// What the run loop needs of a field's trainer.
 pub trait FieldTrainer {
@@ -42,7 +43,7 @@ pub trait FieldTrainer {
 /// A trainer for `config.field` on `train` data.
 pub fn field_trainer(config: TrainConfig, train: SplitData) -> Result<Box<dyn FieldTrainer>> {
     Ok(match config.field {
-        nerf_core::network::FieldKind::Mlp => Box::new(Trainer::new(config, train, crate::backend::cpu_autodiff())?),
-        nerf_core::network::FieldKind::Ngp => Box::new(NgpTrainer::new(config, train, burn::tensor::Device::flex().autodiff())?),
+        nerf_core::field::FieldKind::Mlp => Box::new(Trainer::new(config, train, crate::backend::cpu_autodiff())?),
+        nerf_core::field::FieldKind::Ngp => Box::new(NgpTrainer::new(config, train, burn::tensor::Device::flex().autodiff())?),
     })
 }

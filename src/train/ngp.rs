@@ -16,10 +16,11 @@ use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::tensor::{Device, Tensor, TensorData};
 use nerf_core::camera::point_at;
 use nerf_core::dataset::{Background, RayBatcher, SplitData};
-use nerf_core::hash_grid::{HashGridGradient, SparseAdam, SparseAdamConfig};
-use nerf_core::metrics::psnr_from_mse;
-use nerf_core::occupancy::OccupancyGrid;
-use nerf_core::render::gradient::{composite_packed, composite_packed_backward};
+use crate::field::ngp::adam::{SparseAdam, SparseAdamConfig};
+use nerf_core::field::ngp::hash_grid::HashGridGradient;
+use nerf_core::render::metrics::psnr_from_mse;
+use nerf_core::sample::occupancy::OccupancyGrid;
+use super::packed::{composite_packed, composite_packed_backward};
 use nerf_core::render::grid::occupied_samples;
 use nerf_core::{Rays, Rng};
 use std::time::Instant;
@@ -214,7 +215,7 @@ impl FieldTrainer for NgpTrainer {
         let files = [
             ("model.bpk", Checkpoint::model_bytes(&field.mlps)?),
             ("optim.bpk", Checkpoint::optimizer_bytes(&self.optim)?),
-            (GRID_FILE, nerf_core::hash_grid::state::state_to_bytes(&field.grid, &self.table_adam)),
+            (GRID_FILE, crate::field::ngp::state::state_to_bytes(&field.grid, &self.table_adam)),
         ];
         Checkpoint::save(run, &files, Some(&self.occupancy), &state)
     }
@@ -246,7 +247,7 @@ impl FieldTrainer for NgpTrainer {
         let Some(target) = &view.image else { return f32::NAN };
         let field = TrainedField::Ngp(self.snapshot());
         let image = field.render(&crate::backend::cpu(), Some(&self.occupancy), &view.camera, &view.pose, &self.config.render_options(), &mut |_, _| {});
-        nerf_core::metrics::psnr(&image.rays.rgb, target)
+        nerf_core::render::metrics::psnr(&image.rays.rgb, target)
     }
 
     fn occupancy(&self) -> Option<&OccupancyGrid> {

@@ -6,7 +6,7 @@ use crate::error::{Error, Result};
 use crate::run_dir::{RunDir, RunSource};
 use indicatif::{ProgressBar, ProgressStyle};
 use nerf_core::dataset::{Background, CaptureFormat, CaptureSplit, LoadOptions, SceneFrame, SplitData, detect_format, load_dataset};
-use nerf_core::network::FieldKind;
+use nerf_core::field::FieldKind;
 use std::path::PathBuf;
 use std::time::Instant;
 

@@ -13,10 +13,10 @@ use burn::module::{Module, ModuleMapper, Param};
 use burn::optim::{AdamConfig, GradientsAccumulator, GradientsParams, ModuleOptimizer};
 use burn::tensor::{Device, IndexingUpdateOp, Int, Tensor, TensorData};
 use nerf_core::dataset::{RayBatcher, SplitData};
-use nerf_core::metrics::psnr_from_mse;
-use nerf_core::occupancy::OccupancyGrid;
+use nerf_core::render::metrics::psnr_from_mse;
+use nerf_core::sample::occupancy::OccupancyGrid;
 use nerf_core::render::render_image;
-use nerf_core::sampling::{DenseSamples, importance, stratified};
+use nerf_core::sample::stratified::{DenseSamples, importance, stratified};
 use nerf_core::{Rays, Rng};
 use std::time::Instant;
 
@@ -214,7 +214,7 @@ impl Trainer {
         let mut field = BurnField { model: &snapshot, device: snapshot.coarse_device() };
         let options = self.config.render_options();
         let Ok(image) = render_image(&mut field, self.occupancy.as_ref(), &view.camera, &view.pose, &options, &mut |_, _| {});
-        nerf_core::metrics::psnr(&image.rays.rgb, target)
+        nerf_core::render::metrics::psnr(&image.rays.rgb, target)
     }
 }
 

@@ -3,7 +3,7 @@
 
 use nerf::train::{Preset, TrainConfig};
 use nerf_core::dataset::{SyntheticSceneConfig, generate_scene};
-use nerf_core::hash_grid::HashGridConfig;
+use nerf_core::field::ngp::hash_grid::HashGridConfig;
 use nerf::train::{TrainOptions, train};
 use std::path::{Path, PathBuf};
 use std::process::Command;

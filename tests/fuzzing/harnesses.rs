@@ -9,8 +9,8 @@ use nerf::train::{Checkpoint, Preset, TrainConfig, TrainOptions, Trainer, train}
 use nerf_core::dataset::{
     Background, CaptureSplit, LoadOptions, SceneFrame, Split, SyntheticSceneConfig, generate_scene, load_dataset, load_split,
 };
-use nerf_core::imageio::{load_rgba, save_gif};
-use nerf_core::occupancy::FILE_NAME as OCCUPANCY_FILE;
+use nerf_core::io::image::{load_rgba, save_gif};
+use nerf_core::sample::occupancy::FILE_NAME as OCCUPANCY_FILE;
 use nerf_export::bundle::{read_model, read_scene};
 use nerf_export::{check_contract, read_bundle_network, read_occupancy};
 use std::path::{Path, PathBuf};

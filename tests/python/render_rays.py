@@ -40,7 +40,7 @@ import onnxruntime as ort
 
 F32 = np.float32
 
-# A bundle comes from someone else: the limits of core/src/limits.rs (a test checks they agree).
+# A bundle comes from someone else: the limits of core/src/io/limits.rs (a test checks they agree).
 MAX_IMAGE_SIDE = 16_384
 MAX_FRAME_PIXELS = 16_777_216
 MAX_FRAMES = 10_000

@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{Split, SplitData, View};
 use crate::camera::{Intrinsics, Pose};
-use crate::camera_model::PinholeCamera;
+use crate::camera::PinholeCamera;
 use crate::error::{Error, Result};
 use super::images::{Background, Decoded, check_divisible, load_image};
 

@@ -7,7 +7,7 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::imageio::load_rgba;
+use crate::io::image::load_rgba;
 
 /// What transparent pixels show: the colour RGBA images are composited on, and the colour a
 /// render adds where its rays see nothing (`white_background` in a run's configuration).

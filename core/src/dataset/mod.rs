@@ -43,7 +43,7 @@ use std::str::FromStr;
 use serde::{Deserialize, Serialize};
 
 use crate::camera::Pose;
-use crate::camera_model::PinholeCamera;
+use crate::camera::PinholeCamera;
 use crate::error::{Error, Result};
 use crate::rng::Rng;
 

@@ -8,7 +8,7 @@ use super::capture::{Capture, centroid, focus_point};
 use super::llff::poses_avg;
 use crate::camera::Pose;
 use crate::error::{Error, Result};
-use crate::scene_transform::{SceneTransform, pose_from};
+use crate::camera::transform::{SceneTransform, pose_from};
 
 /// Near for captures without bounds, as a fraction of the cube's half-size (cameras may sit
 /// inside the cube, so content can be close).
@@ -219,7 +219,7 @@ fn percentile(values: &mut [f32], q: f32) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::camera_model::{PinholeCamera, PixelCenter};
+    use crate::camera::{PinholeCamera, PixelCenter};
     use crate::dataset::{CaptureFormat, CaptureView};
     use std::path::PathBuf;
 

@@ -16,8 +16,8 @@ use super::llff::load_llff;
 use super::scene_fit::{CameraPath, OrbitPath, SpiralPath, field_near_far, fit_to_field};
 use super::{Split, SplitData, View};
 use crate::error::{Error, Result};
-use crate::ndc::Ndc;
-use crate::scene_transform::SceneTransform;
+use crate::camera::ndc::Ndc;
+use crate::camera::transform::SceneTransform;
 
 /// Which frame the poses are returned in.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -19,10 +19,10 @@ use serde::{Deserialize, Serialize};
 use super::Split;
 use super::blender::{Frame, Transforms, image_path, transforms_path};
 use crate::camera::{Intrinsics, Pose, Rays};
-use crate::camera_model::PinholeCamera;
-use crate::atomic::write_atomic;
+use crate::camera::PinholeCamera;
+use crate::io::atomic::write_atomic;
 use crate::error::{Error, Result};
-use crate::imageio::save_png_rgba;
+use crate::io::image::save_png_rgba;
 use crate::rng::Rng;
 
 /// The generated scene's horizontal field of view (radians): the lego scene's.

@@ -2,11 +2,12 @@
 //! inverse-CDF samples → fine network on coarse ∪ fine samples → pixels.
 
 use super::packed::{PackedSamples, march_front_to_back};
-use super::{Field, RenderOptions, Stage};
+use super::RenderOptions;
+use crate::field::{Field, Stage};
 use crate::camera::Rays;
-use crate::compositing::{Composited, composite};
+use super::compositing::{Composited, composite};
 use crate::rng::Rng;
-use crate::sampling::{DenseSamples, importance, stratified};
+use crate::sample::stratified::{DenseSamples, importance, stratified};
 
 /// Render a batch of rays: one field call per stage, or, with `options.min_transmittance`, one
 /// per [`MARCH_SEGMENT`](super::MARCH_SEGMENT) front-to-back step. `rng` jitters the samples
@@ -55,10 +56,11 @@ fn render_stage<F: Field>(
 
 #[cfg(test)]
 mod tests {
-    use super::super::{DEFAULT_MARCH_STEPS, FieldOutput, render_image};
+    use super::super::{DEFAULT_MARCH_STEPS, render_image};
+    use crate::field::FieldOutput;
     use super::*;
     use crate::camera::{Intrinsics, Pose};
-    use crate::sampling::SamplingConfig;
+    use crate::sample::stratified::SamplingConfig;
 
     /// A slab of constant density between z = −0.5 and 0.5, red in front (z > 0), else blue.
     struct Slab {

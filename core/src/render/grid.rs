@@ -1,10 +1,11 @@
 //! Empty-space skipping at render time: march through an occupancy grid's occupied cells.
 
 use super::packed::{PackedSamples, march_front_to_back};
-use super::{Field, RenderOptions, Stage};
+use super::RenderOptions;
+use crate::field::{Field, Stage};
 use crate::camera::{Rays, length, point_at};
-use crate::compositing::RayOutput;
-use crate::occupancy::OccupancyGrid;
+use super::compositing::RayOutput;
+use crate::sample::occupancy::OccupancyGrid;
 use crate::rng::Rng;
 
 /// The samples marching takes: `steps` equal intervals over [near, far], one sample at each
@@ -45,10 +46,11 @@ pub fn render_rays<F: Field>(field: &mut F, grid: &OccupancyGrid, rays: &Rays, o
 
 #[cfg(test)]
 mod tests {
-    use super::super::{DEFAULT_MARCH_STEPS, FieldOutput, render_image};
+    use super::super::{DEFAULT_MARCH_STEPS, render_image};
+    use crate::field::FieldOutput;
     use super::*;
     use crate::camera::{Intrinsics, Pose};
-    use crate::sampling::SamplingConfig;
+    use crate::sample::stratified::SamplingConfig;
 
     /// A ball of density 200 and radius 0.5 at the origin, coloured by position.
     struct Ball(usize);
@@ -96,7 +98,7 @@ mod tests {
         let skip_points = field.0;
         assert!(skip_points * 20 < dense_points, "{skip_points} points marched vs {dense_points} dense");
         assert!(dense.rays.acc.iter().any(|a| *a > 0.99) && dense.rays.acc.iter().any(|a| *a < 0.01), "the ball is in view");
-        let db = crate::metrics::psnr(&skip.rays.rgb, &dense.rays.rgb);
+        let db = crate::render::metrics::psnr(&skip.rays.rgb, &dense.rays.rgb);
         assert!(db > 35.0, "marching vs dense: {db:.1} dB");
     }
 }

@@ -1,10 +1,11 @@
 //! Packed samples (nerfacc's layout) and the front-to-back evaluator with early ray
 //! termination that both the dense and the marching renderers use.
 
-use super::{Field, MARCH_SEGMENT, Stage};
+use super::MARCH_SEGMENT;
+use crate::field::{Field, Stage};
 use crate::camera::{Rays, length, point_at};
-use crate::compositing::{RayAccumulator, RayOutput, alpha_from_density, deltas};
-use crate::sampling::DenseSamples;
+use super::compositing::{RayAccumulator, RayOutput, alpha_from_density, deltas};
+use crate::sample::stratified::DenseSamples;
 
 /// Samples of a batch of rays, any number per ray, stored flat and ray by ray, front to back.
 ///
@@ -104,7 +105,7 @@ pub fn march_front_to_back<F: Field>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::render::FieldOutput;
+    use crate::field::FieldOutput;
 
     /// σ = 1 everywhere, colour = (t-ish) position x; counts evaluated points.
     struct Uniform(usize);

@@ -9,7 +9,8 @@
 //! [output_ch, W]` (4, or 5 when the run has a fine network; only the first 4 are used).
 //! Weights are `[out, in]`; ours are `[in, out]`.
 
-use nerf_core::network::{DenseLayer, EncodingSpec, NetworkSpec, PlainNetwork};
+use nerf_core::field::mlp::{EncodingSpec, NetworkSpec, PlainNetwork};
+use nerf_core::field::DenseLayer;
 use std::collections::BTreeMap;
 use std::path::Path;
 

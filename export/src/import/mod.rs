@@ -19,9 +19,9 @@ use checkpoint::{ExpectedNetwork, MappingError, read_checkpoint, to_plain_networ
 use nerf_core::PinholeCamera;
 use nerf_core::camera::Pose;
 use nerf_core::dataset::{CameraPath, CaptureFormat, ScenePlacement, Split, SpiralPath, load_llff_images, load_split};
-use nerf_core::ndc::Ndc;
-use nerf_core::network::{EncodingSpec, PlainNetwork};
-use nerf_core::sampling::SamplingConfig;
+use nerf_core::camera::ndc::Ndc;
+use nerf_core::field::mlp::{EncodingSpec, PlainNetwork};
+use nerf_core::sample::stratified::SamplingConfig;
 use std::path::{Path, PathBuf};
 
 /// Orbit frames stored in `scene.json` (as `nerf export` stores).

@@ -8,8 +8,9 @@ use nerf::bench::{FrameBench, MlpBench, best_of, bench_view, burn_frame, paper_m
 use nerf::export::model_bundle;
 use nerf::train::Preset;
 use nerf_core::dataset::{Split, load_split};
-use nerf_core::hash_grid::{HashGridConfig, SampleOrder, measure_throughput};
-use nerf_core::metrics::psnr;
+use nerf::field::ngp::throughput::{SampleOrder, measure_throughput};
+use nerf_core::field::ngp::hash_grid::HashGridConfig;
+use nerf_core::render::metrics::psnr;
 use nerf_export::write_bundle;
 use nerf_runtime::{OpenOptions, OrtNetwork, OrtScene};
 use std::path::{Path, PathBuf};
@@ -155,7 +156,7 @@ pub fn run(
     }
     if let Some(path) = json {
         let text = serde_json::to_string_pretty(&serde_json::Value::Object(report))?;
-        nerf_core::atomic::write_atomic(&path, text.as_bytes())?;
+        nerf_core::io::atomic::write_atomic(&path, text.as_bytes())?;
         println!("\nJSON: {}", path.display());
     }
     Ok(())
@@ -170,7 +171,7 @@ fn bench_mlp(points: usize, repeats: usize) -> Result<Vec<MlpBench>> {
     let dir = tempfile::tempdir()?;
     let path = dir.path().join("paper.onnx");
     let model = nerf_export::compile(&plain, "coarse", nerf_export::DEFAULT_OPSET, &[])?;
-    nerf_core::atomic::write_atomic(&path, &prost::Message::encode_to_vec(&model))?;
+    nerf_core::io::atomic::write_atomic(&path, &prost::Message::encode_to_vec(&model))?;
     let mut ort = OrtNetwork::load(&path, None)?;
     let ort_s = best_of(repeats, || ort.run(&p, &d).map(|_| ()))?;
     Ok(vec![burn, MlpBench::new("onnxruntime", points, ort_s, plain.spec.macs_per_point())])
@@ -309,7 +310,7 @@ fn bench_ngp_render(bundle: Option<&Path>, steps: usize, data: &Path, progress: 
         }
     };
     let mut scene = OrtScene::open(&bundle, &OpenOptions::default())?;
-    if scene.description.field != nerf_core::network::FieldKind::Ngp {
+    if scene.description.field != nerf_core::field::FieldKind::Ngp {
         bail!("{}: not a hash-grid bundle (scene.json field {:?})", bundle.display(), scene.description.field.name());
     }
     let val = load_split(data, Split::Val, 1, true)?;

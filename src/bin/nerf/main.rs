@@ -287,7 +287,7 @@ fn main() -> Result<()> {
             let opts = nerf_export::import::NerfPytorchImport { checkpoint, args, data };
             let imported = nerf_export::import::import_nerf_pytorch(&opts)?;
             let b = &imported.bundle;
-            let shape = |n: &nerf_core::network::PlainNetwork| format!("{}×{}", n.spec.depth, n.spec.width);
+            let shape = |n: &nerf_core::field::mlp::PlainNetwork| format!("{}×{}", n.spec.depth, n.spec.width);
             let (s, k) = (&b.scene.sampling, &b.scene.camera.camera);
             println!(
                 "nerf-pytorch run ({}): coarse {}, fine {}, {} + {} samples; camera {}×{}, focal {:.2}, {} test poses from {}",

@@ -1,0 +1,332 @@
+//! Frame output shared by `nerf eval`/`nerf render` (burn) and `nerf-render` (onnxruntime):
+//! the views to render, a progress bar per frame, PNG + depth map (+ optional raw `.npy`),
+//! metrics against ground truth and the orbit GIF. The renderer is a closure, so both binaries
+//! write the same files the same way.
+
+use crate::camera::Pose;
+use crate::camera::PinholeCamera;
+use crate::dataset::SplitData;
+use crate::io::atomic::write_atomic;
+use crate::error::{Error, Result};
+use crate::io::image::{depth_to_rgb, save_gif, save_png};
+use crate::render::metrics::{EvalReport, ImageMetrics, psnr, ssim};
+use crate::render::RenderedImage;
+use indicatif::{ProgressBar, ProgressStyle};
+use std::path::{Path, PathBuf};
+
+/// File name of the metrics written when the frames have ground truth.
+pub const METRICS_FILE: &str = "metrics.json";
+/// File name of the contact sheet written with metrics: ground truth | render | depth, one row
+/// per view, for the first [`SHEET_VIEWS`] views (at most [`SHEET_MAX_WIDTH`] pixels wide each).
+pub const SHEET_FILE: &str = "contact_sheet.png";
+/// Views on the contact sheet.
+pub const SHEET_VIEWS: usize = 4;
+/// Widest image on the contact sheet: wider views are shrunk by an integer factor.
+pub const SHEET_MAX_WIDTH: u32 = 256;
+/// File name of the orbit animation.
+pub const GIF_FILE: &str = "orbit.gif";
+/// Milliseconds per GIF frame.
+pub const GIF_DELAY_MS: u16 = 100;
+
+/// One image to render.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameSpec {
+    /// Output file stem (`r_0`, `frame_007`).
+    pub name: String,
+    /// Camera.
+    pub camera: PinholeCamera,
+    /// Camera-to-world pose.
+    pub pose: Pose,
+    /// Ground truth (row-major RGB, white background) for metrics.
+    pub target: Option<Vec<[f32; 3]>>,
+}
+
+impl FrameSpec {
+    /// The orbit frames `frame_000`, `frame_001`, … for `poses`.
+    pub fn orbit(camera: &PinholeCamera, poses: &[Pose]) -> Vec<FrameSpec> {
+        poses
+            .iter()
+            .enumerate()
+            .map(|(k, pose)| FrameSpec { name: format!("frame_{k:03}"), camera: *camera, pose: *pose, target: None })
+            .collect()
+    }
+
+    /// A split's views, named after their images, with the images as targets when loaded.
+    pub fn from_split(data: SplitData) -> Vec<FrameSpec> {
+        data.views.into_iter().map(|v| FrameSpec { name: v.name, camera: v.camera, pose: v.pose, target: v.image }).collect()
+    }
+}
+
+/// Where and what to write.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameOutput {
+    /// Output directory (created if missing).
+    pub dir: PathBuf,
+    /// Depth range of the colour map (near, far).
+    pub depth_range: (f32, f32),
+    /// Also write `orbit.gif` of all frames.
+    pub gif: bool,
+    /// Also write `<name>.npy`: float32 `[H, W, 5]` = r, g, b, depth, acc (exact values for
+    /// comparisons; PNGs are 8-bit).
+    pub raw: bool,
+    /// Show a progress bar per frame.
+    pub progress: bool,
+}
+
+/// What [`render_frames`] wrote.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FramesReport {
+    /// Number of frames rendered.
+    pub frames: usize,
+    /// Metrics (also in `metrics.json`) when every frame had ground truth.
+    pub metrics: Option<EvalReport>,
+    /// The GIF, when asked for.
+    pub gif: Option<PathBuf>,
+}
+
+/// A progress bar for one frame labelled `what` (hidden when `show` is false).
+pub fn frame_bar(show: bool, what: &str) -> ProgressBar {
+    let bar = if show { ProgressBar::new(0) } else { ProgressBar::hidden() };
+    bar.set_style(
+        ProgressStyle::with_template("{prefix} [{elapsed_precise}<{eta_precise}] {wide_bar} {percent}% {msg}").expect("valid template"),
+    );
+    bar.set_prefix(what.to_string());
+    bar
+}
+
+/// Render every frame with `render(frame, progress(done, total))` and write PNG + depth map
+/// per frame, then `metrics.json` (if all frames have targets) and `orbit.gif` (if asked).
+/// Errors are the renderer's own type, which takes the core's file errors.
+pub fn render_frames<E: From<Error>>(
+    frames: Vec<FrameSpec>,
+    out: &FrameOutput,
+    mut render: impl FnMut(&FrameSpec, &mut dyn FnMut(usize, usize)) -> std::result::Result<RenderedImage, E>,
+) -> std::result::Result<FramesReport, E> {
+    std::fs::create_dir_all(&out.dir).map_err(|e| Error::io(&out.dir, e))?;
+    let with_metrics = !frames.is_empty() && frames.iter().all(|f| f.target.is_some());
+    let total = frames.len();
+    let mut per_image = Vec::new();
+    let mut gif_frames = Vec::new();
+    let mut sheet = ContactSheet::default();
+    for (k, frame) in frames.iter().enumerate() {
+        let bar = frame_bar(out.progress, &format!("{} {}/{total}", frame.name, k + 1));
+        bar.set_length(frame.camera.num_pixels() as u64);
+        let image = render(frame, &mut |done, _| bar.set_position(done as u64))?;
+        let depth = save_frame(&image, &out.dir, &frame.name, out.depth_range, out.raw)?;
+        if let Some(target) = frame.target.as_ref().filter(|_| with_metrics) {
+            let m = ImageMetrics {
+                name: frame.name.clone(),
+                psnr: psnr(&image.rays.rgb, target),
+                ssim: ssim(&image.rays.rgb, target, image.width as usize, image.height as usize),
+            };
+            bar.finish_with_message(format!("PSNR {:.2} dB, SSIM {:.3}", m.psnr, m.ssim));
+            per_image.push(m);
+            if k < SHEET_VIEWS {
+                sheet.add_row(image.width, image.height, &[target, &image.rays.rgb, &depth]);
+            }
+        } else {
+            bar.finish();
+        }
+        if out.gif {
+            gif_frames.push(image.rays.rgb);
+        }
+    }
+    let metrics = if with_metrics {
+        let report = EvalReport::from_images(per_image);
+        report.write_json(&out.dir.join(METRICS_FILE))?;
+        sheet.save(&out.dir.join(SHEET_FILE))?;
+        Some(report)
+    } else {
+        None
+    };
+    let gif = match (out.gif, frames.first()) {
+        (true, Some(first)) => {
+            let path = out.dir.join(GIF_FILE);
+            let k = first.camera;
+            save_gif(&path, k.width, k.height, &gif_frames, GIF_DELAY_MS)?;
+            Some(path)
+        }
+        _ => None,
+    };
+    Ok(FramesReport { frames: total, metrics, gif })
+}
+
+/// Images side by side, rows stacked; rows narrower than the widest are padded with white.
+#[derive(Debug, Default)]
+struct ContactSheet {
+    rows: Vec<(u32, u32, Vec<[f32; 3]>)>,
+}
+
+impl ContactSheet {
+    /// A row of `images`, each `width × height`, row-major, shrunk by the integer factor that
+    /// brings the width to at most [`SHEET_MAX_WIDTH`] (the mean of each factor² block).
+    fn add_row(&mut self, width: u32, height: u32, images: &[&[[f32; 3]]]) {
+        let f = width.div_ceil(SHEET_MAX_WIDTH).max(1) as usize;
+        let (w, h) = (width as usize, height as usize);
+        let (sw, sh) = (w / f, h / f);
+        let mut row = Vec::with_capacity(sw * sh * images.len());
+        for j in 0..sh {
+            for image in images {
+                for i in 0..sw {
+                    let mut sum = [0.0f32; 3];
+                    for (dj, di) in (0..f).flat_map(|dj| (0..f).map(move |di| (dj, di))) {
+                        let p = image[(j * f + dj) * w + i * f + di];
+                        sum = [0, 1, 2].map(|c| sum[c] + p[c]);
+                    }
+                    row.push(sum.map(|v| v / (f * f) as f32));
+                }
+            }
+        }
+        self.rows.push(((sw * images.len()) as u32, sh as u32, row));
+    }
+
+    fn save(&self, path: &Path) -> Result<()> {
+        let width = self.rows.iter().map(|r| r.0).max().unwrap_or(0);
+        let height = self.rows.iter().map(|r| r.1).sum::<u32>();
+        if width == 0 || height == 0 {
+            return Ok(());
+        }
+        let mut pixels = Vec::with_capacity((width * height) as usize);
+        for (w, h, row) in &self.rows {
+            for line in row.chunks_exact(*w as usize).take(*h as usize) {
+                pixels.extend_from_slice(line);
+                pixels.extend(std::iter::repeat_n([1.0; 3], (width - w) as usize));
+            }
+        }
+        save_png(path, width, height, &pixels)
+    }
+}
+
+/// Write `<dir>/<name>.png`, `<dir>/<name>_depth.png` and, with `raw`, `<dir>/<name>.npy`;
+/// returns the depth map's colours (for the contact sheet).
+pub fn save_frame(image: &RenderedImage, dir: &Path, name: &str, depth_range: (f32, f32), raw: bool) -> Result<Vec<[f32; 3]>> {
+    let (w, h) = (image.width, image.height);
+    save_png(&dir.join(format!("{name}.png")), w, h, &image.rays.rgb)?;
+    let depth = depth_to_rgb(&image.rays.depth, &image.rays.acc, depth_range.0, depth_range.1);
+    save_png(&dir.join(format!("{name}_depth.png")), w, h, &depth)?;
+    if raw {
+        save_npy(&dir.join(format!("{name}.npy")), image)?;
+    }
+    Ok(depth)
+}
+
+/// `[H, W, 5]` little-endian float32 `.npy` (format 1.0) of r, g, b, depth, acc per pixel.
+pub fn npy_bytes(image: &RenderedImage) -> Vec<u8> {
+    let r = &image.rays;
+    let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({}, {}, 5), }}", image.height, image.width);
+    // Magic (6) + version (2) + length (2) + header + '\n' is a multiple of 64.
+    while (10 + header.len() + 1) % 64 != 0 {
+        header.push(' ');
+    }
+    header.push('\n');
+    let mut bytes = Vec::with_capacity(10 + header.len() + r.rgb.len() * 20);
+    bytes.extend_from_slice(b"\x93NUMPY\x01\x00");
+    bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    bytes.extend_from_slice(header.as_bytes());
+    for ((c, d), a) in r.rgb.iter().zip(&r.depth).zip(&r.acc) {
+        for v in [c[0], c[1], c[2], *d, *a] {
+            bytes.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    bytes
+}
+
+/// Write [`npy_bytes`] atomically.
+pub fn save_npy(path: &Path, image: &RenderedImage) -> Result<()> {
+    write_atomic(path, &npy_bytes(image))
+}
+
+/// Read back the `[H, W, 5]` float32 arrays [`save_npy`] writes: (height, width, values).
+pub fn load_npy(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
+    let array = crate::io::npy::read_npy(path)?;
+    let [h, w, 5] = array.shape[..] else {
+        return Err(Error::invalid(path, format!("shape {:?}: not the [H, W, 5] of a rendered frame", array.shape)));
+    };
+    // float32 files widen to f64 exactly and narrow back exactly.
+    Ok((h, w, array.data.iter().map(|&v| v as f32).collect()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::render::RenderedRays;
+
+    fn image() -> RenderedImage {
+        RenderedImage {
+            width: 3,
+            height: 2,
+            rays: RenderedRays {
+                rgb: (0..6).map(|k| [k as f32 * 0.1, 0.5, 1.0]).collect(),
+                depth: (0..6).map(|k| 2.0 + k as f32).collect(),
+                acc: vec![0.25; 6],
+            },
+        }
+    }
+
+    #[test]
+    fn npy_round_trip_keeps_layout_and_values() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("x.npy");
+        save_npy(&path, &image()).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        assert_eq!((10 + u16::from_le_bytes([bytes[8], bytes[9]]) as usize) % 64, 0, "data is 64-byte aligned");
+        let (h, w, v) = load_npy(&path).unwrap();
+        assert_eq!((h, w, v.len()), (2, 3, 30));
+        // Pixel (row 1, column 2) = index 5: r = 0.5, depth = 7, acc = 0.25.
+        assert_eq!(&v[25..30], &[0.5, 0.5, 1.0, 7.0, 0.25]);
+        std::fs::write(&path, &bytes[..bytes.len() - 4]).unwrap();
+        let err = load_npy(&path).unwrap_err().to_string();
+        assert!(err.contains("x.npy") && err.contains("truncated"), "{err}");
+    }
+
+    #[test]
+    fn wide_views_are_shrunk_on_the_contact_sheet() {
+        // 600 px wide → factor 3 (600/256 rounded up): 200×1 from 600×3, each pixel the mean
+        // of a 3×3 block. Pixel (i, j) of the image holds i + 1000·j in red.
+        let image: Vec<[f32; 3]> = (0..3).flat_map(|j| (0..600).map(move |i| [(i + 1000 * j) as f32, 0.0, 1.0])).collect();
+        let mut sheet = ContactSheet::default();
+        sheet.add_row(600, 3, &[&image, &image]);
+        let (w, h, row) = &sheet.rows[0];
+        assert_eq!((*w, *h, row.len()), (400, 1, 400));
+        // Block 0: columns 0..3, rows 0..3: mean of i = 1, of 1000·j = 1000.
+        assert_eq!(row[0], [1001.0, 0.0, 1.0]);
+        // The second image starts at 200; block 5 covers columns 15..18: 16 + 1000.
+        assert_eq!(row[205], [1016.0, 0.0, 1.0]);
+    }
+
+    #[test]
+    fn frames_write_pngs_metrics_and_gif() {
+        let dir = tempfile::tempdir().unwrap();
+        let k = PinholeCamera::from(crate::camera::Intrinsics { width: 3, height: 2, focal: 3.0 });
+        let pose = Pose::spherical(0.0, -30.0, 4.0);
+        let mut frames = FrameSpec::orbit(&k, &[pose, pose]);
+        let truth = image().rays.rgb;
+        let out = FrameOutput { dir: dir.path().join("out"), depth_range: (2.0, 6.0), gif: true, raw: true, progress: false };
+        // Without targets: no metrics.
+        let report = render_frames(frames.clone(), &out, |_, _| Ok::<_, Error>(image())).unwrap();
+        assert_eq!((report.frames, report.metrics.is_none()), (2, true));
+        assert!(report.gif.unwrap().exists());
+        for name in ["frame_000.png", "frame_001_depth.png", "frame_001.npy"] {
+            assert!(out.dir.join(name).exists(), "{name}");
+        }
+        // With targets: one exact frame (infinite PSNR) and one off by 0.1 everywhere (20 dB).
+        frames[0].target = Some(truth.clone());
+        frames[1].target = Some(truth.iter().map(|c| c.map(|v| v - 0.1)).collect());
+        let report = render_frames(frames, &out, |_, _| Ok::<_, Error>(image())).unwrap();
+        let m = report.metrics.unwrap();
+        assert!((m.per_image[1].psnr - 20.0).abs() < 1e-3, "{}", m.per_image[1].psnr);
+        assert_eq!(EvalReport::read_json(&out.dir.join(METRICS_FILE)).unwrap().per_image.len(), 2);
+        // The contact sheet: two rows of truth | render | depth, 9×4 pixels; row 1 starts with
+        // its target (0.1 below the render), then the render itself.
+        let (w, h, sheet) = crate::io::image::load_rgba(&out.dir.join(SHEET_FILE)).unwrap();
+        assert_eq!((w, h), (9, 4));
+        let at = |i: usize, j: usize| sheet[j * 9 + i];
+        let byte = |v: f32| (v.clamp(0.0, 1.0) * 255.0).round() / 255.0;
+        assert_eq!(at(1, 2)[0], byte(0.1 - 0.1));
+        assert_eq!(at(4, 2)[0], byte(0.1));
+        assert_eq!(at(4, 3)[0], byte(0.4));
+        // A renderer error stops the run with its message.
+        let err = render_frames(FrameSpec::orbit(&k, &[pose]), &out, |_, _| Err(Error::Argument("network exploded".into()))).unwrap_err();
+        assert_eq!(err.to_string(), "network exploded");
+    }
+}

@@ -1,0 +1,327 @@
+//! Empty-space skipping: an occupancy grid over the scene's bounding cube (instant-ngp's density
+//! grid, nerfacc's `OccupancyGrid`).
+//!
+//! Each cell keeps a running estimate of the largest density seen in it: every update evaluates
+//! the density at one random point per cell and stores `max(decay · old, new)`. Cells whose
+//! estimate is at most `threshold` are empty; samples there are not sent to the network and
+//! count as σ = 0. Points outside the cube are empty too. Before its first update every cell is
+//! occupied (the estimate is +∞), so a fresh grid changes nothing.
+//!
+//! # File format (`occupancy.bin`, little-endian)
+//! | bytes | content |
+//! |---|---|
+//! | 8 | magic `NERFOCC1` |
+//! | 4 | `u32` resolution R (cells per axis) |
+//! | 4 | `f32` bound b: the grid covers [−b, b]³ in world coordinates |
+//! | 4 | `f32` threshold: a cell is occupied when its density estimate is greater |
+//! | 4·R³ | `f32` density estimates, cell (i, j, k) at index (i·R + j)·R + k, where i, j, k index x, y, z |
+//!
+//! From numpy: `np.fromfile(f, "<f4", offset=20).reshape(R, R, R) > threshold`.
+
+use crate::error::{Error, Result};
+use crate::rng::Rng;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// The grid's file name in checkpoints and scene bundles.
+pub const FILE_NAME: &str = "occupancy.bin";
+const MAGIC: &[u8; 8] = b"NERFOCC1";
+const HEADER_BYTES: usize = 20;
+
+/// How the grid is built and maintained during training.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OccupancyConfig {
+    /// Cells per axis.
+    pub resolution: usize,
+    /// The grid covers [−bound, bound]³ (Blender synthetic scenes fit in 1.5).
+    pub bound: f32,
+    /// Density (σ, after ReLU) above which a cell counts as occupied.
+    pub threshold: f32,
+    /// Per-update decay of the running maximum.
+    pub decay: f32,
+    /// Steps between updates.
+    pub update_every: usize,
+    /// Steps of dense training before the first update.
+    pub warmup_steps: usize,
+    /// After each update, lower the threshold to the grid's mean density when that is smaller
+    /// (instant-ngp's rule: a young field that is faint everywhere still has occupied cells).
+    #[serde(default)]
+    pub threshold_at_most_mean: bool,
+}
+
+impl Default for OccupancyConfig {
+    fn default() -> Self {
+        OccupancyConfig { resolution: 64, bound: 1.5, threshold: 0.05, decay: 0.95, update_every: 16, warmup_steps: 256, threshold_at_most_mean: false }
+    }
+}
+
+/// The grid itself.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OccupancyGrid {
+    resolution: usize,
+    bound: f32,
+    threshold: f32,
+    density: Vec<f32>,
+}
+
+impl OccupancyGrid {
+    /// A grid with every cell occupied (no information yet).
+    pub fn new(resolution: usize, bound: f32, threshold: f32) -> Self {
+        OccupancyGrid { resolution, bound, threshold, density: vec![f32::INFINITY; resolution.pow(3)] }
+    }
+
+    /// A fresh grid as `config` describes.
+    pub fn from_config(config: &OccupancyConfig) -> Self {
+        Self::new(config.resolution, config.bound, config.threshold)
+    }
+
+    /// Cells per axis.
+    pub fn resolution(&self) -> usize {
+        self.resolution
+    }
+
+    /// Half the side of the covered cube.
+    pub fn bound(&self) -> f32 {
+        self.bound
+    }
+
+    /// The density above which a cell is occupied.
+    pub fn threshold(&self) -> f32 {
+        self.threshold
+    }
+
+    /// The same grid with another occupancy threshold (render-time tuning: higher skips more).
+    pub fn with_threshold(mut self, threshold: f32) -> Self {
+        self.set_threshold(threshold);
+        self
+    }
+
+    /// Change the occupancy threshold in place.
+    pub fn set_threshold(&mut self, threshold: f32) {
+        self.threshold = threshold;
+    }
+
+    /// One occupied cell covering [−bound, bound]³: marching through it evaluates every
+    /// interval inside the cube (for fields defined only there, rendered without their grid).
+    pub fn whole_cube(bound: f32) -> Self {
+        Self::new(1, bound, 0.0)
+    }
+
+    /// Number of cells.
+    pub fn len(&self) -> usize {
+        self.density.len()
+    }
+
+    /// Whether the grid has no cells.
+    pub fn is_empty(&self) -> bool {
+        self.density.is_empty()
+    }
+
+    /// The cell holding `p`, or `None` outside the cube.
+    pub fn cell(&self, p: [f32; 3]) -> Option<usize> {
+        let r = self.resolution;
+        let mut index = 0;
+        for v in p {
+            let u = (v + self.bound) / (2.0 * self.bound) * r as f32;
+            // `!(u >= 0)` also rejects NaN.
+            if !(u >= 0.0) || u >= r as f32 {
+                return None;
+            }
+            index = index * r + u as usize;
+        }
+        Some(index)
+    }
+
+    /// Whether `p` lies in an occupied cell.
+    pub fn is_occupied(&self, p: [f32; 3]) -> bool {
+        self.cell(p).is_some_and(|c| self.density[c] > self.threshold)
+    }
+
+    /// Indices of the points that lie in occupied cells, in order.
+    pub fn occupied_indices(&self, points: &[[f32; 3]]) -> Vec<usize> {
+        (0..points.len()).filter(|&i| self.is_occupied(points[i])).collect()
+    }
+
+    /// Fraction of cells that are occupied.
+    pub fn occupied_fraction(&self) -> f32 {
+        self.density.iter().filter(|d| **d > self.threshold).count() as f32 / self.len().max(1) as f32
+    }
+
+    /// Mean of the cells' density estimates (cells not measured yet count as 0). instant-ngp
+    /// caps the occupancy threshold at this, so a young field that is faint everywhere still
+    /// has occupied cells.
+    pub fn mean_density(&self) -> f32 {
+        let sum: f64 = self.density.iter().filter(|d| d.is_finite()).map(|&d| d as f64).sum();
+        (sum / self.len().max(1) as f64) as f32
+    }
+
+    /// One uniformly random point inside every cell, in cell order.
+    pub fn random_cell_points(&self, rng: &mut Rng) -> Vec<[f32; 3]> {
+        let r = self.resolution;
+        let size = 2.0 * self.bound / r as f32;
+        (0..self.len())
+            .map(|c| {
+                let (i, j, k) = (c / (r * r), (c / r) % r, c % r);
+                [i, j, k].map(|n| -self.bound + (n as f32 + rng.uniform()) * size)
+            })
+            .collect()
+    }
+
+    /// Fold in densities (σ after ReLU) measured at one point per cell (cell order, as from
+    /// [`random_cell_points`](Self::random_cell_points)).
+    pub fn update(&mut self, sigma: &[f32], decay: f32) {
+        assert_eq!(sigma.len(), self.len(), "one density per cell");
+        for (d, &s) in self.density.iter_mut().zip(sigma) {
+            let s = s.max(0.0);
+            *d = if d.is_finite() { (*d * decay).max(s) } else { s };
+        }
+    }
+
+    /// Serialise in the documented format.
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let mut out = Vec::with_capacity(HEADER_BYTES + 4 * self.len());
+        out.extend_from_slice(MAGIC);
+        out.extend_from_slice(&(self.resolution as u32).to_le_bytes());
+        out.extend_from_slice(&self.bound.to_le_bytes());
+        out.extend_from_slice(&self.threshold.to_le_bytes());
+        for d in &self.density {
+            out.extend_from_slice(&d.to_le_bytes());
+        }
+        out
+    }
+
+    /// Parse the documented format; `path` only names the source in errors.
+    pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Self> {
+        let (resolution, bound, threshold) = Self::parse_header(bytes, path)?;
+        let want = Self::file_bytes(resolution);
+        if bytes.len() as u64 != want {
+            return Err(Error::invalid(path, format!("{} bytes, expected {want} for a {resolution}³ grid (truncated?)", bytes.len())));
+        }
+        let density = bytes[HEADER_BYTES..].chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+        Ok(OccupancyGrid { resolution, bound, threshold, density })
+    }
+
+    /// Resolution, bound and threshold from the first [`HEADER_BYTES`] bytes, checked (the
+    /// resolution against [`MAX_GRID_RESOLUTION`](crate::io::limits::MAX_GRID_RESOLUTION)) before
+    /// anything the size of the grid is allocated.
+    fn parse_header(bytes: &[u8], path: &Path) -> Result<(usize, f32, f32)> {
+        let bad = |problem: String| Error::invalid(path, problem);
+        if bytes.len() < HEADER_BYTES || &bytes[..8] != MAGIC {
+            return Err(bad("not an occupancy grid (missing NERFOCC1 header)".into()));
+        }
+        let word = |at: usize| [bytes[at], bytes[at + 1], bytes[at + 2], bytes[at + 3]];
+        let resolution = u32::from_le_bytes(word(8)) as usize;
+        let bound = f32::from_le_bytes(word(12));
+        let threshold = f32::from_le_bytes(word(16));
+        crate::io::limits::check_grid_resolution(resolution, crate::io::limits::Origin::Field(path, "header resolution"))?;
+        if !(bound > 0.0 && bound.is_finite()) || !threshold.is_finite() {
+            return Err(bad(format!("bad header: resolution {resolution}, bound {bound}, threshold {threshold}")));
+        }
+        Ok((resolution, bound, threshold))
+    }
+
+    /// The size of a grid file with `resolution` cells per axis.
+    fn file_bytes(resolution: usize) -> u64 {
+        HEADER_BYTES as u64 + 4 * (resolution as u64).pow(3)
+    }
+
+    /// Read a grid file: the header first, then (once its resolution is within the limit and
+    /// the file's size matches it) the cells.
+    pub fn load(path: &Path) -> Result<Self> {
+        use std::io::Read;
+        let mut file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+        let meta = file.metadata().map_err(|e| Error::io(path, e))?;
+        if !meta.is_file() {
+            return Err(Error::invalid(path, "not a regular file"));
+        }
+        let mut header = Vec::with_capacity(HEADER_BYTES);
+        (&mut file).take(HEADER_BYTES as u64).read_to_end(&mut header).map_err(|e| Error::io(path, e))?;
+        let (resolution, ..) = Self::parse_header(&header, path)?;
+        let want = Self::file_bytes(resolution);
+        if meta.len() != want {
+            return Err(Error::invalid(path, format!("{} bytes, expected {want} for a {resolution}³ grid (truncated?)", meta.len())));
+        }
+        let mut bytes = header;
+        bytes.reserve_exact(want as usize - HEADER_BYTES);
+        // One byte more than expected, so a file that grew since is reported, not read on.
+        file.take(want - HEADER_BYTES as u64 + 1).read_to_end(&mut bytes).map_err(|e| Error::io(path, e))?;
+        Self::from_bytes(&bytes, path)
+    }
+
+    /// Write a grid file atomically.
+    pub fn save(&self, path: &Path) -> Result<()> {
+        crate::io::atomic::write_atomic(path, &self.to_bytes())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cells_cover_the_cube_in_documented_order() {
+        let grid = OccupancyGrid::new(4, 1.0, 0.5);
+        // Cell size 0.5: x = −0.9 → i = 0, y = 0.1 → j = 2, z = 0.99 → k = 3.
+        assert_eq!(grid.cell([-0.9, 0.1, 0.99]), Some(2 * 4 + 3));
+        assert_eq!(grid.cell([0.6, -1.0, -0.2]), Some((3 * 4) * 4 + 1));
+        assert_eq!(grid.cell([1.0, 0.0, 0.0]), None, "the upper face is outside");
+        assert_eq!(grid.cell([0.0, f32::NAN, 0.0]), None);
+        assert!(grid.is_occupied([0.0, 0.0, 0.0]), "a fresh grid is all occupied");
+        assert!(!grid.is_occupied([0.0, 0.0, 2.0]), "outside is empty");
+    }
+
+    #[test]
+    fn updates_keep_a_decaying_maximum() {
+        let mut grid = OccupancyGrid::new(2, 1.0, 0.5);
+        let mut sigma = vec![0.0; 8];
+        sigma[3] = 2.0;
+        sigma[5] = -1.0; // raw densities below zero count as zero
+        grid.update(&sigma, 0.5);
+        assert_eq!(grid.occupied_fraction(), 1.0 / 8.0);
+        grid.update(&[0.0; 8], 0.5);
+        // Cell 3 is (i, j, k) = (0, 1, 1): x < 0, y > 0, z > 0.
+        assert!(grid.is_occupied([-0.5, 0.5, 0.5]));
+        assert_eq!(grid.density[3], 1.0);
+        grid.update(&[0.0; 8], 0.5);
+        assert_eq!(grid.density[3], 0.5);
+        assert_eq!(grid.occupied_fraction(), 0.0, "0.5 is not above the threshold");
+    }
+
+    #[test]
+    fn random_points_fall_in_their_own_cells() {
+        let grid = OccupancyGrid::new(5, 1.5, 0.1);
+        let points = grid.random_cell_points(&mut Rng::new(1));
+        assert_eq!(points.len(), 125);
+        for (c, p) in points.iter().enumerate() {
+            assert_eq!(grid.cell(*p), Some(c), "{p:?}");
+        }
+    }
+
+    #[test]
+    fn file_round_trip_and_errors() {
+        let mut grid = OccupancyGrid::new(3, 1.5, 0.1);
+        grid.update(&(0..27).map(|i| i as f32 * 0.01).collect::<Vec<_>>(), 0.9);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("occupancy.bin");
+        grid.save(&path).unwrap();
+        assert_eq!(OccupancyGrid::load(&path).unwrap(), grid);
+        let bytes = grid.to_bytes();
+        let err = OccupancyGrid::from_bytes(&bytes[..bytes.len() - 4], &path).unwrap_err().to_string();
+        assert!(err.contains("occupancy.bin") && err.contains("truncated"), "{err}");
+        let err = OccupancyGrid::from_bytes(b"garbage garbage garbage", &path).unwrap_err().to_string();
+        assert!(err.contains("NERFOCC1"), "{err}");
+        // A header claiming 2³¹ cells per axis is refused from its 20 bytes, before any
+        // allocation; a file longer than its header says is refused before it is read.
+        let mut huge = bytes[..HEADER_BYTES].to_vec();
+        huge[8..12].copy_from_slice(&(1u32 << 31).to_le_bytes());
+        std::fs::write(&path, &huge).unwrap();
+        let err = OccupancyGrid::load(&path).unwrap_err().to_string();
+        assert!(err.contains("occupancy.bin: header resolution: 2147483648 cells per axis is more than the limit of 512"), "{err}");
+        let mut long = bytes.clone();
+        long.extend_from_slice(&[0; 8]);
+        std::fs::write(&path, &long).unwrap();
+        let err = OccupancyGrid::load(&path).unwrap_err().to_string();
+        assert!(err.contains(&format!("{} bytes, expected {}", long.len(), bytes.len())), "{err}");
+    }
+}
