@@ -4,15 +4,15 @@
 //! ratios between them are fair on a shared, noisy machine.
 
 use crate::error::{Error, Result};
-use crate::field::{NerfMlp, NerfModel};
-use crate::inference::{BurnField, vec3_tensor};
+use crate::field::{NerfMlp, NerfModel, TrainedField};
+use crate::inference::vec3_tensor;
 use crate::train::{Preset, StepTiming, TrainConfig, field_trainer};
 use nerf_core::Rng;
 use nerf_core::camera::{Intrinsics, Pose, length};
 use nerf_core::PinholeCamera;
 use nerf_core::dataset::{Split, SyntheticSceneConfig, generate_scene, load_split};
 use nerf_core::field::mlp::{NetworkSpec, PlainNetwork};
-use nerf_core::render::{RenderedImage, render_image};
+use nerf_core::render::RenderedImage;
 use std::path::Path;
 use std::time::Instant;
 
@@ -237,13 +237,13 @@ pub fn paper_model(chunk: usize) -> Result<(TrainConfig, PlainNetwork, PlainNetw
     Ok((config, coarse, fine, model))
 }
 
-/// One frame of `model` rendered by burn (dense: no grid), timed under a progress bar.
-pub fn burn_frame(model: &NerfModel, config: &TrainConfig, camera: &PinholeCamera, pose: &Pose, progress: bool) -> (RenderedImage, f64) {
-    let mut field = BurnField { model, device: crate::backend::cpu() };
+/// One frame of `field` rendered by burn (without a grid: dense, or a bounded field's whole
+/// box), timed under a progress bar.
+pub fn burn_frame(field: &TrainedField, config: &TrainConfig, camera: &PinholeCamera, pose: &Pose, progress: bool) -> (RenderedImage, f64) {
     let label = format!("burn {}×{}", camera.width, camera.height);
     let options = config.render_options();
-    let (Ok(image), seconds) = timed_frame(progress, &label, camera.num_pixels(), |p| render_image(&mut field, None, camera, pose, &options, p));
-    (image, seconds)
+    let device = crate::backend::cpu();
+    timed_frame(progress, &label, camera.num_pixels(), |p| field.render(&device, None, camera, pose, &options, p))
 }
 
 /// `render(progress)` under a progress bar labelled `what` over `pixels`, and its seconds.

@@ -3,7 +3,7 @@
 
 use crate::error::{Error, Result};
 use crate::field::TrainedField;
-use crate::run_dir::RunDir;
+use crate::run_dir::{RunDir, RunSource};
 use crate::train::TrainConfig;
 use nerf_core::PinholeCamera;
 use nerf_core::camera::Pose;
@@ -26,8 +26,9 @@ pub struct LoadedRun {
     pub step: usize,
     /// Where the scene is, for runs trained with empty-space skipping.
     pub occupancy: Option<OccupancyGrid>,
-    /// Where the run placed its scene in the field (`None` for older runs: Blender as it is).
-    pub placement: Option<ScenePlacement>,
+    /// Where its data came from and how the scene is placed in the field (`None` for older
+    /// runs: Blender as it is).
+    pub source: Option<RunSource>,
 }
 
 impl LoadedRun {
@@ -36,14 +37,19 @@ impl LoadedRun {
         let run = RunDir::open(run)?;
         let latest = run.load_latest(&crate::backend::cpu())?;
         let camera = run.read_camera()?;
-        let placement = run.read_source()?.and_then(|s| s.placement);
-        Ok(LoadedRun { config: latest.config, model: latest.model, camera, step: latest.state.step, occupancy: latest.occupancy, placement })
+        let source = run.read_source()?;
+        Ok(LoadedRun { config: latest.config, model: latest.model, camera, step: latest.state.step, occupancy: latest.occupancy, source })
+    }
+
+    /// Where the run placed its scene in the field (`None` for older runs: Blender as it is).
+    pub fn placement(&self) -> Option<&ScenePlacement> {
+        self.source.as_ref().and_then(|s| s.placement.as_ref())
     }
 
     /// `split` of the dataset in `data`, its poses mapped into the field by the run's recorded
     /// transform (never refitted to this data).
     pub fn load_split(&self, data: &Path, format: Option<CaptureFormat>, split: CaptureSplit, downscale: u32, images: bool) -> Result<SplitData> {
-        let transform = self.placement.as_ref().map_or_else(nerf_core::SceneTransform::identity, |p| p.transform);
+        let transform = self.placement().map_or_else(nerf_core::SceneTransform::identity, |p| p.transform);
         let background = Background::from_white(self.config.white_background);
         let options = LoadOptions { format, downscale, images, background, frame: SceneFrame::Recorded(transform) };
         let dataset = load_dataset(data, split, &options)?;
@@ -55,7 +61,7 @@ impl LoadedRun {
 
     /// The run's orbit: around a capture's cameras, else the reference orbit.
     pub fn orbit(&self, frames: usize) -> Vec<Pose> {
-        match self.placement.as_ref().and_then(|p| p.orbit) {
+        match self.placement().and_then(|p| p.orbit) {
             Some(orbit) => orbit.poses(frames),
             None => Pose::orbit(frames),
         }

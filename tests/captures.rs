@@ -131,7 +131,7 @@ fn a_capture_trains_evaluates_and_renders_through_its_recorded_placement() {
     let bundle = dir.path().join("bundle");
     let (ok, text) = nerf(&["export", "--run", s(&run), "--out", s(&bundle)]);
     assert!(ok, "{text}");
-    let scene = nerf_export::read_scene(&bundle).unwrap();
+    let scene = nerf_bundle::read_scene(&bundle).unwrap();
     assert_eq!(scene.placement.as_ref().unwrap().transform, t);
     assert_eq!(scene.camera.camera, phone_camera());
     let test0 = scene.poses.test.iter().find(|p| p.name == "train_0").unwrap();

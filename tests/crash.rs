@@ -217,9 +217,11 @@ fn killed_export_leaves_the_old_bundle() {
             assert!(now == new, "after kill {k} the bundle is neither the old nor the new one: {:?}", now.keys().collect::<Vec<_>>());
             saw_new += 1;
         }
-        let scene = nerf_export::read_scene(&bundle).unwrap();
-        nerf_export::read_bundle_network(&bundle, &scene.networks.coarse).unwrap();
-        nerf_export::read_occupancy(&bundle, &scene).unwrap().expect("the grid");
+        let scene = nerf_bundle::read_scene(&bundle).unwrap();
+        for g in scene.graph_files() {
+            nerf_bundle::read_model(&bundle.join(g.file)).unwrap();
+        }
+        nerf_bundle::read_occupancy(&bundle, &scene).unwrap().expect("the grid");
     }
     eprintln!("export killed 8 times ({in_write} while writing): old bundle {saw_old}×, new {saw_new}×; one export {export_s:.2} s");
     // Whatever killed exports left beside the bundle, the next export removes.

@@ -31,11 +31,14 @@ fn export_writes_a_bundle_that_onnx_and_onnxruntime_accept() {
     for file in ["coarse.onnx", "fine.onnx", "scene.json"] {
         assert!(bundle.join(file).is_file(), "{file} missing:\n{text}");
     }
-    let scene = nerf_export::read_scene(&bundle).unwrap();
+    let scene = nerf_bundle::read_scene(&bundle).unwrap();
     assert_eq!((scene.camera.camera.width, scene.camera.camera.height), (32, 32));
     assert_eq!((scene.sampling.near, scene.sampling.far), (2.0, 6.0));
     assert_eq!(scene.poses.test.len(), 2, "the generated scene's test poses");
-    assert_eq!(scene.poses.orbit.len(), nerf::export::ORBIT_FRAMES);
+    assert_eq!(scene.poses.orbit.len(), nerf_core::camera::ORBIT_FRAMES);
+    let roles: Vec<_> = scene.graph_files().iter().map(|g| (g.role.name(), g.file.to_string())).collect();
+    assert_eq!(roles, [("coarse", "coarse.onnx".to_string()), ("fine", "fine.onnx".to_string())], "graphs named by role");
+    assert_eq!(scene.format, nerf_bundle::scene::SCENE_FORMAT);
     assert_eq!(scene.position_encoding.as_ref().unwrap().output_dim, 63);
 
     // The graphs carry exactly the trained weights.

@@ -17,6 +17,7 @@
 
 use crate::proto::*;
 use crate::ExportError;
+use nerf_bundle::graph::{CONTRACT_INPUTS, CONTRACT_OUTPUTS, float_initializer};
 use nerf_core::field::mlp::{EncodingSpec, NetworkSpec, PlainNetwork};
 use nerf_core::field::DenseLayer;
 
@@ -27,51 +28,6 @@ pub const OPSETS: std::ops::RangeInclusive<i64> = 17..=23;
 pub const DEFAULT_OPSET: i64 = 17;
 /// Metadata key holding the network description as JSON.
 pub const NETWORK_KEY: &str = "nerf.network";
-
-/// The graph inputs, with their second dimension: `[N, 3]` each.
-pub const CONTRACT_INPUTS: [(&str, i64); 2] = [("points", 3), ("viewdirs", 3)];
-/// The graph outputs, with their second dimension: `rgb [N, 3]`, `sigma [N, 1]`.
-pub const CONTRACT_OUTPUTS: [(&str, i64); 2] = [("rgb", 3), ("sigma", 1)];
-
-/// Check that `model`'s graph has exactly the contract's inputs and outputs: float32, rank 2,
-/// the first dimension dynamic or any size, the second as in [`CONTRACT_INPUTS`] /
-/// [`CONTRACT_OUTPUTS`]. Graphs from other tools pass if they follow it.
-pub fn check_contract(model: &ModelProto) -> Result<(), String> {
-    use tensor_shape_proto::dimension::Value;
-    let graph = model.graph.as_ref().ok_or("the model has no graph")?;
-    let side = |what: &str, values: &[ValueInfoProto], expected: &[(&str, i64)]| -> Result<(), String> {
-        let names: Vec<&str> = values.iter().map(|v| v.name.as_str()).collect();
-        let want: Vec<&str> = expected.iter().map(|(n, _)| *n).collect();
-        let mut sorted = names.clone();
-        sorted.sort();
-        let mut want_sorted = want.clone();
-        want_sorted.sort();
-        if sorted != want_sorted {
-            return Err(format!("graph {what}s are {names:?}, the contract needs {want:?}"));
-        }
-        for (name, cols) in expected {
-            let v = values.iter().find(|v| v.name == *name).expect("names checked");
-            let Some(type_proto::Value::TensorType(t)) = v.r#type.as_ref().and_then(|t| t.value.as_ref()) else {
-                return Err(format!("{what} {name}: not a tensor"));
-            };
-            if t.elem_type != data_type::FLOAT {
-                return Err(format!("{what} {name}: element type {}, the contract needs float32 ({})", t.elem_type, data_type::FLOAT));
-            }
-            let dims: Vec<Option<i64>> = t
-                .shape
-                .as_ref()
-                .map(|s| s.dim.iter().map(|d| match d.value { Some(Value::DimValue(v)) => Some(v), _ => None }).collect())
-                .unwrap_or_default();
-            if dims.len() != 2 || dims[1].is_some_and(|c| c != *cols) {
-                let shown: Vec<String> = dims.iter().map(|d| d.map_or("?".into(), |v| v.to_string())).collect();
-                return Err(format!("{what} {name}: shape [{}], the contract needs [N, {cols}]", shown.join(", ")));
-            }
-        }
-        Ok(())
-    };
-    side("input", &graph.input, &CONTRACT_INPUTS)?;
-    side("output", &graph.output, &CONTRACT_OUTPUTS)
-}
 
 /// The IR version that goes with an opset of the default domain (onnx's VERSION_TABLE).
 pub fn ir_version_for(opset: i64) -> i64 {
@@ -318,6 +274,7 @@ pub fn read_network(model: &ModelProto) -> Result<PlainNetwork, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nerf_bundle::check_contract;
     use prost::Message;
 
     fn random_network(use_viewdirs: bool) -> PlainNetwork {
@@ -386,25 +343,5 @@ mod tests {
         let mut broken = net.clone();
         broken.layers[2].bias.pop();
         assert!(matches!(compile(&broken, "x", 17, &[]), Err(ExportError::Network(_))));
-    }
-}
-
-/// The float initializer `name` of `graph`, checked to have exactly `dims` (raw or typed data).
-pub(crate) fn float_initializer(graph: &GraphProto, name: &str, dims: &[usize]) -> Result<Vec<f32>, String> {
-    let t = graph.initializer.iter().find(|t| t.name == name).ok_or_else(|| format!("initializer {name} is missing"))?;
-    let want: Vec<i64> = dims.iter().map(|&d| d as i64).collect();
-    if t.dims != want || t.data_type != data_type::FLOAT {
-        return Err(format!("initializer {name}: dims {:?} type {}, expected {want:?} float", t.dims, t.data_type));
-    }
-    let n: usize = dims.iter().product();
-    if !t.raw_data.is_empty() {
-        if t.raw_data.len() != 4 * n {
-            return Err(format!("initializer {name}: {} bytes, expected {} (truncated?)", t.raw_data.len(), 4 * n));
-        }
-        Ok(t.raw_data.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
-    } else if t.float_data.len() == n {
-        Ok(t.float_data.clone())
-    } else {
-        Err(format!("initializer {name}: {} values, expected {n} (truncated?)", t.float_data.len()))
     }
 }

@@ -1,6 +1,6 @@
-//! The ONNX compiler: turns plain NeRF networks ([`nerf_core::field::mlp::PlainNetwork`]) into
-//! ONNX graphs written with our own prost messages, and writes scene bundles
-//! (`coarse.onnx`, `fine.onnx`, `scene.json`) that a renderer needs nothing else to use.
+//! The ONNX compiler: turns trained fields as plain data ([`nerf_core::field::PlainField`]) into
+//! ONNX graphs written with our own prost messages ([`nerf_bundle::proto`]), and writes scene
+//! bundles ([`nerf_bundle`]) that a renderer needs nothing else to use.
 //!
 //! It does not depend on burn: any network given as plain data can be compiled. [`import`] reads
 //! models trained elsewhere (nerf-pytorch checkpoints) into bundles.
@@ -11,10 +11,12 @@ pub mod graph;
 pub mod hash_grid;
 pub mod import;
 pub mod ngp;
-pub mod proto;
 
-pub use bundle::{Bundle, NgpBundle, SceneDescription, read_bundle_network, read_occupancy, read_scene, write_bundle, write_ngp_bundle};
-pub use graph::{DEFAULT_OPSET, check_contract, compile, read_network};
+/// The ONNX messages, shared with the bundle reader.
+pub use nerf_bundle::proto;
+
+pub use bundle::{Bundle, default_opset, read_bundle_network, write_bundle};
+pub use graph::{DEFAULT_OPSET, compile, read_network};
 
 /// Why a network could not be compiled or a bundle written.
 #[derive(Debug, thiserror::Error)]

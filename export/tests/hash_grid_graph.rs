@@ -111,7 +111,7 @@ fn field_graph_matches_the_plain_field() {
         .collect();
     let field = PlainNgp { spec, table: grid(spec.grid).params().to_vec(), layers };
     let model = compile_ngp(&field, "field", 18, HashOps::Bitwise, &[]).unwrap();
-    nerf_export::check_contract(&model).unwrap();
+    nerf_bundle::check_contract(&model).unwrap();
     assert!(model.metadata_props.iter().any(|p| p.key == nerf_export::ngp::FIELD_KEY && p.value == "ngp"));
     let mut short = field.clone();
     short.table.pop();

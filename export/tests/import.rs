@@ -2,11 +2,21 @@
 //! at the repository root): both `torch.save` formats read, networks mapped, and the bundle
 //! description taken from args.txt and the dataset.
 
+use nerf_core::field::PlainField;
+use nerf_core::field::mlp::PlainNetwork;
 use nerf_export::import::{NerfPytorchImport, import_nerf_pytorch};
 use std::path::{Path, PathBuf};
 
 fn fixture(path: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/nerf-pytorch").join(path)
+}
+
+/// The coarse and fine networks of an imported field.
+fn networks(field: &PlainField) -> (&PlainNetwork, Option<&PlainNetwork>) {
+    match field {
+        PlainField::Mlp { coarse, fine } => (coarse, fine.as_ref()),
+        other => panic!("nerf-pytorch imports NeRF MLPs, got {:?}", other.kind()),
+    }
 }
 
 fn lego() -> PathBuf {
@@ -21,11 +31,12 @@ fn legacy_coarse_only_checkpoint_without_viewdirs() {
     let imported = import_nerf_pytorch(&opts).unwrap();
     assert_eq!(imported.args_file, fixture("coarse-only/args.txt"), "args.txt beside the checkpoint");
     let b = &imported.bundle;
-    assert!(b.fine.is_none() && b.scene.networks.fine.is_none());
-    let spec = &b.coarse.spec;
+    let (coarse, fine) = networks(&b.field);
+    assert!(fine.is_none());
+    let spec = &coarse.spec;
     assert_eq!((spec.depth, spec.width, spec.use_viewdirs, spec.position_encoding.n_frequencies), (2, 32, false, 6));
     assert!(spec.skips.is_empty());
-    assert_eq!(b.coarse.layers.last().unwrap().name, "output");
+    assert_eq!(coarse.layers.last().unwrap().name, "output");
     let s = &b.scene.sampling;
     assert_eq!((s.near, s.far, s.n_coarse, s.n_fine, s.lindisp), (2.0, 6.0, 24, 0, false));
     assert!(b.scene.white_background);
@@ -39,8 +50,9 @@ fn legacy_coarse_only_checkpoint_without_viewdirs() {
 fn trained_zip_checkpoint_with_differing_coarse_and_fine_networks() {
     let opts = NerfPytorchImport { checkpoint: fixture("trained/001000.tar"), args: None, data: Some(lego()) };
     let b = import_nerf_pytorch(&opts).unwrap().bundle;
-    let fine = b.fine.as_ref().unwrap();
-    assert_eq!((b.coarse.spec.depth, b.coarse.spec.width, b.coarse.spec.skips.clone()), (4, 64, vec![]));
+    let (coarse, fine) = networks(&b.field);
+    let fine = fine.unwrap();
+    assert_eq!((coarse.spec.depth, coarse.spec.width, coarse.spec.skips.clone()), (4, 64, vec![]));
     assert_eq!((fine.spec.depth, fine.spec.width, fine.spec.skips.clone()), (6, 64, vec![4]));
     assert!(fine.spec.use_viewdirs);
     assert_eq!((b.scene.sampling.n_coarse, b.scene.sampling.n_fine), (32, 32));

@@ -1,14 +1,12 @@
-//! One exported network as an onnxruntime session that follows the graph contract
-//! (`nerf_export::graph`): `points`, `viewdirs` `[N, 3]` in; `rgb [N, 3]`, `sigma [N, 1]` out.
+//! One bundle graph as an onnxruntime session that follows the graph contract
+//! ([`nerf_bundle::graph`]): `points`, `viewdirs` `[N, 3]` in; `rgb [N, 3]`, `sigma [N, 1]` out.
 
 use crate::environment::environment;
 use crate::error::{Result, RuntimeError};
 use nerf_core::field::FieldOutput;
-use nerf_export::check_contract;
-use nerf_export::proto::ModelProto;
+use nerf_bundle::graph::{MAX_GRAPH_BYTES, check_contract, check_initializers, decode_model};
 use ort::session::Session;
 use ort::value::TensorRef;
-use prost::Message;
 use std::path::{Path, PathBuf};
 
 /// A graph loaded into onnxruntime.
@@ -25,15 +23,12 @@ impl OrtNetwork {
     /// Load `path`, checking it decodes and follows the contract before onnxruntime sees it.
     /// `threads`: onnxruntime's intra-op threads (`None`: one per core).
     pub fn load(path: &Path, threads: Option<usize>) -> Result<Self> {
-        let bytes = nerf_core::io::limits::read_bounded(path, nerf_export::bundle::MAX_GRAPH_BYTES)
+        let bytes = nerf_core::io::limits::read_bounded(path, MAX_GRAPH_BYTES)
             .map_err(|e| RuntimeError::bundle(path, format!("cannot read the graph: {e}")))?;
-        let model = ModelProto::decode(bytes.as_slice())
-            .map_err(|e| RuntimeError::bundle(path, format!("not a valid ONNX file (truncated?): {e}")))?;
+        let model = decode_model(path, &bytes)?;
         check_contract(&model).map_err(|e| RuntimeError::bundle(path, e))?;
-        if nerf_export::ngp::is_ngp(&model) {
-            // Check the table and layers against the spec before onnxruntime indexes into them.
-            nerf_export::ngp::read_ngp(&model).map_err(|e| RuntimeError::bundle(path, e))?;
-        }
+        // Tables and weights the size their shapes say, before onnxruntime indexes into them.
+        check_initializers(&model).map_err(|e| RuntimeError::bundle(path, e))?;
         let ort_err = |e: &dyn std::fmt::Display| RuntimeError::Ort { path: path.to_path_buf(), message: e.to_string() };
         let mut builder = Session::builder(environment()?).map_err(|e| ort_err(&e))?;
         if let Some(n) = threads {

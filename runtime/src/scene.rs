@@ -7,10 +7,9 @@ use crate::network::OrtNetwork;
 use nerf_core::PinholeCamera;
 use nerf_core::camera::Pose;
 use nerf_core::io::limits::{self, Origin};
-use nerf_core::field::FieldKind;
-use nerf_core::sample::occupancy::OccupancyGrid;
+use nerf_core::sample::occupancy::{OccupancyGrid, marching_grid};
 use nerf_core::render::{RenderOptions, RenderedImage, render_image};
-use nerf_export::bundle::{SCENE_FILE, SceneDescription, bundle_file, read_occupancy, read_scene};
+use nerf_bundle::{SCENE_FILE, SceneDescription, bundle_file, read_occupancy, read_scene};
 use std::path::{Path, PathBuf};
 
 /// Default rays per onnxruntime call: 1024 rays × 192 samples ≈ 200k points per fine call,
@@ -62,22 +61,19 @@ impl OrtScene {
         if let Some(n) = options.threads {
             limits::check_count(n, limits::MAX_THREADS, "threads", Origin::Option("--threads"))?;
         }
-        let coarse = OrtNetwork::load(&bundle_file(dir, &description.networks.coarse, "networks.coarse")?, options.threads)?;
-        let fine = match &description.networks.fine {
-            Some(file) => Some(OrtNetwork::load(&bundle_file(dir, file, "networks.fine")?, options.threads)?),
-            None => None,
-        };
-        let mut occupancy = if options.skip_empty_space { read_occupancy(dir, &description)? } else { None };
-        if description.field == FieldKind::Ngp && occupancy.is_none() {
-            // A hash-grid field is defined inside its box only: without skipping, march the
-            // whole box (one occupied cell of the grid's extent).
-            let bound = description.occupancy.as_ref().map_or(1.5, |o| o.bound);
-            occupancy = Some(OccupancyGrid::whole_cube(bound));
-        }
+        let graphs = description
+            .graph_files()
+            .iter()
+            .map(|g| Ok((g.role, OrtNetwork::load(&bundle_file(dir, g.file, g.key)?, options.threads)?)))
+            .collect::<Result<Vec<_>>>()?;
+        let occupancy = if options.skip_empty_space { read_occupancy(dir, &description)? } else { None };
+        // A bounded field's box is its grid's (scene.json checks it has one).
+        let bounded = description.field.bounded().then(|| description.occupancy.as_ref().map(|o| o.bound)).flatten();
+        let occupancy = marching_grid(occupancy, bounded);
         let mut render_options =
             RenderOptions::new(description.sampling.clone(), description.white_background, options.chunk, options.skip_empty_space);
         render_options.march_steps = description.march_steps;
-        Ok(OrtScene { dir: dir.to_path_buf(), description, field: OrtField { coarse, fine }, occupancy, options: render_options })
+        Ok(OrtScene { dir: dir.to_path_buf(), description, field: OrtField { graphs }, occupancy, options: render_options })
     }
 
     /// The training camera, optionally at another resolution (focal lengths and principal

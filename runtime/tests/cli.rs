@@ -1,7 +1,7 @@
 //! `nerf-render` end to end on the bundle shipped in `models/spheres`: outputs, the Python
 //! consumer's agreement, and clear errors (never a panic) for broken bundles.
 
-use nerf_export::proto::ModelProto;
+use nerf_bundle::proto::ModelProto;
 use prost::Message;
 use serde_json::json;
 use std::path::{Path, PathBuf};
@@ -309,5 +309,5 @@ fn python_limits_match_the_core() {
     assert_eq!(value("MAX_SAMPLES_PER_RAY"), MAX_SAMPLES_PER_RAY as u64);
     assert_eq!(value("MAX_GRID_RESOLUTION"), MAX_GRID_RESOLUTION as u64);
     assert_eq!(value("MAX_JSON_BYTES"), MAX_JSON_BYTES);
-    assert_eq!(value("MAX_GRAPH_BYTES"), nerf_export::bundle::MAX_GRAPH_BYTES);
+    assert_eq!(value("MAX_GRAPH_BYTES"), nerf_bundle::graph::MAX_GRAPH_BYTES);
 }

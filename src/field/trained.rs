@@ -6,9 +6,9 @@ use crate::inference::{BurnField, BurnNgpField};
 use burn::tensor::Device;
 use nerf_core::PinholeCamera;
 use nerf_core::camera::Pose;
-use nerf_core::field::FieldKind;
-use nerf_core::sample::occupancy::OccupancyGrid;
+use nerf_core::field::{FieldKind, PlainField};
 use nerf_core::render::{RenderOptions, RenderedImage, render_image};
+use nerf_core::sample::occupancy::{OccupancyGrid, marching_grid};
 
 /// The networks of a run, by [`FieldKind`].
 #[derive(Debug)]
@@ -36,6 +36,24 @@ impl TrainedField {
         }
     }
 
+    /// The field as plain data, for the ONNX compiler.
+    pub fn to_plain(&self) -> PlainField {
+        match self {
+            TrainedField::Mlp(model) => PlainField::Mlp { coarse: model.coarse.to_plain(), fine: model.fine.as_ref().map(|f| f.to_plain()) },
+            TrainedField::Ngp(field) => PlainField::Ngp(field.to_plain()),
+        }
+    }
+
+    /// The grid the field is marched through (see [`marching_grid`]): `occupancy`, or for a
+    /// bounded kind its whole box.
+    pub fn marching_grid(&self, occupancy: Option<OccupancyGrid>) -> Option<OccupancyGrid> {
+        let bounded = match self {
+            TrainedField::Mlp(_) => None,
+            TrainedField::Ngp(field) => Some(field.box_half_size()),
+        };
+        marching_grid(occupancy, bounded)
+    }
+
     /// Render one view deterministically through the shared renderer (`device` runs the MLPs).
     pub fn render(
         &self,
@@ -47,14 +65,14 @@ impl TrainedField {
         progress: &mut dyn FnMut(usize, usize),
     ) -> RenderedImage {
         let device = device.clone();
+        let grid = match occupancy {
+            Some(grid) => Some(std::borrow::Cow::Borrowed(grid)),
+            None => self.marching_grid(None).map(std::borrow::Cow::Owned),
+        };
+        let grid = grid.as_deref();
         let Ok(image) = match self {
-            TrainedField::Mlp(model) => render_image(&mut BurnField { model, device }, occupancy, camera, pose, options, progress),
-            TrainedField::Ngp(field) => {
-                // The field is only defined inside its box: without a grid, march the whole box.
-                let whole_box = field.whole_box();
-                let grid = occupancy.unwrap_or(&whole_box);
-                render_image(&mut BurnNgpField { field, device }, Some(grid), camera, pose, options, progress)
-            }
+            TrainedField::Mlp(model) => render_image(&mut BurnField { model, device }, grid, camera, pose, options, progress),
+            TrainedField::Ngp(field) => render_image(&mut BurnNgpField { field, device }, grid, camera, pose, options, progress),
         };
         image
     }

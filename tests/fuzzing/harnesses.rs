@@ -11,8 +11,9 @@ use nerf_core::dataset::{
 };
 use nerf_core::io::image::{load_rgba, save_gif};
 use nerf_core::sample::occupancy::FILE_NAME as OCCUPANCY_FILE;
-use nerf_export::bundle::{read_model, read_scene};
-use nerf_export::{check_contract, read_bundle_network, read_occupancy};
+use nerf_bundle::{read_model, read_scene};
+use nerf_bundle::graph::check_initializers;
+use nerf_bundle::{check_contract, read_occupancy};
 use std::path::{Path, PathBuf};
 
 /// Every harness, in the order they run.
@@ -276,15 +277,15 @@ fn checkpoint_optim(work: &Path) -> Result<Box<dyn Harness>, String> {
 }
 
 /// Reads a bundle as `nerf-render` does before onnxruntime sees it: `scene.json`, the grid,
-/// and each graph decoded, contract-checked and read back as a network.
+/// and each graph decoded, contract-checked and its initializers sized as their shapes say.
 fn read_bundle(dir: &Path) -> Result<(), String> {
     let read = || -> nerf_core::Result<()> {
         let scene = read_scene(dir)?;
         read_occupancy(dir, &scene)?;
-        for file in std::iter::once(&scene.networks.coarse).chain(&scene.networks.fine) {
-            let path = dir.join(file);
-            check_contract(&read_model(&path)?).map_err(|e| nerf_core::Error::invalid(&path, e))?;
-            read_bundle_network(dir, file)?;
+        for g in scene.graph_files() {
+            let path = nerf_bundle::bundle_file(dir, g.file, g.key)?;
+            let model = read_model(&path)?;
+            check_contract(&model).and_then(|()| check_initializers(&model)).map_err(|e| nerf_core::Error::invalid(&path, e))?;
         }
         Ok(())
     };
@@ -293,7 +294,7 @@ fn read_bundle(dir: &Path) -> Result<(), String> {
 
 fn scene(work: &Path) -> Result<Box<dyn Harness>, String> {
     let bundle = exported_bundle(work)?;
-    let target = bundle.join(nerf_export::bundle::SCENE_FILE);
+    let target = bundle.join(nerf_bundle::SCENE_FILE);
     let seeds = vec![read(&target)?];
     Ok(boxed(target, seeds, Format::Json, move || read_bundle(&bundle)))
 }

@@ -93,7 +93,8 @@ def main():
             references = json.load(f)
     with open(os.path.join(bundle, "scene.json")) as f:
         scene = json.load(f)
-    for stage, file in scene["networks"].items():
+    # Graphs by role ("graphs"), or nerf-rs-scene-1's "networks".
+    for stage, file in (scene.get("graphs") or scene["networks"]).items():
         if file is not None:
             check_graph(os.path.join(bundle, file), references.get(stage))
 

@@ -26,6 +26,9 @@ With occupancy.bin (nerf-render's default; --dense turns it off) rays are marche
             each middle, only samples in occupied cells evaluated (fine network), delta =
             interval·|d|, front to back in segments of 16 per ray, a ray stops after the segment
             where its transmittance falls below 1e-4.
+scene.json names the graphs by role: "graphs" {"field": ...} (one graph for every sample) or
+{"coarse": ..., "fine": ...}; bundles of format nerf-rs-scene-1 name them under "networks"
+(a hash-grid field's as "networks.coarse").
 A hash-grid bundle (scene.json "field": "ngp") has one graph, field.onnx, and is always marched:
 with --dense through one occupied cell covering the grid's cube (the field is only defined there).
 The .npy written by `nerf-render --npy` is float32 [H, W, 5]: r, g, b, depth, acc.
@@ -113,6 +116,18 @@ def check_scene(scene, where):
         raise BundleError(f"{where}: occupancy.resolution: {occ['resolution']} cells per axis is outside 1..{MAX_GRID_RESOLUTION}")
 
 
+def graph_files(scene):
+    """{role: (scene.json key, file)}: "graphs" by role, or nerf-rs-scene-1's "networks"."""
+    if scene.get("graphs"):
+        return {role: (f"graphs.{role}", name) for role, name in scene["graphs"].items()}
+    nets = scene["networks"]
+    first = "field" if scene.get("field", "mlp") == "ngp" else "coarse"
+    files = {first: ("networks.coarse", nets["coarse"])}
+    if nets.get("fine"):
+        files["fine"] = ("networks.fine", nets["fine"])
+    return files
+
+
 def read_grid(path):
     """occupancy.bin: the header (resolution checked against the limit) before the cells."""
     with open(path, "rb") as f:
@@ -139,15 +154,17 @@ class Bundle:
             check_scene(self.scene, where)
         except (KeyError, TypeError, ValueError) as e:
             raise BundleError(f"{where}: missing or malformed field: {e!r}") from e
-        nets = self.scene["networks"]
         opts = ort.SessionOptions()
 
-        def session(field, name):
-            graph = bounded_file(bundle_file(path, name, field), MAX_GRAPH_BYTES)
+        def session(key, name):
+            graph = bounded_file(bundle_file(path, name, key), MAX_GRAPH_BYTES)
             return ort.InferenceSession(graph, opts, providers=["CPUExecutionProvider"])
 
-        self.coarse = session("networks.coarse", nets["coarse"])
-        self.fine = session("networks.fine", nets["fine"]) if nets.get("fine") else None
+        graphs = graph_files(self.scene)
+        # One graph for the whole field serves both stages.
+        coarse = graphs.get("field") or graphs["coarse"]
+        self.coarse = session(*coarse)
+        self.fine = session(*graphs["fine"]) if "fine" in graphs else None
         self.occupied = None
         occ = self.scene.get("occupancy")
         if occ and not dense:

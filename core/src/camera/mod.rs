@@ -23,7 +23,7 @@ pub mod transform;
 
 pub use intrinsics::Intrinsics;
 pub use pinhole::{OpenCvDistortion, PinholeCamera, PixelCenter};
-pub use pose::{Pose, length, point_at};
+pub use pose::{ORBIT_FRAMES, Pose, length, point_at};
 pub use rays::Rays;
 pub use transform::SceneTransform;
 

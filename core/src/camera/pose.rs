@@ -5,6 +5,9 @@ use serde::{Deserialize, Serialize};
 
 use super::pinhole::PinholeCamera;
 
+/// Frames of the orbit a bundle stores and `nerf demo` renders.
+pub const ORBIT_FRAMES: usize = 40;
+
 /// A camera-to-world transform: rotation columns are the camera axes in world space, the last
 /// column is the camera centre. Stored as the top 3×4 of the 4×4 matrix, row-major.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

@@ -1,17 +1,20 @@
-//! The kinds of radiance field.
+//! The kinds of radiance field, and the roles their graphs play in a bundle.
 
 use serde::{Deserialize, Serialize};
 
-/// Which kind of radiance field a run trains and a bundle holds: the one description the
-/// training config, checkpoints, graph metadata (`nerf.field`) and `scene.json` carry.
+use super::eval::Stage;
+
+/// Which kind of radiance field a run trains and a bundle holds: the one name the training
+/// config, checkpoints, graph metadata (`nerf.field`) and `scene.json` carry. What differs
+/// between kinds is asked of it here, so no consumer matches on it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum FieldKind {
-    /// The NeRF MLPs (coarse and fine, positional encoding; [`NetworkSpec`]).
+    /// The NeRF MLPs (coarse and fine, positional encoding; [`super::mlp`]).
     #[default]
     Mlp,
-    /// The instant-ngp field (hash grid and tiny MLPs; [`crate::field::ngp::NgpSpec`]), rendered by
-    /// marching through the occupancy grid.
+    /// The instant-ngp field (hash grid and tiny MLPs; [`super::ngp`]), defined inside its box
+    /// only and always marched.
     Ngp,
 }
 
@@ -21,6 +24,54 @@ impl FieldKind {
         match self {
             FieldKind::Mlp => "mlp",
             FieldKind::Ngp => "ngp",
+        }
+    }
+
+    /// The graphs a bundle of this kind holds, by role (`hierarchical`: with a fine network).
+    pub fn roles(self, hierarchical: bool) -> &'static [Role] {
+        match (self, hierarchical) {
+            (FieldKind::Mlp, false) => &[Role::Coarse],
+            (FieldKind::Mlp, true) => &[Role::Coarse, Role::Fine],
+            (FieldKind::Ngp, _) => &[Role::Field],
+        }
+    }
+
+    /// Whether the field is defined inside its box only: it is then always marched, through
+    /// the whole box when there is no occupancy grid ([`crate::sample::occupancy::marching_grid`]).
+    pub fn bounded(self) -> bool {
+        self == FieldKind::Ngp
+    }
+}
+
+/// What one graph of a bundle evaluates: the whole field, or one stage of the hierarchical
+/// sampler. Bundle files are named after it (`field.onnx`, `coarse.onnx`, `fine.onnx`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Role {
+    /// The whole field, whatever the stage.
+    Field,
+    /// The coarse network, on the stratified samples.
+    Coarse,
+    /// The fine network, on coarse ∪ importance samples.
+    Fine,
+}
+
+impl Role {
+    /// The role as written in `scene.json` and in file names.
+    pub fn name(self) -> &'static str {
+        match self {
+            Role::Field => "field",
+            Role::Coarse => "coarse",
+            Role::Fine => "fine",
+        }
+    }
+
+    /// Whether this graph answers for `stage`.
+    pub fn serves(self, stage: Stage) -> bool {
+        match self {
+            Role::Field => true,
+            Role::Coarse => stage == Stage::Coarse,
+            Role::Fine => stage == Stage::Fine,
         }
     }
 }

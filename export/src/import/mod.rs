@@ -13,19 +13,19 @@ pub mod args;
 pub mod checkpoint;
 
 use crate::ExportError;
-use crate::bundle::{Bundle, NamedPose, SceneDescription, pose_matrix};
+use crate::bundle::Bundle;
+use nerf_bundle::scene::{NamedPose, SceneDescription, pose_matrix};
+use nerf_core::field::{FieldKind, PlainField};
 use args::NerfPytorchArgs;
 use checkpoint::{ExpectedNetwork, MappingError, read_checkpoint, to_plain_network};
 use nerf_core::PinholeCamera;
-use nerf_core::camera::Pose;
+use nerf_core::camera::{ORBIT_FRAMES, Pose};
 use nerf_core::dataset::{CameraPath, CaptureFormat, ScenePlacement, Split, SpiralPath, load_llff_images, load_split};
 use nerf_core::camera::ndc::Ndc;
-use nerf_core::field::mlp::{EncodingSpec, PlainNetwork};
+use nerf_core::field::mlp::EncodingSpec;
 use nerf_core::sample::stratified::SamplingConfig;
 use std::path::{Path, PathBuf};
 
-/// Orbit frames stored in `scene.json` (as `nerf export` stores).
-pub const ORBIT_FRAMES: usize = 40;
 /// nerf-pytorch's near and far bounds for Blender scenes.
 pub const BLENDER_NEAR_FAR: (f32, f32) = (2.0, 6.0);
 
@@ -141,14 +141,14 @@ fn find_data(explicit: Option<&Path>, args: &NerfPytorchArgs) -> Result<PathBuf,
 
 /// The scene of a Blender run: nerf-pytorch's near/far 2, 6, the test split's camera (halved
 /// with `half_res`) and poses, the reference orbit.
-fn blender_scene(data: &Path, args: &NerfPytorchArgs, coarse: &PlainNetwork, has_fine: bool) -> Result<SceneDescription, ImportError> {
+fn blender_scene(data: &Path, args: &NerfPytorchArgs) -> Result<SceneDescription, ImportError> {
     // nerf-pytorch halves the images (and the focal) with half_res.
     let downscale = if args.half_res { 2 } else { 1 };
     let test = load_split(data, Split::Test, downscale, false).map_err(|e| ImportError::Data(e.to_string()))?;
     let camera: PinholeCamera = test.camera().ok_or_else(|| ImportError::Data(format!("{}: the test split has no views", data.display())))?;
     let (near, far) = BLENDER_NEAR_FAR;
     let sampling = SamplingConfig { near, far, n_coarse: args.n_samples, n_fine: args.n_importance, lindisp: args.lindisp, ndc: None };
-    let mut scene = SceneDescription::new(&camera, &sampling, args.white_bkgd, coarse, has_fine);
+    let mut scene = SceneDescription::new(&camera, &sampling, args.white_bkgd, FieldKind::Mlp, nerf_core::render::DEFAULT_MARCH_STEPS);
     scene.poses.orbit = Pose::orbit(ORBIT_FRAMES).iter().map(pose_matrix).collect();
     scene.poses.test = test.views.iter().map(|v| NamedPose { name: v.name.clone(), transform_matrix: pose_matrix(&v.pose) }).collect();
     Ok(scene)
@@ -159,7 +159,7 @@ fn blender_scene(data: &Path, args: &NerfPytorchArgs, coarse: &PlainNetwork, has
 /// (else `images/`), poses recentred and scaled, NDC rays with near plane 1 over t in [0, 1]
 /// (lindisp ignored, as nerf-pytorch ignores it there) or, with `no_ndc`, near/far = 0.9 · the
 /// smallest bound and the largest; test views every `llffhold`-th image; the spiral path.
-fn llff_scene(data: &Path, args: &NerfPytorchArgs, coarse: &PlainNetwork, has_fine: bool) -> Result<SceneDescription, ImportError> {
+fn llff_scene(data: &Path, args: &NerfPytorchArgs) -> Result<SceneDescription, ImportError> {
     let factored = format!("images_{}", args.factor);
     let images = if args.factor > 1 && data.join(&factored).is_dir() { factored.as_str() } else { "images" };
     let capture = load_llff_images(data, images).map_err(|e| ImportError::Data(e.to_string()))?;
@@ -167,7 +167,7 @@ fn llff_scene(data: &Path, args: &NerfPytorchArgs, coarse: &PlainNetwork, has_fi
     let bounds = capture.near_far.ok_or_else(|| ImportError::Data(format!("{}: no depth bounds", capture.source.display())))?;
     let (near, far, ndc, lindisp) = if args.no_ndc { (bounds.0, bounds.1, None, args.lindisp) } else { (0.0, 1.0, Some(Ndc::for_camera(&camera, 1.0)), false) };
     let sampling = SamplingConfig { near, far, n_coarse: args.n_samples, n_fine: args.n_importance, lindisp, ndc };
-    let mut scene = SceneDescription::new(&camera, &sampling, args.white_bkgd, coarse, has_fine);
+    let mut scene = SceneDescription::new(&camera, &sampling, args.white_bkgd, FieldKind::Mlp, nerf_core::render::DEFAULT_MARCH_STEPS);
     let spiral = SpiralPath::around(&capture.poses(), bounds.0, bounds.1).map(CameraPath::Spiral);
     scene.poses.orbit = spiral.map(|p| p.poses(ORBIT_FRAMES)).unwrap_or_default().iter().map(pose_matrix).collect();
     // nerf-pytorch's i_test = np.arange(N)[::llffhold].
@@ -220,8 +220,8 @@ pub fn import_nerf_pytorch(opts: &NerfPytorchImport) -> Result<Imported, ImportE
 
     let data = find_data(opts.data.as_deref(), &args)?;
     let scene = match args.dataset_type.as_str() {
-        "llff" => llff_scene(&data, &args, &coarse, fine.is_some())?,
-        _ => blender_scene(&data, &args, &coarse, fine.is_some())?,
+        "llff" => llff_scene(&data, &args)?,
+        _ => blender_scene(&data, &args)?,
     };
-    Ok(Imported { bundle: Bundle { coarse, fine, scene, occupancy: None }, args_file, data, args })
+    Ok(Imported { bundle: Bundle { field: PlainField::Mlp { coarse, fine }, scene, occupancy: None }, args_file, data, args })
 }

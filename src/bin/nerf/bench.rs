@@ -5,7 +5,8 @@
 use super::BenchPart;
 use anyhow::{Result, bail};
 use nerf::bench::{FrameBench, MlpBench, best_of, bench_view, burn_frame, paper_model, paper_network, random_points, timed_frame};
-use nerf::export::model_bundle;
+use nerf::export::field_bundle;
+use nerf::field::TrainedField;
 use nerf::train::Preset;
 use nerf_core::dataset::{Split, load_split};
 use nerf::field::ngp::throughput::{SampleOrder, measure_throughput};
@@ -184,14 +185,15 @@ fn bench_frames(data: Option<&Path>, sizes: &[u32], chunk: usize, progress: bool
     let (config, _, _, model) = paper_model(chunk)?;
     let dir = tempfile::tempdir()?;
     let bundle = dir.path().join("bundle");
-    write_bundle(&bundle, &model_bundle(&model, &config, &camera, None), nerf_export::DEFAULT_OPSET)?;
+    let field = TrainedField::Mlp(model);
+    write_bundle(&bundle, &field_bundle(&field, &config, &camera, None), None)?;
     let options = OpenOptions { threads: None, chunk, skip_empty_space: false };
     let mut scene = OrtScene::open(&bundle, &options)?;
     let samples = format!("{} + {}", config.sampling.n_coarse, config.sampling.n_fine);
     let mut out = Vec::new();
     for &size in sizes {
         let k = camera.resized(size, size);
-        let (burn, burn_s) = burn_frame(&model, &config, &k, &pose, progress);
+        let (burn, burn_s) = burn_frame(&field, &config, &k, &pose, progress);
         let (ort, ort_s) = timed_frame(progress, &format!("onnxruntime {size}×{size}"), k.num_pixels(), |p| scene.render(&k, &pose, p));
         let ort = ort?;
         for (backend, seconds, psnr_vs_burn_db) in [("burn", burn_s, f32::INFINITY), ("onnxruntime", ort_s, psnr(&ort.rays.rgb, &burn.rays.rgb))] {
@@ -252,8 +254,7 @@ fn bench_skipping(bundle: &Path, data: &Path, downscale: u32, views: usize, samp
             db += psnr(&image.rays.rgb, view.image.as_ref().expect("loaded with images"));
         }
         let n = val.views.len();
-        let f = &scene.field;
-        let points = f.coarse.evaluated + f.fine.as_ref().map_or(0, |n| n.evaluated);
+        let points: usize = scene.field.graphs.iter().map(|(_, net)| net.evaluated).sum();
         let pixels: usize = val.views.iter().map(|v| v.camera.num_pixels()).sum();
         Ok((seconds / n as f64, db / n as f32, points as f64 / pixels as f64))
     };
@@ -318,7 +319,7 @@ fn bench_ngp_render(bundle: Option<&Path>, steps: usize, data: &Path, progress: 
     let k = view.camera;
     let (image, seconds) = timed_frame(progress, "ngp frame", k.num_pixels(), |p| scene.render(&k, &view.pose, p));
     let image = image?;
-    let net = &scene.field.coarse;
+    let net = &scene.field.graphs[0].1;
     let bundle_bytes: u64 = std::fs::read_dir(&bundle)?.filter_map(|e| e.ok()?.metadata().ok()).map(|m| m.len()).sum();
     Ok(NgpRenderBench {
         bundle: bundle.display().to_string(),

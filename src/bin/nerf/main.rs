@@ -287,13 +287,14 @@ fn main() -> Result<()> {
             let opts = nerf_export::import::NerfPytorchImport { checkpoint, args, data };
             let imported = nerf_export::import::import_nerf_pytorch(&opts)?;
             let b = &imported.bundle;
-            let shape = |n: &nerf_core::field::mlp::PlainNetwork| format!("{}×{}", n.spec.depth, n.spec.width);
+            let a = &imported.args;
+            let fine = if a.n_importance > 0 { format!("{}×{}", a.netdepth_fine, a.netwidth_fine) } else { "none".into() };
             let (s, k) = (&b.scene.sampling, &b.scene.camera.camera);
             println!(
                 "nerf-pytorch run ({}): coarse {}, fine {}, {} + {} samples; camera {}×{}, focal {:.2}, {} test poses from {}",
                 imported.args_file.display(),
-                shape(&b.coarse),
-                b.fine.as_ref().map(shape).unwrap_or_else(|| "none".into()),
+                format!("{}×{}", a.netdepth, a.netwidth),
+                fine,
                 s.n_coarse,
                 s.n_fine,
                 k.width,
@@ -302,7 +303,7 @@ fn main() -> Result<()> {
                 b.scene.poses.test.len(),
                 imported.data.display()
             );
-            for f in nerf_export::write_bundle(&out, b, opset)? {
+            for f in nerf_export::write_bundle(&out, b, Some(opset))? {
                 println!("{:>10} bytes  {}", f.bytes, f.path.display());
             }
         }

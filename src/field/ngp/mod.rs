@@ -139,12 +139,10 @@ impl NgpField {
         self.mlps.density(features).into_data().try_to_vec::<f32>().expect("f32 densities")
     }
 
-    /// An occupancy grid of one occupied cell over the field's box: marching through it
-    /// evaluates every interval inside the box (the field is undefined outside).
-    pub fn whole_box(&self) -> nerf_core::sample::occupancy::OccupancyGrid {
+    /// Half the side of the cube the field is defined in (its box, centred or not, lies inside).
+    pub fn box_half_size(&self) -> f32 {
         let b = &self.spec.bound;
-        let half = (0..3).map(|k| b.max[k].abs().max(b.min[k].abs())).fold(0.0f32, f32::max);
-        nerf_core::sample::occupancy::OccupancyGrid::whole_cube(half)
+        (0..3).map(|k| b.max[k].abs().max(b.min[k].abs())).fold(0.0f32, f32::max)
     }
 
     /// [`forward`](Self::forward) on an autodiff device, the grid features a leaf that requires a

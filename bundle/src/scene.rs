@@ -1,0 +1,322 @@
+//! `scene.json`: everything a renderer needs besides the graphs, and the checks a reader makes
+//! before it allocates or opens anything.
+
+use nerf_core::PinholeCamera;
+use nerf_core::camera::Pose;
+use nerf_core::dataset::ScenePlacement;
+use nerf_core::field::mlp::EncodingSpec;
+use nerf_core::field::{FieldKind, Role};
+use nerf_core::io::limits::{self, MAX_FRAMES, Origin};
+use nerf_core::sample::SamplingConfig;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::Path;
+
+/// The `format` of the `scene.json` this version writes.
+pub const SCENE_FORMAT: &str = "nerf-rs-scene-2";
+/// Earlier `scene.json` formats this version still reads: `nerf-rs-scene-1` names the graphs
+/// under `networks` (a hash-grid field's as `networks.coarse`) and repeats NDC in the placement.
+pub const READ_FORMATS: [&str; 2] = ["nerf-rs-scene-1", SCENE_FORMAT];
+/// The scene description's file name.
+pub const SCENE_FILE: &str = "scene.json";
+/// The camera convention, spelled out for readers of `scene.json`.
+pub const CAMERA_CONVENTION: &str = "OpenGL camera-to-world (Blender/NeRF): +x right, +y up, the camera looks along -z; \
+     ray through pixel (i, j): o = 0.5 if pixel_center is half_pixel else 0, (xd, yd) = ((i + o - cx)/fx, (j + o - cy)/fy), \
+     (x, y) = (xd, yd) with OpenCV distortion (k1, k2, p1, p2) undone (Newton's method), \
+     d = c2w[:3,:3] @ (x, -y, -1), not normalised; origin c2w[:3,3]; samples at t in [near, far] along d; viewdirs = d/|d|; \
+     with sampling.ndc {width, height, fx, fy, near} the rays are first warped as nerf-pytorch's ndc_rays \
+     (t0 = -(near + o_z)/d_z, o += t0·d, o' = (-2fx/W·o_x/o_z, -2fy/H·o_y/o_z, 1 + 2near/o_z), \
+     d' = (-2fx/W·(d_x/d_z - o_x/o_z), -2fy/H·(d_y/d_z - o_y/o_z), -2near/o_z)) and samples lie along (o', d'), \
+     while viewdirs stay the world d/|d|";
+
+/// Everything a renderer needs besides the networks (`scene.json`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SceneDescription {
+    /// [`SCENE_FORMAT`].
+    pub format: String,
+    /// The training camera.
+    pub camera: CameraDescription,
+    /// Near/far, samples per ray, lindisp.
+    pub sampling: SamplingConfig,
+    /// Composite over white: `rgb + (1 − acc)`.
+    pub white_background: bool,
+    /// What the graphs hold: `mlp` (coarse/fine NeRF networks, sampled densely or marched)
+    /// or `ngp` (one hash-grid field graph, only ever marched through the occupancy grid: the
+    /// field is defined inside the grid's box alone). Absent: `mlp`.
+    #[serde(default)]
+    pub field: FieldKind,
+    /// Positional encoding of points (inside the graphs; stated for other implementations;
+    /// absent for `ngp`, whose encoding is the hash grid in the graph's metadata `nerf.ngp`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub position_encoding: Option<EncodingDescription>,
+    /// Positional encoding of view directions (absent for `ngp`: spherical harmonics of
+    /// degree 4 inside the graph).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub direction_encoding: Option<EncodingDescription>,
+    /// Marching: equal intervals over [near, far], a sample at each middle where the occupancy
+    /// grid is occupied. Absent: 256.
+    #[serde(default = "default_march_steps")]
+    pub march_steps: usize,
+    /// Graph files by role (`field`, or `coarse` and `fine`), relative to the bundle.
+    #[serde(default)]
+    pub graphs: BTreeMap<Role, String>,
+    /// `nerf-rs-scene-1`'s graph files (`coarse`, `fine`; a hash-grid field's in `coarse`),
+    /// read as [`graphs`](Self::graphs) by [`SceneDescription::graph_files`]; never written.
+    #[serde(default, skip_serializing)]
+    pub networks: Option<NetworkFiles>,
+    /// Camera-to-world poses to render.
+    pub poses: ScenePoses,
+    /// The occupancy grid for empty-space skipping (format in [`nerf_core::sample::occupancy`]);
+    /// renderers without it sample densely.
+    #[serde(default)]
+    pub occupancy: Option<OccupancyDescription>,
+    /// For a captured scene: its format, the transform from the capture's world into the
+    /// field's frame that every pose here already went through (apply it to poses of the
+    /// capture's own files: `x' = scale · (rotation · x + translation)`), near/far and the
+    /// orbit path. Absent for Blender scenes, which are used as they are. NDC is stated once,
+    /// in `sampling.ndc`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub placement: Option<ScenePlacement>,
+}
+
+/// Where the occupancy grid is and what it covers (also in the file's header).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct OccupancyDescription {
+    /// The grid file, relative to the bundle (`occupancy.bin`).
+    pub file: String,
+    /// Cells per axis.
+    pub resolution: usize,
+    /// The grid covers [−bound, bound]³.
+    pub bound: f32,
+}
+
+/// The training camera (the full pinhole model; bundles written before it carry `focal`
+/// alone, read as the Blender camera) and the convention rays follow.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CameraDescription {
+    /// Size, focal lengths, principal point, pixel centres, distortion.
+    #[serde(flatten)]
+    pub camera: PinholeCamera,
+    /// [`CAMERA_CONVENTION`].
+    pub convention: String,
+}
+
+impl CameraDescription {
+    /// `camera` with today's convention.
+    pub fn new(camera: &PinholeCamera) -> Self {
+        CameraDescription { camera: *camera, convention: CAMERA_CONVENTION.into() }
+    }
+}
+
+/// An encoding `[x, sin(f x), cos(f x) for f in frequencies]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EncodingDescription {
+    /// Number of frequencies L.
+    pub n_frequencies: usize,
+    /// Whether x itself comes first.
+    pub include_input: bool,
+    /// The frequencies 2ᵏ, k < L.
+    pub frequencies: Vec<f32>,
+    /// Values per 3-vector.
+    pub output_dim: usize,
+}
+
+impl From<&EncodingSpec> for EncodingDescription {
+    fn from(e: &EncodingSpec) -> Self {
+        EncodingDescription {
+            n_frequencies: e.n_frequencies,
+            include_input: e.include_input,
+            frequencies: e.frequencies(),
+            output_dim: e.output_dim(),
+        }
+    }
+}
+
+/// `nerf-rs-scene-1`'s graph files.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NetworkFiles {
+    /// The coarse network (stratified samples).
+    pub coarse: String,
+    /// The fine network (all samples); absent when the scene has none.
+    pub fine: Option<String>,
+}
+
+/// Poses as row-major 4×4 camera-to-world matrices (the Blender `transform_matrix`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct ScenePoses {
+    /// The dataset's test views, when the export knew the dataset.
+    pub test: Vec<NamedPose>,
+    /// The reference 360° orbit (radius 4, elevation −30°).
+    pub orbit: Vec<[[f32; 4]; 4]>,
+}
+
+/// A dataset view's pose.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NamedPose {
+    /// Image name (`r_0`).
+    pub name: String,
+    /// Camera-to-world, row-major 4×4.
+    pub transform_matrix: [[f32; 4]; 4],
+}
+
+/// A pose as a 4×4 row-major matrix.
+pub fn pose_matrix(p: &Pose) -> [[f32; 4]; 4] {
+    [p.0[0], p.0[1], p.0[2], [0.0, 0.0, 0.0, 1.0]]
+}
+
+impl SceneDescription {
+    /// A description of a `kind` field trained with `sampling` on images from `camera`, no graphs
+    /// yet ([`crate::write_bundle`] names them), no poses.
+    pub fn new(camera: &PinholeCamera, sampling: &SamplingConfig, white_background: bool, kind: FieldKind, march_steps: usize) -> Self {
+        SceneDescription {
+            format: SCENE_FORMAT.into(),
+            camera: CameraDescription::new(camera),
+            sampling: sampling.clone(),
+            white_background,
+            field: kind,
+            position_encoding: None,
+            direction_encoding: None,
+            march_steps,
+            graphs: BTreeMap::new(),
+            networks: None,
+            poses: ScenePoses::default(),
+            occupancy: None,
+            placement: None,
+        }
+    }
+
+    /// The graph files by role, in role order, with the `scene.json` key that names each
+    /// (`graphs.<role>`, or `networks.coarse`/`networks.fine` in a `nerf-rs-scene-1` file).
+    pub fn graph_files(&self) -> Vec<GraphFile<'_>> {
+        match &self.networks {
+            Some(n) if self.graphs.is_empty() => {
+                let coarse = if self.field.roles(false) == [Role::Field] { Role::Field } else { Role::Coarse };
+                let mut files = vec![GraphFile { role: coarse, file: &n.coarse, key: "networks.coarse" }];
+                files.extend(n.fine.as_deref().map(|file| GraphFile { role: Role::Fine, file, key: "networks.fine" }));
+                files
+            }
+            _ => self.graphs.iter().map(|(&role, file)| GraphFile { role, file, key: graph_key(role) }).collect(),
+        }
+    }
+
+    /// Everything a renderer relies on, checked before it allocates or opens anything:
+    /// the format, the camera and sampling within [`nerf_core::io::limits`], file names that are
+    /// plain names inside the bundle, at most [`MAX_FRAMES`] poses, pose names that are plain
+    /// file names (they name output files), a grid resolution within the limit.
+    pub fn check(&self, path: &Path) -> nerf_core::Result<()> {
+        let at = |field| Origin::Field(path, field);
+        if !READ_FORMATS.contains(&self.format.as_str()) {
+            return Err(at("format").error(format!("{:?}, expected one of {READ_FORMATS:?}", self.format)));
+        }
+        limits::check_camera(&self.camera.camera, at("camera"))?;
+        limits::check_sampling(&self.sampling, at("sampling"))?;
+        let files = self.graph_files();
+        let roles: Vec<Role> = files.iter().map(|g| g.role).collect();
+        let hierarchical = self.sampling.n_fine > 0;
+        if roles != self.field.roles(hierarchical) {
+            let names = |r: &[Role]| r.iter().map(|r| r.name()).collect::<Vec<_>>().join(", ");
+            let problem = format!("{} graphs: [{}], field {:?} with n_fine {} needs [{}]", files.first().map_or("graphs", |g| g.key), names(&roles), self.field.name(), self.sampling.n_fine, names(self.field.roles(hierarchical)));
+            return Err(at(if self.networks.is_some() { "networks" } else { "graphs" }).error(problem));
+        }
+        if self.field.bounded() && self.occupancy.is_none() {
+            return Err(at("occupancy").error(format!("a {} field is defined inside its box only and marched through its occupancy grid: the bundle needs one", self.field.name())));
+        }
+        limits::check_count(self.march_steps, limits::MAX_SAMPLES_PER_RAY, "steps", at("march_steps"))?;
+        for g in &files {
+            limits::check_plain_file_name(g.file, at(g.key))?;
+        }
+        for (field, n) in [("poses.test", self.poses.test.len()), ("poses.orbit", self.poses.orbit.len())] {
+            if n > MAX_FRAMES {
+                return Err(at(field).error(format!("{n} poses is more than the limit of {MAX_FRAMES}")));
+            }
+        }
+        for (k, pose) in self.poses.test.iter().enumerate() {
+            limits::check_plain_file_name(&pose.name, Origin::Field(path, &format!("poses.test[{k}].name")))?;
+        }
+        if let Some(o) = &self.occupancy {
+            limits::check_plain_file_name(&o.file, at("occupancy.file"))?;
+            limits::check_grid_resolution(o.resolution, at("occupancy.resolution"))?;
+            if !(o.bound.is_finite() && o.bound > 0.0) {
+                return Err(at("occupancy.bound").error(format!("{} is not a positive finite bound", o.bound)));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// One graph file of a bundle.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct GraphFile<'a> {
+    /// What it evaluates.
+    pub role: Role,
+    /// Its file name, relative to the bundle.
+    pub file: &'a str,
+    /// The `scene.json` key that names it (for error messages).
+    pub key: &'static str,
+}
+
+fn graph_key(role: Role) -> &'static str {
+    match role {
+        Role::Field => "graphs.field",
+        Role::Coarse => "graphs.coarse",
+        Role::Fine => "graphs.fine",
+    }
+}
+
+fn default_march_steps() -> usize {
+    nerf_core::render::DEFAULT_MARCH_STEPS
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nerf_core::Intrinsics;
+
+    fn scene(kind: FieldKind, n_fine: usize) -> SceneDescription {
+        let camera = PinholeCamera::from(Intrinsics { width: 8, height: 8, focal: 8.0 });
+        let sampling = SamplingConfig { near: 2.0, far: 6.0, n_coarse: 8, n_fine, lindisp: false, ndc: None };
+        SceneDescription::new(&camera, &sampling, true, kind, 256)
+    }
+
+    #[test]
+    fn graphs_are_named_by_role_and_checked_against_the_kind() {
+        let path = Path::new("b/scene.json");
+        let mut s = scene(FieldKind::Mlp, 4);
+        s.graphs = [(Role::Coarse, "coarse.onnx".into()), (Role::Fine, "fine.onnx".into())].into();
+        s.check(path).unwrap();
+        let files = s.graph_files();
+        assert_eq!(files.iter().map(|g| (g.role, g.file, g.key)).collect::<Vec<_>>(), [(Role::Coarse, "coarse.onnx", "graphs.coarse"), (Role::Fine, "fine.onnx", "graphs.fine")]);
+        s.graphs.remove(&Role::Fine);
+        let err = s.check(path).unwrap_err().to_string();
+        assert!(err.contains("graphs") && err.contains("needs [coarse, fine]"), "{err}");
+        let mut s = scene(FieldKind::Ngp, 0);
+        s.graphs = [(Role::Field, "../field.onnx".into())].into();
+        s.occupancy = Some(OccupancyDescription { file: "occupancy.bin".into(), resolution: 4, bound: 1.5 });
+        let err = s.check(path).unwrap_err().to_string();
+        assert!(err.contains("graphs.field") && err.contains("not a plain file name"), "{err}");
+        s.occupancy = None;
+        s.graphs = [(Role::Field, "field.onnx".into())].into();
+        assert!(s.check(path).unwrap_err().to_string().contains("occupancy"));
+    }
+
+    #[test]
+    fn first_format_scenes_still_read() {
+        // A hash-grid bundle as nerf-rs-scene-1 wrote it: its one graph under networks.coarse,
+        // NDC in the placement too.
+        let mut v1 = serde_json::to_value(scene(FieldKind::Ngp, 0)).unwrap();
+        v1["format"] = "nerf-rs-scene-1".into();
+        v1.as_object_mut().unwrap().remove("graphs");
+        v1["networks"] = serde_json::json!({ "coarse": "field.onnx", "fine": null });
+        v1["occupancy"] = serde_json::json!({ "file": "occupancy.bin", "resolution": 4, "bound": 1.5 });
+        let s: SceneDescription = serde_json::from_value(v1).unwrap();
+        s.check(Path::new("scene.json")).unwrap();
+        let files = s.graph_files();
+        assert_eq!(files.iter().map(|g| (g.role, g.file, g.key)).collect::<Vec<_>>(), [(Role::Field, "field.onnx", "networks.coarse")]);
+        // Written again, it names the graph by role and drops the old key.
+        let mut again = s.clone();
+        again.graphs = [(Role::Field, "field.onnx".into())].into();
+        again.networks = None;
+        let text = serde_json::to_string(&again).unwrap();
+        assert!(text.contains("\"graphs\":{\"field\":\"field.onnx\"}") && !text.contains("networks"), "{text}");
+    }
+}
