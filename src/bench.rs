@@ -6,7 +6,8 @@
 use crate::error::{Error, Result};
 use crate::field::{NerfMlp, NerfModel, TrainedField};
 use crate::inference::vec3_tensor;
-use crate::train::{Preset, StepTiming, TrainConfig, field_trainer};
+use crate::config::{Preset, TrainConfig};
+use crate::train::{StepTiming, field_trainer};
 use nerf_core::Rng;
 use nerf_core::camera::{Intrinsics, Pose, length};
 use nerf_core::PinholeCamera;

@@ -4,7 +4,7 @@
 use crate::error::{Error, Result};
 use crate::field::TrainedField;
 use crate::run_dir::{RunDir, RunSource};
-use crate::train::TrainConfig;
+use crate::config::TrainConfig;
 use nerf_core::PinholeCamera;
 use nerf_core::camera::Pose;
 use nerf_core::dataset::{Background, CaptureFormat, CaptureSplit, LoadOptions, SceneFrame, ScenePlacement, SplitData, load_dataset};

@@ -4,7 +4,7 @@
 use crate::error::Result;
 use crate::evaluate::LoadedRun;
 use crate::field::TrainedField;
-use crate::train::TrainConfig;
+use crate::config::TrainConfig;
 use nerf_bundle::scene::{NamedPose, SceneDescription};
 use nerf_bundle::{WrittenFile, pose_matrix};
 use nerf_core::PinholeCamera;

@@ -7,6 +7,7 @@ pub use nerf_core as core;
 
 pub mod backend;
 pub mod bench;
+pub mod config;
 pub mod error;
 pub mod evaluate;
 pub mod export;

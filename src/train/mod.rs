@@ -2,16 +2,14 @@
 //! either field ([`Trainer`] for the NeRF MLPs, [`NgpTrainer`] for the hash-grid field) and the
 //! run loop ([`train`]), which drives them through [`FieldTrainer`].
 
-mod checkpoint;
-mod config;
 mod packed;
 mod ngp;
 mod run;
 mod schedule;
 mod step;
 
-pub use checkpoint::{Checkpoint, CheckpointState, GRID_FILE};
-pub use config::{DEFAULT_TARGET_SAMPLES, Preset, TrainConfig};
+pub use crate::config::{DEFAULT_TARGET_SAMPLES, Preset, TrainConfig};
+pub use crate::run_dir::{Checkpoint, CheckpointState, GRID_FILE};
 pub use ngp::NgpTrainer;
 pub use run::{NDC_MARCH_STEPS, TrainOptions, TrainSummary, train};
 pub use schedule::learning_rate;

@@ -4,9 +4,10 @@
 //! plain Rust ([`nerf_core::render::gradient`]), then burn's backward through the MLPs only, the
 //! features' gradient scattered into the table, sparse Adam on the table and Adam on the MLPs.
 
-use super::checkpoint::{Checkpoint, CheckpointState, GRID_FILE};
+use crate::run_dir::{Checkpoint, CheckpointState, GRID_FILE};
 use super::step::{StepStats, StepTiming};
-use super::{FieldTrainer, TrainConfig, learning_rate};
+use super::{FieldTrainer, learning_rate};
+use crate::config::TrainConfig;
 use crate::error::{Error, Result};
 use crate::field::{NgpField, TrainedField};
 use crate::inference::tensor_vec3;
@@ -217,7 +218,7 @@ impl FieldTrainer for NgpTrainer {
             ("optim.bpk", Checkpoint::optimizer_bytes(&self.optim)?),
             (GRID_FILE, crate::field::ngp::state::state_to_bytes(&field.grid, &self.table_adam)),
         ];
-        Checkpoint::save(run, &files, Some(&self.occupancy), &state)
+        run.save_checkpoint(&files, Some(&self.occupancy), &state)
     }
 
     fn resume(&mut self, checkpoint: &Checkpoint) -> Result<f64> {

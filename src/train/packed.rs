@@ -1,5 +1,5 @@
 //! Volume rendering with its gradient, over packed samples: the training twin of
-//! [`super::packed::march_front_to_back`] for fields whose samples vary in number per ray (the
+//! [`nerf_core::render::packed::march_front_to_back`] for fields whose samples vary in number per ray (the
 //! hash-grid field marches through the occupancy grid). Written by hand rather than as burn ops
 //! because ray lengths differ; the burn side only sees ∂loss/∂σ and ∂loss/∂rgb per sample.
 //!

@@ -1,7 +1,8 @@
 //! The run loop: start or resume a run directory, then step until the iteration count or the
 //! time budget is reached, with checkpoints, the PSNR curve and a progress bar.
 
-use super::{FieldTrainer, TrainConfig, field_trainer};
+use super::{FieldTrainer, field_trainer};
+use crate::config::TrainConfig;
 use crate::error::{Error, Result};
 use crate::run_dir::{RunDir, RunSource};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -151,14 +152,18 @@ fn start_or_resume(run: &RunDir, options: &TrainOptions) -> Result<(Box<dyn Fiel
         let space = if placement.ndc.is_some() { "NDC rays" } else { "the field's frame" };
         eprintln!("{} capture: near {near:.4}, far {far:.4} in {space} (scale {:.4})", placement.format, placement.transform.scale);
     }
-    run.write_config(&config)?;
     let train_data = train.data;
     let camera = train_data.camera().ok_or_else(|| Error::invalid(&options.data, "the train split has no views"))?;
-    run.write_camera(&camera)?;
-    // Where the data came from and how it is placed: eval, render and export use this.
-    let data = std::path::absolute(&options.data).unwrap_or(options.data.clone());
     let transform = placement.transform;
-    run.write_source(&RunSource { data, downscale: options.downscale, placement: Some(placement) })?;
+    if checkpoint.is_none() {
+        // A new run records what defines it; a resumed one reads it and keeps it as it was
+        // (an --iters or a decided background of this invocation stay in memory).
+        run.write_config(&config)?;
+        run.write_camera(&camera)?;
+        // Where the data came from and how it is placed: eval, render and export use this.
+        let data = std::path::absolute(&options.data).unwrap_or(options.data.clone());
+        run.write_source(&RunSource { data, downscale: options.downscale, placement: Some(placement) })?;
+    }
     // The validation curve is optional: a scene without val views still trains.
     // Validation views are scored as eval scores them: on the render background.
     let val_data = match load(CaptureSplit::Val, SceneFrame::Recorded(transform), Background::from_white(config.white_background)).map(|d| d.data) {

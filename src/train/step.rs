@@ -1,8 +1,9 @@
 //! One training step: a random image, rays through random pixels (centre crop first), coarse
 //! + fine networks rendered differentiably, MSE on both, one Adam update.
 
-use super::checkpoint::{Checkpoint, CheckpointState};
-use super::{FieldTrainer, TrainConfig, learning_rate};
+use crate::run_dir::{Checkpoint, CheckpointState};
+use super::{FieldTrainer, learning_rate};
+use crate::config::TrainConfig;
 use crate::error::Result;
 use crate::field::{NerfMlp, NerfModel};
 use crate::inference::{BurnField, encoded_tensor, vec3_tensor};
@@ -100,7 +101,7 @@ impl Trainer {
     pub fn save(&self, run: &RunDir, elapsed_s: f64) -> Result<Checkpoint> {
         let state = CheckpointState::new(self.step, self.rng.clone(), elapsed_s);
         let files = [("model.bpk", Checkpoint::model_bytes(self.model())?), ("optim.bpk", Checkpoint::optimizer_bytes(&self.optim)?)];
-        Checkpoint::save(run, &files, self.occupancy.as_ref(), &state)
+        run.save_checkpoint(&files, self.occupancy.as_ref(), &state)
     }
 
     /// The occupancy grid, when empty-space skipping is on.

@@ -20,33 +20,78 @@ use std::path::{Path, PathBuf};
 /// (64 steps) and a few updates, so the samples per ray are those of training.
 const NGP_WARMUP: usize = 150;
 
+/// Where `nerf bench` looks for lego unless `--data` says otherwise.
+pub const DEFAULT_DATA: &str = "../shared/data/nerf_synthetic/lego";
+
+/// What `nerf bench` measures and on what.
+#[derive(clap::Args, Debug)]
+pub struct BenchOptions {
+    /// What to measure (default: all).
+    #[arg(long, value_enum)]
+    pub only: Vec<super::BenchPart>,
+    /// Presets for the training step (default: cpu-fast, paper and ngp).
+    #[arg(long, value_enum)]
+    pub preset: Vec<Preset>,
+    /// Blender scene: training rays and the frame's camera (lego val r_0); when it is not
+    /// there, the training step runs on a generated scene and the lego measurements are skipped.
+    #[arg(long, default_value = DEFAULT_DATA)]
+    pub data: PathBuf,
+    /// Image downscale factor for the training rays.
+    #[arg(long, default_value_t = 4)]
+    pub downscale: u32,
+    /// Timed training steps per preset (after 2 warm-up steps).
+    #[arg(long, default_value_t = 5)]
+    pub steps: usize,
+    /// Points per network forward pass.
+    #[arg(long, default_value_t = 65_536)]
+    pub points: usize,
+    /// Square frame sizes to render.
+    #[arg(long, value_delimiter = ',', default_values_t = vec![100u32, 200])]
+    pub sizes: Vec<u32>,
+    /// Rays per network call when rendering.
+    #[arg(long, default_value_t = nerf_runtime::scene::DEFAULT_CHUNK)]
+    pub chunk: usize,
+    /// Trained bundle with an occupancy grid for the skipping measurement (lego).
+    #[arg(long, default_value = "models/lego")]
+    pub bundle: PathBuf,
+    /// Hash-grid bundle for the ngp-render measurement (lego). Default: train the ngp preset
+    /// on lego for --ngp-steps steps and export it.
+    #[arg(long)]
+    pub ngp_bundle: Option<PathBuf>,
+    /// Training steps of the hash-grid field when no --ngp-bundle is given.
+    #[arg(long, default_value_t = 400)]
+    pub ngp_steps: usize,
+    /// Val views for the skipping measurement.
+    #[arg(long, default_value_t = 5)]
+    pub views: usize,
+    /// Marching intervals over [near, far] for the skipping measurement.
+    #[arg(long, default_value_t = nerf_core::render::DEFAULT_MARCH_STEPS)]
+    pub march_steps: usize,
+    /// Occupancy threshold for the skipping measurement (default: the grid's own).
+    #[arg(long)]
+    pub skip_threshold: Option<f32>,
+    /// Also time the nerf-pytorch-style paper step (scripts/pytorch_step.py) with this Python,
+    /// which must have PyTorch, right after ours (not installed by the project).
+    #[arg(long)]
+    pub pytorch: Option<PathBuf>,
+    /// Also write the results as JSON here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+}
+
 /// `nerf bench`: everything measured in one run, printed as tables (and JSON with `json`).
-#[allow(clippy::too_many_arguments)]
-pub fn run(
-    only: &[BenchPart],
-    preset: Vec<Preset>,
-    data: Option<PathBuf>,
-    downscale: u32,
-    steps: usize,
-    points: usize,
-    sizes: &[u32],
-    chunk: usize,
-    (bundle, views, march_steps, skip_threshold): (&Path, usize, usize, Option<f32>),
-    (ngp_bundle, ngp_steps): (Option<PathBuf>, usize),
-    pytorch: Option<PathBuf>,
-    json: Option<PathBuf>,
-    progress: bool,
-) -> Result<()> {
+pub fn run(options: &BenchOptions, progress: bool) -> Result<()> {
+    let BenchOptions { only, preset, data, downscale, steps, points, sizes, chunk, bundle, ngp_bundle, ngp_steps, views, march_steps, skip_threshold, pytorch, json } = options;
+    let (downscale, steps, points, chunk, ngp_steps, views, march_steps, skip_threshold) = (*downscale, *steps, *points, *chunk, *ngp_steps, *views, *march_steps, *skip_threshold);
     let wanted = |p: BenchPart| only.is_empty() || only.contains(&p);
-    let lego = PathBuf::from("../shared/data/nerf_synthetic/lego");
-    let data = data.or_else(|| lego.join("transforms_val.json").is_file().then_some(lego));
+    let data = data.join("transforms_val.json").is_file().then_some(data.clone());
     match &data {
         Some(d) => println!("scene: {}", d.display()),
-        None => println!("scene: generated (no --data, no ../shared/data/nerf_synthetic/lego)"),
+        None => println!("scene: generated ({} has no transforms_val.json: pass --data <Blender scene> for the lego measurements)", options.data.display()),
     }
     let mut report = serde_json::Map::new();
     if wanted(BenchPart::Train) {
-        let presets = if preset.is_empty() { vec![Preset::CpuFast, Preset::Paper, Preset::Ngp] } else { preset };
+        let presets = if preset.is_empty() { vec![Preset::CpuFast, Preset::Paper, Preset::Ngp] } else { preset.clone() };
         let mut results = Vec::new();
         println!("\ntraining step (1/{downscale} resolution rays, mean of {steps} after 2 warm-up, ngp after {NGP_WARMUP})");
         println!("{:<10} {:>6} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>11}", "preset", "rays", "step s", "forward", "backward", "update", "grid", "samples", "samples/s");

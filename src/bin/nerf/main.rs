@@ -134,59 +134,7 @@ enum Command {
     },
     /// Measure speed, all figures from one run: training steps, network throughput (burn and
     /// onnxruntime) and frame times (burn and onnxruntime, paper network, 64 + 128 samples).
-    Bench {
-        /// What to measure (default: all).
-        #[arg(long, value_enum)]
-        only: Vec<BenchPart>,
-        /// Presets for the training step (default: cpu-fast, paper and ngp).
-        #[arg(long, value_enum)]
-        preset: Vec<Preset>,
-        /// Blender scene: training rays and the frame's camera (lego val r_0). Default: the lego
-        /// scene in ../shared/data if present, else a generated scene.
-        #[arg(long)]
-        data: Option<PathBuf>,
-        /// Image downscale factor for the training rays.
-        #[arg(long, default_value_t = 4)]
-        downscale: u32,
-        /// Timed training steps per preset (after 2 warm-up steps).
-        #[arg(long, default_value_t = 5)]
-        steps: usize,
-        /// Points per network forward pass.
-        #[arg(long, default_value_t = 65_536)]
-        points: usize,
-        /// Square frame sizes to render.
-        #[arg(long, value_delimiter = ',', default_values_t = vec![100u32, 200])]
-        sizes: Vec<u32>,
-        /// Rays per network call when rendering.
-        #[arg(long, default_value_t = nerf_runtime::scene::DEFAULT_CHUNK)]
-        chunk: usize,
-        /// Trained bundle with an occupancy grid for the skipping measurement (lego).
-        #[arg(long, default_value = "models/lego")]
-        bundle: PathBuf,
-        /// Hash-grid bundle for the ngp-render measurement (lego). Default: train the ngp preset
-        /// on lego for --ngp-steps steps and export it.
-        #[arg(long)]
-        ngp_bundle: Option<PathBuf>,
-        /// Training steps of the hash-grid field when no --ngp-bundle is given.
-        #[arg(long, default_value_t = 400)]
-        ngp_steps: usize,
-        /// Val views for the skipping measurement.
-        #[arg(long, default_value_t = 5)]
-        views: usize,
-        /// Marching intervals over [near, far] for the skipping measurement.
-        #[arg(long, default_value_t = nerf_core::render::DEFAULT_MARCH_STEPS)]
-        march_steps: usize,
-        /// Occupancy threshold for the skipping measurement (default: the grid's own).
-        #[arg(long)]
-        skip_threshold: Option<f32>,
-        /// Also time the nerf-pytorch-style paper step (scripts/pytorch_step.py) with this Python,
-        /// which must have PyTorch, right after ours (not installed by the project).
-        #[arg(long)]
-        pytorch: Option<PathBuf>,
-        /// Also write the results as JSON here.
-        #[arg(long)]
-        json: Option<PathBuf>,
-    },
+    Bench(bench::BenchOptions),
     /// Generate a small scene, train on it, evaluate and render an orbit (no data needed).
     Demo {
         /// Output directory.
@@ -221,7 +169,7 @@ enum ImportSource {
     },
 }
 
-#[derive(Clone, Copy, PartialEq, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, clap::ValueEnum)]
 enum BenchPart {
     /// Training steps.
     Train,
@@ -307,10 +255,7 @@ fn main() -> Result<()> {
                 println!("{:>10} bytes  {}", f.bytes, f.path.display());
             }
         }
-        Command::Bench { only, preset, data, downscale, steps, points, sizes, chunk, bundle, ngp_bundle, ngp_steps, views, march_steps, skip_threshold, pytorch, json } => {
-            let skip = (bundle.as_path(), views, march_steps, skip_threshold);
-            bench::run(&only, preset, data, downscale, steps, points, &sizes, chunk, skip, (ngp_bundle, ngp_steps), pytorch, json, progress)?
-        }
+        Command::Bench(options) => bench::run(&options, progress)?,
         Command::Demo { out, minutes } => demo(out, minutes, progress)?,
     }
     Ok(())

@@ -4,22 +4,22 @@
 //! checkpoint that `latest` points to half-written.
 
 use crate::error::{Error, Result};
-use crate::run_dir::RunDir;
 use burn::optim::ModuleOptimizer;
 use burn::store::{BurnpackStore, ModuleSnapshot};
 use burn::tensor::Bytes;
 use nerf_core::Rng;
 use crate::field::ngp::adam::{SparseAdam, SparseAdamConfig};
 use nerf_core::field::ngp::hash_grid::{HashGrid, HashGridConfig};
-use nerf_core::io::atomic::{remove_stale_temporaries, write_atomic, write_dir_atomic};
 use nerf_core::sample::occupancy::{self, OccupancyGrid};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
 /// The hash grid's table and Adam state in a checkpoint ([`nerf_core::field::ngp::hash_grid::state`]).
 pub const GRID_FILE: &str = "grid.bin";
-const FORMAT: &str = "nerf-rs-checkpoint-1";
-const PREFIX: &str = "step-";
+/// The `format` of `state.json`.
+pub const FORMAT: &str = "nerf-rs-checkpoint-1";
+/// Checkpoint directories are named `step-` and the step, seven digits.
+pub const PREFIX: &str = "step-";
 
 /// Training progress saved with the weights.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -72,43 +72,6 @@ impl Checkpoint {
     /// The optimizer's state as a checkpoint's `optim.bpk`.
     pub fn optimizer_bytes(optim: &ModuleOptimizer) -> Result<Vec<u8>> {
         Ok(optim.into_bytes().map_err(|e| Error::Network(format!("saving the optimizer: {e}")))?.to_vec())
-    }
-
-    /// Write `files` (name, content: `model.bpk`, `optim.bpk`, the field's extras) and the state
-    /// for `state.step` (the directory whole or not at all), then point `latest` at it and
-    /// remove all but the previous checkpoint.
-    pub fn save(run: &RunDir, files: &[(&str, Vec<u8>)], occupancy: Option<&OccupancyGrid>, state: &CheckpointState) -> Result<Checkpoint> {
-        let name = format!("{PREFIX}{:07}", state.step);
-        let dir = run.checkpoints_dir().join(&name);
-        write_dir_atomic(&dir, |tmp| {
-            let write = |file: &str, bytes: &[u8]| {
-                let p = tmp.join(file);
-                std::fs::write(&p, bytes).map_err(|e| nerf_core::Error::io(&p, e))
-            };
-            for (file, bytes) in files {
-                write(file, bytes)?;
-            }
-            if let Some(grid) = occupancy {
-                write(occupancy::FILE_NAME, &grid.to_bytes())?;
-            }
-            write("state.json", serde_json::to_string_pretty(state).expect("state serialises").as_bytes())
-        })?;
-        write_atomic(&run.latest_path(), name.as_bytes())?;
-        // Keep the newest two (the one just written and its predecessor), and remove what saves
-        // that were killed left behind.
-        remove_stale_temporaries(&run.checkpoints_dir());
-        if let Ok(entries) = std::fs::read_dir(run.checkpoints_dir()) {
-            let mut old: Vec<PathBuf> = entries
-                .filter_map(|e| e.ok().map(|e| e.path()))
-                .filter(|p| p.is_dir() && p.file_name().is_some_and(|n| Self::is_name(&n.to_string_lossy())))
-                .collect();
-            old.sort();
-            old.retain(|p| p != &dir);
-            for p in old.iter().rev().skip(1) {
-                let _ = std::fs::remove_dir_all(p);
-            }
-        }
-        Ok(Checkpoint { dir })
     }
 
     /// The saved training state.

@@ -205,7 +205,7 @@ pub struct TrainConfig {
     pub target_samples: usize,
     /// Intervals over [near, far] when marching through the occupancy grid (training the
     /// hash-grid field, and rendering any field with a grid); NDC runs take at most
-    /// [`NDC_MARCH_STEPS`](super::NDC_MARCH_STEPS).
+    /// [`NDC_MARCH_STEPS`](crate::train::NDC_MARCH_STEPS).
     #[serde(default = "default_march_steps")]
     pub march_steps: usize,
 }

@@ -12,15 +12,19 @@
 
 use crate::error::{Error, Result};
 use crate::field::{NerfModel, NgpField, TrainedField};
-use crate::train::{Checkpoint, CheckpointState, TrainConfig};
+mod checkpoint;
+
+pub use checkpoint::{Checkpoint, CheckpointState, GRID_FILE};
+
+use crate::config::TrainConfig;
 use burn::tensor::Device;
-use nerf_core::io::atomic::write_atomic;
+use nerf_core::io::atomic::{remove_stale_temporaries, write_atomic, write_dir_atomic};
 use nerf_core::PinholeCamera;
 use nerf_core::SceneTransform;
 use nerf_core::dataset::ScenePlacement;
 use nerf_core::io::limits;
 use nerf_core::field::FieldKind;
-use nerf_core::sample::occupancy::OccupancyGrid;
+use nerf_core::sample::occupancy::{self, OccupancyGrid};
 use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -167,6 +171,43 @@ impl RunDir {
     /// Record where the data came from.
     pub fn write_source(&self, source: &RunSource) -> Result<()> {
         Ok(write_atomic(&self.source_path(), serde_json::to_string_pretty(source).expect("a source serialises").as_bytes())?)
+    }
+
+    /// Write `files` (name, content: `model.bpk`, `optim.bpk`, the field's extras) and the state
+    /// for `state.step` (the directory whole or not at all), then point `latest` at it and
+    /// remove all but the previous checkpoint.
+    pub fn save_checkpoint(&self, files: &[(&str, Vec<u8>)], occupancy: Option<&OccupancyGrid>, state: &CheckpointState) -> Result<Checkpoint> {
+        let name = format!("{}{:07}", checkpoint::PREFIX, state.step);
+        let dir = self.checkpoints_dir().join(&name);
+        write_dir_atomic(&dir, |tmp| {
+            let write = |file: &str, bytes: &[u8]| {
+                let p = tmp.join(file);
+                std::fs::write(&p, bytes).map_err(|e| nerf_core::Error::io(&p, e))
+            };
+            for (file, bytes) in files {
+                write(file, bytes)?;
+            }
+            if let Some(grid) = occupancy {
+                write(occupancy::FILE_NAME, &grid.to_bytes())?;
+            }
+            write("state.json", serde_json::to_string_pretty(state).expect("state serialises").as_bytes())
+        })?;
+        write_atomic(&self.latest_path(), name.as_bytes())?;
+        // Keep the newest two (the one just written and its predecessor), and remove what saves
+        // that were killed left behind.
+        remove_stale_temporaries(&self.checkpoints_dir());
+        if let Ok(entries) = std::fs::read_dir(self.checkpoints_dir()) {
+            let mut old: Vec<PathBuf> = entries
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| p.is_dir() && p.file_name().is_some_and(|n| Checkpoint::is_name(&n.to_string_lossy())))
+                .collect();
+            old.sort();
+            old.retain(|p| p != &dir);
+            for p in old.iter().rev().skip(1) {
+                let _ = std::fs::remove_dir_all(p);
+            }
+        }
+        Ok(Checkpoint { dir })
     }
 
     /// The checkpoint `latest` names, or `None` for a run that has none yet.
