@@ -4,10 +4,11 @@
 //! ratios between them are fair on a shared, noisy machine.
 
 use crate::error::{Error, Result};
-use crate::field::{NerfMlp, NerfModel, TrainedField};
+use crate::field::TrainedField;
+use crate::field::mlp::{NerfMlp, NerfModel};
 use crate::inference::vec3_tensor;
 use crate::config::{Preset, TrainConfig};
-use crate::train::{StepTiming, field_trainer};
+use crate::field::StepTiming;
 use nerf_core::Rng;
 use nerf_core::camera::{Intrinsics, Pose, length};
 use nerf_core::PinholeCamera;
@@ -60,7 +61,7 @@ pub fn bench_train_step(preset: Preset, data: Option<&Path>, downscale: u32, war
     let mut config = preset.config();
     config.precrop_iters = 0;
     let batch_rays = config.batch_rays;
-    let mut trainer = field_trainer(config, train)?;
+    let mut trainer = crate::field::trainer(config, train)?;
     for _ in 0..warmup {
         trainer.step();
     }
@@ -240,7 +241,7 @@ pub fn paper_model(chunk: usize) -> Result<(TrainConfig, PlainNetwork, PlainNetw
 
 /// One frame of `field` rendered by burn (without a grid: dense, or a bounded field's whole
 /// box), timed under a progress bar.
-pub fn burn_frame(field: &TrainedField, config: &TrainConfig, camera: &PinholeCamera, pose: &Pose, progress: bool) -> (RenderedImage, f64) {
+pub fn burn_frame(field: &dyn TrainedField, config: &TrainConfig, camera: &PinholeCamera, pose: &Pose, progress: bool) -> (RenderedImage, f64) {
     let label = format!("burn {}×{}", camera.width, camera.height);
     let options = config.render_options();
     let device = crate::backend::cpu();

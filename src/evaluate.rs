@@ -19,7 +19,7 @@ pub struct LoadedRun {
     /// Its configuration.
     pub config: TrainConfig,
     /// Its networks (no autodiff).
-    pub model: TrainedField,
+    pub model: Box<dyn TrainedField>,
     /// The training camera.
     pub camera: PinholeCamera,
     /// Steps it was trained for.
@@ -35,7 +35,7 @@ impl LoadedRun {
     /// Load the latest checkpoint of `run`.
     pub fn open(run: &Path) -> Result<Self> {
         let run = RunDir::open(run)?;
-        let latest = run.load_latest(&crate::backend::cpu())?;
+        let latest = crate::field::load_latest(&run, &crate::backend::cpu())?;
         let camera = run.read_camera()?;
         let source = run.read_source()?;
         Ok(LoadedRun { config: latest.config, model: latest.model, camera, step: latest.state.step, occupancy: latest.occupancy, source })

@@ -26,7 +26,7 @@ fn test_poses(loaded: &LoadedRun) -> Result<Vec<NamedPose>> {
 
 /// The bundle of `field` trained with `config` on images from `camera` (the reference orbit,
 /// no test poses), marched through `occupancy` (a bounded field without one: its whole box).
-pub fn field_bundle(field: &TrainedField, config: &TrainConfig, camera: &PinholeCamera, occupancy: Option<OccupancyGrid>) -> Bundle {
+pub fn field_bundle(field: &dyn TrainedField, config: &TrainConfig, camera: &PinholeCamera, occupancy: Option<OccupancyGrid>) -> Bundle {
     let mut scene = SceneDescription::new(camera, &config.sampling, config.white_background, field.kind(), config.march_steps);
     scene.poses.orbit = Pose::orbit(ORBIT_FRAMES).iter().map(pose_matrix).collect();
     Bundle { field: field.to_plain(), scene, occupancy: field.marching_grid(occupancy) }
@@ -36,7 +36,7 @@ pub fn field_bundle(field: &TrainedField, config: &TrainConfig, camera: &Pinhole
 /// [`nerf_export::default_opset`]).
 pub fn export_run(run: &Path, out: &Path, opset: Option<i64>) -> Result<Vec<WrittenFile>> {
     let loaded = LoadedRun::open(run)?;
-    let mut bundle = field_bundle(&loaded.model, &loaded.config, &loaded.camera, loaded.occupancy.clone());
+    let mut bundle = field_bundle(loaded.model.as_ref(), &loaded.config, &loaded.camera, loaded.occupancy.clone());
     bundle.scene.poses.test = test_poses(&loaded)?;
     bundle.scene.poses.orbit = loaded.orbit(ORBIT_FRAMES).iter().map(pose_matrix).collect();
     // A capture's placement; Blender scenes are used as they are.

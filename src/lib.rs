@@ -1,5 +1,5 @@
-//! Neural radiance fields on burn: the trainable field, differentiable volume rendering,
-//! training with checkpoints, and evaluation/rendering through the shared burn-free core
+//! Neural radiance fields on burn: the trainable fields behind one seam, training with
+//! checkpoints, and evaluation/rendering through the shared burn-free core
 //! ([`nerf_core`], re-exported as [`core`]).
 #![warn(missing_docs)]
 
@@ -15,6 +15,5 @@ pub mod field;
 pub mod inference;
 pub mod run_dir;
 pub mod train;
-pub mod volume;
 
 pub use error::{Error, Result};

@@ -6,8 +6,9 @@
 mod common;
 
 use common::{nerf, s, small_scene, tiny_config};
-use nerf::run_dir::{RunCheckpoint, RunDir};
-use nerf::train::TrainConfig;
+use nerf::field::{RunCheckpoint, load_latest};
+use nerf::run_dir::RunDir;
+use nerf::config::TrainConfig;
 use nerf_core::Rng;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -91,7 +92,7 @@ fn check_latest(run: &Path) -> Option<usize> {
     let run = RunDir::open(run).unwrap_or_else(|e| panic!("after a kill: {e}"));
     run.latest_checkpoint().unwrap_or_else(|e| panic!("after a kill: {e}"))?;
     let RunCheckpoint { state, occupancy: grid, .. } =
-        run.load_latest(&nerf::backend::cpu()).unwrap_or_else(|e| panic!("after a kill, the latest checkpoint does not load: {e}"));
+        load_latest(&run, &nerf::backend::cpu()).unwrap_or_else(|e| panic!("after a kill, the latest checkpoint does not load: {e}"));
     assert!(grid.is_some(), "the checkpoint lost its occupancy grid");
     Some(state.step)
 }
@@ -163,10 +164,10 @@ fn killed_training_resumes_from_the_last_complete_checkpoint() {
     // Same weights, grid, step and RNG as the uninterrupted run, bit for bit: resuming restores
     // everything (the Adam state too, or the weights would drift) and training is
     // deterministic. The .bpk files themselves differ: burn stores a random id per parameter.
-    let load = |run: &Path| RunDir::open(run).unwrap().load_latest(&nerf::backend::cpu()).unwrap();
+    let load = |run: &Path| load_latest(&RunDir::open(run).unwrap(), &nerf::backend::cpu()).unwrap();
     let RunCheckpoint { model: got, state: got_state, occupancy: got_grid, .. } = load(&run);
     let RunCheckpoint { model: want, state: want_state, occupancy: want_grid, .. } = load(&reference);
-    let (got, want) = (got.as_mlp().unwrap(), want.as_mlp().unwrap());
+    let (got, want) = (got.as_any().downcast_ref::<nerf::field::mlp::NerfModel>().unwrap(), want.as_any().downcast_ref::<nerf::field::mlp::NerfModel>().unwrap());
     assert!(got.coarse.to_plain() == want.coarse.to_plain(), "coarse weights differ from the uninterrupted run's");
     assert!(got.fine.as_ref().map(|f| f.to_plain()) == want.fine.as_ref().map(|f| f.to_plain()), "fine weights differ");
     assert!(got_grid == want_grid, "occupancy grids differ");

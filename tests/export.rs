@@ -42,7 +42,7 @@ fn export_writes_a_bundle_that_onnx_and_onnxruntime_accept() {
     assert_eq!(scene.position_encoding.as_ref().unwrap().output_dim, 63);
 
     // The graphs carry exactly the trained weights.
-    let model = RunDir::open(&run).unwrap().load_latest(&nerf::backend::cpu()).unwrap().model.as_mlp().unwrap().clone();
+    let model = nerf::field::load_latest(&RunDir::open(&run).unwrap(), &nerf::backend::cpu()).unwrap().model.as_any().downcast_ref::<nerf::field::mlp::NerfModel>().unwrap().clone();
     let coarse = nerf_export::read_bundle_network(&bundle, "coarse.onnx").unwrap();
     let fine = nerf_export::read_bundle_network(&bundle, "fine.onnx").unwrap();
     assert_eq!(coarse, model.coarse.to_plain());

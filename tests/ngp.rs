@@ -8,7 +8,8 @@ mod common;
 
 use common::{nerf, nerf_render, python, s, small_scene, tiny_ngp};
 use nerf::run_dir::RunDir;
-use nerf::train::{TrainConfig, TrainOptions, train};
+use nerf::config::TrainConfig;
+use nerf::train::{TrainOptions, train};
 use nerf_core::io::frames::load_npy;
 use nerf_core::render::metrics::psnr;
 use nerf_export::proto::ModelProto;
@@ -58,8 +59,8 @@ fn ngp_trains_exports_and_renders_the_same_everywhere() {
     // The graph holds exactly the trained field (opset 18, bitwise hash by default).
     let model = ModelProto::decode(std::fs::read(bundle.join("field.onnx")).unwrap().as_slice()).unwrap();
     assert_eq!(model.opset_import[0].version, 18);
-    let trained = RunDir::open(&run).unwrap().load_latest(&nerf::backend::cpu()).unwrap().model;
-    let nerf::field::TrainedField::Ngp(field) = trained else { panic!("an ngp run loads as an ngp field") };
+    let trained = nerf::field::load_latest(&RunDir::open(&run).unwrap(), &nerf::backend::cpu()).unwrap().model;
+    let field = trained.as_any().downcast_ref::<nerf::field::ngp::NgpField>().expect("an ngp run loads as an ngp field");
     assert_eq!(nerf_export::ngp::read_ngp(&model).unwrap(), field.to_plain());
 
     // burn vs onnxruntime through the grid; the numpy consumer vs onnxruntime through the grid
@@ -102,11 +103,11 @@ fn a_resumed_ngp_run_equals_an_uninterrupted_one() {
     train_tiny(&scene, &resumed, 40);
     let grid = |run: &Path| {
         let latest = std::fs::read_to_string(run.join("checkpoints/latest")).unwrap();
-        std::fs::read(run.join("checkpoints").join(latest.trim()).join(nerf::train::GRID_FILE)).unwrap()
+        std::fs::read(run.join("checkpoints").join(latest.trim()).join(nerf::field::ngp::GRID_FILE)).unwrap()
     };
     assert!(grid(&straight) == grid(&resumed), "table or its Adam state differ after resuming");
-    let load = |run: &Path| match RunDir::open(run).unwrap().load_latest(&nerf::backend::cpu()).unwrap().model {
-        nerf::field::TrainedField::Ngp(f) => f.to_plain(),
+    let load = |run: &Path| match nerf::field::load_latest(&RunDir::open(run).unwrap(), &nerf::backend::cpu()).unwrap().model.to_plain() {
+        nerf_core::field::PlainField::Ngp(f) => f,
         _ => panic!("an ngp run"),
     };
     assert_eq!(load(&straight), load(&resumed));

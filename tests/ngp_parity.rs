@@ -3,7 +3,7 @@
 //! 1e-5 (σ = exp(raw) relative to max(1, σ)), with σ well above 1 somewhere.
 
 use nerf::bench::random_points;
-use nerf::field::NgpField;
+use nerf::field::ngp::NgpField;
 use nerf::inference::tensor_vec3;
 use nerf_core::Rng;
 use nerf_core::field::ngp::hash_grid::HashGridConfig;

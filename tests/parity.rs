@@ -6,7 +6,7 @@ mod common;
 
 use common::{lego_dir, nerf, nerf_render, s, tiny_config, trained_run};
 use nerf::bench::random_points;
-use nerf::field::NerfMlp;
+use nerf::field::mlp::NerfMlp;
 use nerf::inference::{tensor_vec3, vec3_tensor};
 use nerf::train::{TrainOptions, train};
 use nerf_core::io::frames::load_npy;
@@ -50,7 +50,7 @@ fn networks_agree_paper_size_and_small() {
     assert!(max_sigma > 1.0, "σ stays below 1 ({max_sigma}): the comparison would be lenient");
     // A small network after some training (larger densities).
     let (_, run) = trained_run(dir.path());
-    let model = nerf::run_dir::RunDir::open(&run).unwrap().load_latest(&device).unwrap().model.as_mlp().unwrap().clone();
+    let model = nerf::field::load_latest(&nerf::run_dir::RunDir::open(&run).unwrap(), &device).unwrap().model.as_any().downcast_ref::<nerf::field::mlp::NerfModel>().unwrap().clone();
     let (d_rgb, d_sigma, max_sigma) = network_difference(model.fine.as_ref().unwrap(), dir.path());
     println!("small network: max |Δrgb| {d_rgb:.2e}, max |Δσ| {d_sigma:.2e} (σ up to {max_sigma:.3})");
     assert!(d_rgb <= 1e-5 && d_sigma <= 1e-5, "small network: max |Δrgb| {d_rgb:e}, |Δσ| {d_sigma:e}");

@@ -3,12 +3,13 @@
 mod common;
 
 use common::{lego_dir, small_scene, tiny_config};
-use nerf::train::{TrainOptions, Trainer, train};
+use nerf::train::{TrainOptions, train};
+use nerf::field::mlp::Trainer;
 use nerf_core::dataset::{Split, load_split};
 use std::path::Path;
 
 /// Every weight and bias of both networks, in layer order.
-fn model_weights(m: &nerf::field::NerfModel) -> Vec<f32> {
+fn model_weights(m: &nerf::field::mlp::NerfModel) -> Vec<f32> {
     let mut all = Vec::new();
     for net in std::iter::once(&m.coarse).chain(m.fine.as_ref()) {
         for l in net.to_plain().layers {
@@ -27,7 +28,13 @@ fn train_steps(t: &mut Trainer, steps: usize) -> (f32, f32) {
     (mean(&losses[..20]), mean(&losses[steps - 20..]))
 }
 
-fn new_trainer(data: &Path, config: nerf::train::TrainConfig, downscale: u32) -> Trainer {
+/// PSNR of the trainer's current field on view `index`, rendered as `nerf eval` renders it.
+fn view_psnr(t: &Trainer, val: &nerf_core::dataset::SplitData, index: usize) -> f32 {
+    let t: &dyn nerf::field::FieldTrainer = t;
+    t.view_psnr(val, index)
+}
+
+fn new_trainer(data: &Path, config: nerf::config::TrainConfig, downscale: u32) -> Trainer {
     let train = load_split(data, Split::Train, downscale, true).unwrap();
     Trainer::new(config, train, nerf::backend::cpu_autodiff()).unwrap()
 }
@@ -38,9 +45,9 @@ fn generated_scene_loss_falls_and_val_psnr_rises() {
     let scene = small_scene(dir.path());
     let val = load_split(&scene, Split::Val, 1, true).unwrap();
     let mut t = new_trainer(&scene, tiny_config(), 1);
-    let before = t.view_psnr(&val, 0);
+    let before = view_psnr(&t, &val, 0);
     let (first, last) = train_steps(&mut t, 300);
-    let after = t.view_psnr(&val, 0);
+    let after = view_psnr(&t, &val, 0);
     assert!(last < 0.3 * first, "loss {first} → {last}");
     // 300 steps of a 4×64 network on 32×32 views reach ≈ 19.5 dB (measured); blank ≈ 7.4 dB.
     assert!(after > 17.0 && after > before + 5.0, "val PSNR {before} → {after}");
@@ -58,7 +65,7 @@ fn lego_brief_training_beats_a_blank_image() {
     config.precrop_iters = 100;
     let mut t = new_trainer(&data, config, 8);
     let (first, last) = train_steps(&mut t, 250);
-    let after = t.view_psnr(&val, 0);
+    let after = view_psnr(&t, &val, 0);
     assert!(last < 0.7 * first, "loss {first} → {last}");
     // 50×50 lego: a blank white image scores ≈ `blank`; the model must be clearly better.
     assert!(after > 15.0 && after > blank + 3.0, "val PSNR {after} (blank white {blank})");
@@ -125,9 +132,9 @@ fn resume_continues_exactly_and_runs_are_deterministic() {
     assert_eq!(resumed.steps, 6);
 
     let load = |run: &str| {
-        let nerf::run_dir::RunCheckpoint { model, state, occupancy: grid, .. } =
-            nerf::run_dir::RunDir::open(&dir.path().join(run)).unwrap().load_latest(&nerf::backend::cpu()).unwrap();
-        (model_weights(model.as_mlp().unwrap()), state, grid.expect("the run skips empty space"))
+        let nerf::field::RunCheckpoint { model, state, occupancy: grid, .. } =
+            nerf::field::load_latest(&nerf::run_dir::RunDir::open(&dir.path().join(run)).unwrap(), &nerf::backend::cpu()).unwrap();
+        (model_weights(model.as_any().downcast_ref::<nerf::field::mlp::NerfModel>().unwrap()), state, grid.expect("the run skips empty space"))
     };
     let (a, sa, grid_a) = load("a");
     let (b, _, _) = load("b");
@@ -141,7 +148,7 @@ fn resume_continues_exactly_and_runs_are_deterministic() {
     assert!(max_diff < 1e-6, "resumed run differs by {max_diff}");
 
     // A different seed gives different weights.
-    let mut other = new_trainer(&scene, nerf::train::TrainConfig { seed: 99, ..config.clone() }, 1);
+    let mut other = new_trainer(&scene, nerf::config::TrainConfig { seed: 99, ..config.clone() }, 1);
     other.step();
     let mut same = new_trainer(&scene, config, 1);
     same.step();

@@ -1,4 +1,4 @@
-//! Checkpoints: `<run>/checkpoints/step-NNNNNNN/{model.bpk, optim.bpk, state.json[, occupancy.bin][, grid.bin]}` plus a
+//! Checkpoints: `<run>/checkpoints/step-NNNNNNN/{model.bpk, optim.bpk, state.json[, occupancy.bin][, the field's own files]}` plus a
 //! `latest` file naming the newest. Each checkpoint directory is written whole or not at all
 //! ([`write_dir_atomic`]) before `latest` is replaced atomically, so a crash never leaves a
 //! checkpoint that `latest` points to half-written.
@@ -8,14 +8,10 @@ use burn::optim::ModuleOptimizer;
 use burn::store::{BurnpackStore, ModuleSnapshot};
 use burn::tensor::Bytes;
 use nerf_core::Rng;
-use crate::field::ngp::adam::{SparseAdam, SparseAdamConfig};
-use nerf_core::field::ngp::hash_grid::{HashGrid, HashGridConfig};
 use nerf_core::sample::occupancy::{self, OccupancyGrid};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
-/// The hash grid's table and Adam state in a checkpoint ([`nerf_core::field::ngp::hash_grid::state`]).
-pub const GRID_FILE: &str = "grid.bin";
 /// The `format` of `state.json`.
 pub const FORMAT: &str = "nerf-rs-checkpoint-1";
 /// Checkpoint directories are named `step-` and the step, seven digits.
@@ -52,7 +48,8 @@ pub struct Checkpoint {
     pub dir: PathBuf,
 }
 
-fn read(path: &Path) -> Result<Vec<u8>> {
+/// The bytes of a checkpoint file.
+pub fn read(path: &Path) -> Result<Vec<u8>> {
     std::fs::read(path).map_err(|e| Error::io(path, e))
 }
 
@@ -108,13 +105,6 @@ impl Checkpoint {
             return Ok(None);
         }
         Ok(Some(OccupancyGrid::load(&path)?))
-    }
-
-    /// The hash grid and its Adam state (`grid.bin`, runs of the hash-grid field).
-    pub fn load_grid(&self, config: &HashGridConfig, adam: SparseAdamConfig) -> Result<(HashGrid, SparseAdam)> {
-        let path = self.dir.join(GRID_FILE);
-        let bytes = read(&path)?;
-        Ok(crate::field::ngp::state::state_from_bytes(&bytes, config, adam, &path)?)
     }
 
     /// Load the optimizer state into `optim`.

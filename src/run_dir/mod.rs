@@ -11,19 +11,16 @@
 //! | `checkpoints/latest` | after each checkpoint | the name of the newest complete checkpoint |
 
 use crate::error::{Error, Result};
-use crate::field::{NerfModel, NgpField, TrainedField};
 mod checkpoint;
 
-pub use checkpoint::{Checkpoint, CheckpointState, GRID_FILE};
+pub use checkpoint::{Checkpoint, CheckpointState, read};
 
 use crate::config::TrainConfig;
-use burn::tensor::Device;
 use nerf_core::io::atomic::{remove_stale_temporaries, write_atomic, write_dir_atomic};
 use nerf_core::PinholeCamera;
 use nerf_core::SceneTransform;
 use nerf_core::dataset::ScenePlacement;
 use nerf_core::io::limits;
-use nerf_core::field::FieldKind;
 use nerf_core::sample::occupancy::{self, OccupancyGrid};
 use serde::{Deserialize, Serialize};
 use std::io::Write;
@@ -54,18 +51,6 @@ impl RunSource {
 #[derive(Debug, Clone)]
 pub struct RunDir {
     root: PathBuf,
-}
-
-/// The latest checkpoint of a run, loaded.
-pub struct RunCheckpoint {
-    /// The run's configuration.
-    pub config: TrainConfig,
-    /// Its networks.
-    pub model: TrainedField,
-    /// Step, RNG and elapsed time.
-    pub state: CheckpointState,
-    /// The occupancy grid, for runs that skip empty space.
-    pub occupancy: Option<OccupancyGrid>,
 }
 
 impl RunDir {
@@ -228,30 +213,6 @@ impl RunDir {
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
             Err(e) => Err(Error::io(&latest, e)),
         }
-    }
-
-    /// The configuration and the latest checkpoint's networks (and grid) on `device`.
-    pub fn load_latest(&self, device: &Device) -> Result<RunCheckpoint> {
-        let config = self.read_config()?;
-        let checkpoint = self
-            .latest_checkpoint()?
-            .ok_or_else(|| Error::invalid(&self.checkpoints_dir(), "the run has no checkpoint yet"))?;
-        let state = checkpoint.state()?;
-        let model = match config.field {
-            FieldKind::Mlp => {
-                let mut model = NerfModel::new(&config.network, config.sampling.n_fine > 0, device);
-                checkpoint.load_model(&mut model)?;
-                TrainedField::Mlp(model)
-            }
-            FieldKind::Ngp => {
-                let mut field = NgpField::new(config.ngp, config.seed, device).map_err(Error::Config)?;
-                checkpoint.load_model(&mut field.mlps)?;
-                field.grid = checkpoint.load_grid(&config.ngp.grid, Default::default())?.0;
-                TrainedField::Ngp(field)
-            }
-        };
-        let occupancy = if config.skip_empty_space { checkpoint.load_occupancy()? } else { None };
-        Ok(RunCheckpoint { config, model, state, occupancy })
     }
 
     /// `curve.csv`, opened for appending (with its header if new).

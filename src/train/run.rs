@@ -1,7 +1,7 @@
 //! The run loop: start or resume a run directory, then step until the iteration count or the
 //! time budget is reached, with checkpoints, the PSNR curve and a progress bar.
 
-use super::{FieldTrainer, field_trainer};
+use crate::field::FieldTrainer;
 use crate::config::TrainConfig;
 use crate::error::{Error, Result};
 use crate::run_dir::{RunDir, RunSource};
@@ -174,7 +174,7 @@ fn start_or_resume(run: &RunDir, options: &TrainOptions) -> Result<(Box<dyn Fiel
             None
         }
     };
-    let mut trainer = field_trainer(config, train_data)?;
+    let mut trainer = crate::field::trainer(config, train_data)?;
     let mut elapsed_before = 0.0;
     if let Some(c) = &checkpoint {
         elapsed_before = trainer.resume(c)?;

@@ -1,7 +1,7 @@
 //! Shared fixtures for the integration tests.
 #![allow(dead_code)]
 
-use nerf::train::{Preset, TrainConfig};
+use nerf::config::{Preset, TrainConfig};
 use nerf_core::dataset::{SyntheticSceneConfig, generate_scene};
 use nerf_core::field::ngp::hash_grid::HashGridConfig;
 use nerf::train::{TrainOptions, train};

@@ -5,7 +5,10 @@
 use super::{Format, Harness, HarnessDef};
 use nerf::evaluate::LoadedRun;
 use nerf::run_dir::RunDir;
-use nerf::train::{Checkpoint, Preset, TrainConfig, TrainOptions, Trainer, train};
+use nerf::run_dir::Checkpoint;
+use nerf::config::{Preset, TrainConfig};
+use nerf::train::{TrainOptions, train};
+use nerf::field::mlp::Trainer;
 use nerf_core::dataset::{
     Background, CaptureSplit, LoadOptions, SceneFrame, Split, SyntheticSceneConfig, generate_scene, load_dataset, load_split,
 };

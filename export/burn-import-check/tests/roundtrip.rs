@@ -3,7 +3,7 @@
 
 use burn::tensor::activation::relu;
 use burn::tensor::{Tensor, TensorData};
-use nerf::field::NerfMlp;
+use nerf::field::mlp::NerfMlp;
 use nerf_core::Rng;
 use std::path::Path;
 

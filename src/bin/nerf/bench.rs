@@ -6,8 +6,7 @@ use super::BenchPart;
 use anyhow::{Result, bail};
 use nerf::bench::{FrameBench, MlpBench, best_of, bench_view, burn_frame, paper_model, paper_network, random_points, timed_frame};
 use nerf::export::field_bundle;
-use nerf::field::TrainedField;
-use nerf::train::Preset;
+use nerf::config::Preset;
 use nerf_core::dataset::{Split, load_split};
 use nerf::field::ngp::throughput::{SampleOrder, measure_throughput};
 use nerf_core::field::ngp::hash_grid::HashGridConfig;
@@ -230,15 +229,14 @@ fn bench_frames(data: Option<&Path>, sizes: &[u32], chunk: usize, progress: bool
     let (config, _, _, model) = paper_model(chunk)?;
     let dir = tempfile::tempdir()?;
     let bundle = dir.path().join("bundle");
-    let field = TrainedField::Mlp(model);
-    write_bundle(&bundle, &field_bundle(&field, &config, &camera, None), None)?;
+    write_bundle(&bundle, &field_bundle(&model, &config, &camera, None), None)?;
     let options = OpenOptions { threads: None, chunk, skip_empty_space: false };
     let mut scene = OrtScene::open(&bundle, &options)?;
     let samples = format!("{} + {}", config.sampling.n_coarse, config.sampling.n_fine);
     let mut out = Vec::new();
     for &size in sizes {
         let k = camera.resized(size, size);
-        let (burn, burn_s) = burn_frame(&field, &config, &k, &pose, progress);
+        let (burn, burn_s) = burn_frame(&model, &config, &k, &pose, progress);
         let (ort, ort_s) = timed_frame(progress, &format!("onnxruntime {size}×{size}"), k.num_pixels(), |p| scene.render(&k, &pose, p));
         let ort = ort?;
         for (backend, seconds, psnr_vs_burn_db) in [("burn", burn_s, f32::INFINITY), ("onnxruntime", ort_s, psnr(&ort.rays.rgb, &burn.rays.rgb))] {

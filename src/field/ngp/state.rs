@@ -14,6 +14,16 @@ use nerf_core::field::ngp::hash_grid::{HashGrid, HashGridConfig};
 use nerf_core::error::{Error, Result};
 use std::path::Path;
 
+/// The table and its Adam state in a checkpoint directory.
+pub const GRID_FILE: &str = "grid.bin";
+
+/// The hash grid and its Adam state saved in `checkpoint` ([`GRID_FILE`]).
+pub fn load_grid(checkpoint: &crate::run_dir::Checkpoint, config: &HashGridConfig, adam: SparseAdamConfig) -> crate::error::Result<(HashGrid, SparseAdam)> {
+    let path = checkpoint.dir.join(GRID_FILE);
+    let bytes = crate::run_dir::read(&path)?;
+    Ok(state_from_bytes(&bytes, config, adam, &path)?)
+}
+
 const MAGIC: &[u8; 8] = b"NERFHGS1";
 const HEADER_BYTES: usize = 36;
 

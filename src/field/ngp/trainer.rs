@@ -4,24 +4,24 @@
 //! plain Rust ([`nerf_core::render::gradient`]), then burn's backward through the MLPs only, the
 //! features' gradient scattered into the table, sparse Adam on the table and Adam on the MLPs.
 
-use crate::run_dir::{Checkpoint, CheckpointState, GRID_FILE};
-use super::step::{StepStats, StepTiming};
-use super::{FieldTrainer, learning_rate};
+use super::field::NgpField;
+use super::state::{GRID_FILE, load_grid, state_to_bytes};
 use crate::config::TrainConfig;
 use crate::error::{Error, Result};
-use crate::field::{NgpField, TrainedField};
+use crate::field::seam::{FieldTrainer, StepStats, StepTiming, TrainedField};
 use crate::inference::tensor_vec3;
-use crate::run_dir::RunDir;
+use crate::run_dir::{Checkpoint, CheckpointState, RunDir};
+use crate::train::packed::{composite_packed, composite_packed_backward};
+use crate::train::{learning_rate, occupancy};
 use burn::module::Module;
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::tensor::{Device, Tensor, TensorData};
 use nerf_core::camera::point_at;
 use nerf_core::dataset::{Background, RayBatcher, SplitData};
-use crate::field::ngp::adam::{SparseAdam, SparseAdamConfig};
+use super::adam::{SparseAdam, SparseAdamConfig};
 use nerf_core::field::ngp::hash_grid::HashGridGradient;
 use nerf_core::render::metrics::psnr_from_mse;
 use nerf_core::sample::occupancy::OccupancyGrid;
-use super::packed::{composite_packed, composite_packed_backward};
 use nerf_core::render::grid::occupied_samples;
 use nerf_core::{Rays, Rng};
 use std::time::Instant;
@@ -80,27 +80,16 @@ impl NgpTrainer {
     }
 
     /// The field without autodiff (a copy of the table; for renders and export).
-    pub fn snapshot(&self) -> NgpField {
+    pub fn field_snapshot(&self) -> NgpField {
         let f = self.field();
         NgpField { spec: f.spec, grid: f.grid.clone(), mlps: f.mlps.valid() }
     }
 
-    /// Re-measure the density at one random point per grid cell; with
-    /// `threshold_at_most_mean`, lower the threshold to the mean density.
+    /// Re-measure the grid's densities with the density MLP.
     fn update_occupancy(&mut self) {
-        let points = self.occupancy.random_cell_points(&mut self.rng);
-        let snapshot = self.snapshot();
+        let snapshot = self.field_snapshot();
         let device = snapshot.mlps.devices().into_iter().next().unwrap_or_else(crate::backend::cpu);
-        let mut sigma = Vec::with_capacity(points.len());
-        for chunk in points.chunks(1 << 16) {
-            sigma.extend(snapshot.density(chunk, &device));
-        }
-        let o = &self.config.occupancy;
-        self.occupancy.update(&sigma, o.decay);
-        if o.threshold_at_most_mean {
-            let threshold = o.threshold.min(self.occupancy.mean_density());
-            self.occupancy.set_threshold(threshold);
-        }
+        occupancy::update(&mut self.occupancy, &self.config.occupancy, &mut self.rng, |points| snapshot.density(points, &device));
     }
 
     /// This step's rays, their target colours and the backgrounds they are composited on:
@@ -153,8 +142,7 @@ impl FieldTrainer for NgpTrainer {
 
     fn step(&mut self) -> StepStats {
         let start = Instant::now();
-        let o = &self.config.occupancy;
-        if self.step >= o.warmup_steps && (self.step - o.warmup_steps) % o.update_every == 0 {
+        if occupancy::due(&self.config.occupancy, self.step) {
             self.update_occupancy();
         }
         let (rays, targets, backgrounds) = self.draw_rays();
@@ -216,7 +204,7 @@ impl FieldTrainer for NgpTrainer {
         let files = [
             ("model.bpk", Checkpoint::model_bytes(&field.mlps)?),
             ("optim.bpk", Checkpoint::optimizer_bytes(&self.optim)?),
-            (GRID_FILE, crate::field::ngp::state::state_to_bytes(&field.grid, &self.table_adam)),
+            (GRID_FILE, state_to_bytes(&field.grid, &self.table_adam)),
         ];
         run.save_checkpoint(&files, Some(&self.occupancy), &state)
     }
@@ -225,7 +213,7 @@ impl FieldTrainer for NgpTrainer {
         let state = checkpoint.state()?;
         let mut field = self.field.take().expect("field present");
         let loaded = checkpoint.load_model(&mut field.mlps);
-        let grid = checkpoint.load_grid(&self.config.ngp.grid, table_adam_config(&self.config));
+        let grid = load_grid(checkpoint, &self.config.ngp.grid, table_adam_config(&self.config));
         self.field = Some(field);
         loaded?;
         let (grid, adam) = grid?;
@@ -243,12 +231,8 @@ impl FieldTrainer for NgpTrainer {
         Ok(state.elapsed_s)
     }
 
-    fn view_psnr(&self, data: &SplitData, index: usize) -> f32 {
-        let view = &data.views[index];
-        let Some(target) = &view.image else { return f32::NAN };
-        let field = TrainedField::Ngp(self.snapshot());
-        let image = field.render(&crate::backend::cpu(), Some(&self.occupancy), &view.camera, &view.pose, &self.config.render_options(), &mut |_, _| {});
-        nerf_core::render::metrics::psnr(&image.rays.rgb, target)
+    fn snapshot(&self) -> Box<dyn TrainedField> {
+        Box::new(self.field_snapshot())
     }
 
     fn occupancy(&self) -> Option<&OccupancyGrid> {

@@ -1,14 +1,14 @@
 //! One training step: a random image, rays through random pixels (centre crop first), coarse
 //! + fine networks rendered differentiably, MSE on both, one Adam update.
 
-use crate::run_dir::{Checkpoint, CheckpointState};
-use super::{FieldTrainer, learning_rate};
+use super::volume::{VolumeOutput, composite, deltas_tensor};
+use super::{NerfMlp, NerfModel, encoded_tensor};
 use crate::config::TrainConfig;
 use crate::error::Result;
-use crate::field::{NerfMlp, NerfModel};
-use crate::inference::{BurnField, encoded_tensor, vec3_tensor};
-use crate::run_dir::RunDir;
-use crate::volume::{VolumeOutput, composite, deltas_tensor};
+use crate::field::seam::{FieldTrainer, StepStats, StepTiming, TrainedField};
+use crate::inference::vec3_tensor;
+use crate::run_dir::{Checkpoint, CheckpointState, RunDir};
+use crate::train::{learning_rate, occupancy};
 use burn::grad_clipping::GradientClippingConfig;
 use burn::module::{Module, ModuleMapper, Param};
 use burn::optim::{AdamConfig, GradientsAccumulator, GradientsParams, ModuleOptimizer};
@@ -16,38 +16,9 @@ use burn::tensor::{Device, IndexingUpdateOp, Int, Tensor, TensorData};
 use nerf_core::dataset::{RayBatcher, SplitData};
 use nerf_core::render::metrics::psnr_from_mse;
 use nerf_core::sample::occupancy::OccupancyGrid;
-use nerf_core::render::render_image;
 use nerf_core::sample::stratified::{DenseSamples, importance, stratified};
 use nerf_core::{Rays, Rng};
 use std::time::Instant;
-
-/// Loss and PSNR of one step.
-#[derive(Debug, Clone, Copy)]
-pub struct StepStats {
-    /// MSE(coarse) + MSE(fine).
-    pub loss: f32,
-    /// PSNR of the fine (or only) output on the batch.
-    pub psnr: f32,
-    /// Samples the field was evaluated on (forward and backward), all passes together.
-    pub samples: usize,
-    /// Where the step's time went.
-    pub timing: StepTiming,
-}
-
-/// Seconds spent in each phase of a step.
-#[derive(Debug, Clone, Copy, Default)]
-pub struct StepTiming {
-    /// Occupancy update (when due), batch, rays, sampling and both forward passes (with the
-    /// loss read back).
-    pub forward_s: f64,
-    /// Backpropagation.
-    pub backward_s: f64,
-    /// The Adam update.
-    pub update_s: f64,
-    /// Of all three, the hash grid's share: its forward pass, the scatter of its gradient and
-    /// its sparse Adam update (0 for the NeRF MLPs).
-    pub grid_s: f64,
-}
 
 /// A model, its optimizer and the data it learns from.
 pub struct Trainer {
@@ -109,19 +80,16 @@ impl Trainer {
         self.occupancy.as_ref()
     }
 
-    /// Re-measure the density at one random point per grid cell with the fine (or only) network.
+    /// Re-measure the grid's densities with the fine (or only) network.
     fn update_occupancy(&mut self) {
         let Some(mut grid) = self.occupancy.take() else { return };
-        let points = grid.random_cell_points(&mut self.rng);
         let snapshot = self.model().valid();
         let net = snapshot.last();
         let device = snapshot.coarse_device();
-        let mut sigma = Vec::with_capacity(points.len());
-        for chunk in points.chunks(1 << 16) {
-            let x = encoded_tensor(&net.spec().position_encoding, chunk, &device);
-            sigma.extend(net.density(x).into_data().try_to_vec::<f32>().expect("f32 densities"));
-        }
-        grid.update(&sigma, self.config.occupancy.decay);
+        occupancy::update(&mut grid, &self.config.occupancy, &mut self.rng, |points| {
+            let x = encoded_tensor(&net.spec().position_encoding, points, &device);
+            net.density(x).into_data().try_to_vec::<f32>().expect("f32 densities")
+        });
         self.occupancy = Some(grid);
     }
 
@@ -139,8 +107,7 @@ impl Trainer {
     /// kernels are single-threaded, so one pass's elementwise work overlaps the other's GEMMs.
     pub fn step(&mut self) -> StepStats {
         let start = Instant::now();
-        let o = &self.config.occupancy;
-        if self.occupancy.is_some() && self.step >= o.warmup_steps && (self.step - o.warmup_steps) % o.update_every == 0 {
+        if self.occupancy.is_some() && occupancy::due(&self.config.occupancy, self.step) {
             self.update_occupancy();
         }
         let cfg = &self.config;
@@ -205,17 +172,6 @@ impl Trainer {
         self.step += 1;
         timing.update_s = mark.elapsed().as_secs_f64();
         StepStats { loss: loss_value, psnr: psnr_from_mse(mse_value), samples: rays.len() * samples_per_ray, timing }
-    }
-
-    /// PSNR of the current model on one view, rendered deterministically.
-    pub fn view_psnr(&self, data: &SplitData, index: usize) -> f32 {
-        let view = &data.views[index];
-        let Some(target) = &view.image else { return f32::NAN };
-        let snapshot = self.model().valid();
-        let mut field = BurnField { model: &snapshot, device: snapshot.coarse_device() };
-        let options = self.config.render_options();
-        let Ok(image) = render_image(&mut field, self.occupancy.as_ref(), &view.camera, &view.pose, &options, &mut |_, _| {});
-        nerf_core::render::metrics::psnr(&image.rays.rgb, target)
     }
 }
 
@@ -368,8 +324,8 @@ impl FieldTrainer for Trainer {
         Trainer::resume(self, checkpoint)
     }
 
-    fn view_psnr(&self, data: &SplitData, index: usize) -> f32 {
-        Trainer::view_psnr(self, data, index)
+    fn snapshot(&self) -> Box<dyn TrainedField> {
+        Box::new(self.model().valid())
     }
 
     fn occupancy(&self) -> Option<&OccupancyGrid> {
