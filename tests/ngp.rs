@@ -61,7 +61,7 @@ fn ngp_trains_exports_and_renders_the_same_everywhere() {
     assert_eq!(model.opset_import[0].version, 18);
     let trained = nerf::field::load_latest(&RunDir::open(&run).unwrap(), &nerf::backend::cpu()).unwrap().model;
     let field = trained.as_any().downcast_ref::<nerf::field::ngp::NgpField>().expect("an ngp run loads as an ngp field");
-    assert_eq!(nerf_export::ngp::read_ngp(&model).unwrap(), field.to_plain());
+    assert_eq!(nerf_export::field::ngp::read_ngp(&model).unwrap(), field.to_plain());
 
     // burn vs onnxruntime through the grid; the numpy consumer vs onnxruntime through the grid
     // and, with --dense, through the whole box.

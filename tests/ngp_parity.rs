@@ -8,7 +8,7 @@ use nerf::inference::tensor_vec3;
 use nerf_core::Rng;
 use nerf_core::field::ngp::hash_grid::HashGridConfig;
 use nerf_core::field::ngp::NgpSpec;
-use nerf_export::hash_grid::HashOps;
+use nerf_export::field::ngp::hash_grid::HashOps;
 use nerf_runtime::OrtNetwork;
 use prost::Message;
 
@@ -31,7 +31,7 @@ fn ngp_field_graph_matches_burn() {
 
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("field.onnx");
-    let model = nerf_export::ngp::compile_ngp(&plain, "field", 18, HashOps::Bitwise, &[]).unwrap();
+    let model = nerf_export::field::ngp::compile_ngp(&plain, "field", 18, HashOps::Bitwise, &[]).unwrap();
     std::fs::write(&path, model.encode_to_vec()).unwrap();
     let mut ort = OrtNetwork::load(&path, None).unwrap();
     let (points, dirs) = random_points(12_000, 8);

@@ -19,7 +19,7 @@ use std::path::Path;
 /// Compile `net`, run both on 12,000 points, return (max |Δrgb|, max |Δσ|, max σ).
 fn network_difference(net: &NerfMlp, dir: &Path) -> (f32, f32, f32) {
     let path = dir.join(format!("net-{}.onnx", net.spec().width));
-    let model = nerf_export::compile(&net.to_plain(), "coarse", nerf_export::DEFAULT_OPSET, &[]).unwrap();
+    let model = nerf_export::field::mlp::compile(&net.to_plain(), "coarse", nerf_export::DEFAULT_OPSET, &[]).unwrap();
     std::fs::write(&path, model.encode_to_vec()).unwrap();
     let mut ort = OrtNetwork::load(&path, None).unwrap();
     let (points, dirs) = random_points(12_000, 7);

@@ -4,7 +4,6 @@
 use nerf_core::PinholeCamera;
 use nerf_core::camera::Pose;
 use nerf_core::dataset::ScenePlacement;
-use nerf_core::field::mlp::EncodingSpec;
 use nerf_core::field::{FieldKind, Role};
 use nerf_core::io::limits::{self, MAX_FRAMES, Origin};
 use nerf_core::sample::SamplingConfig;
@@ -119,17 +118,6 @@ pub struct EncodingDescription {
     pub frequencies: Vec<f32>,
     /// Values per 3-vector.
     pub output_dim: usize,
-}
-
-impl From<&EncodingSpec> for EncodingDescription {
-    fn from(e: &EncodingSpec) -> Self {
-        EncodingDescription {
-            n_frequencies: e.n_frequencies,
-            include_input: e.include_input,
-            frequencies: e.frequencies(),
-            output_dim: e.output_dim(),
-        }
-    }
 }
 
 /// `nerf-rs-scene-1`'s graph files.

@@ -3,13 +3,10 @@
 //! all).
 
 use crate::ExportError;
-use crate::graph::{compile, read_network};
-use crate::hash_grid::HashOps;
-use crate::ngp::compile_ngp;
+use crate::field::{compile_field, default_opset};
 use nerf_bundle::scene::{CAMERA_CONVENTION, SceneDescription};
-use nerf_bundle::{WrittenFile, bundle_file, read_model};
-use nerf_core::field::mlp::PlainNetwork;
-use nerf_core::field::{FieldKind, PlainField, Role};
+use nerf_bundle::WrittenFile;
+use nerf_core::field::{PlainField, Role};
 use nerf_core::sample::occupancy::OccupancyGrid;
 use prost::Message;
 use std::path::Path;
@@ -25,17 +22,8 @@ pub struct Bundle {
     pub occupancy: Option<OccupancyGrid>,
 }
 
-/// The opset used when none is asked for: [`crate::DEFAULT_OPSET`], or for the hash-grid field
-/// the lowest with BitwiseXor (18; 17 lowers the hash without bitwise operators).
-pub fn default_opset(kind: FieldKind) -> i64 {
-    match kind {
-        FieldKind::Mlp => crate::DEFAULT_OPSET,
-        FieldKind::Ngp => HashOps::Bitwise.min_opset(),
-    }
-}
-
 /// Compile the field and write the bundle to `dir` (replacing an existing bundle only once the
-/// new one is complete); `opset` `None`: [`default_opset`].
+/// new one is complete); `opset` `None`: [`crate::default_opset`].
 pub fn write_bundle(dir: &Path, bundle: &Bundle, opset: Option<i64>) -> Result<Vec<WrittenFile>, ExportError> {
     let mut scene = bundle.scene.clone();
     scene.field = bundle.field.kind();
@@ -48,32 +36,8 @@ pub fn write_bundle(dir: &Path, bundle: &Bundle, opset: Option<i64>) -> Result<V
     Ok(nerf_bundle::write_bundle(dir, &scene, graphs, bundle.occupancy.as_ref())?)
 }
 
-/// Each graph of `field` by role, its metadata from `scene` (which learns what only the field
-/// knows: the encodings of the MLPs, no fine stage for the hash grid).
-fn compile_field(field: &PlainField, scene: &mut SceneDescription, opset: i64) -> Result<Vec<(Role, crate::proto::ModelProto)>, ExportError> {
-    match field {
-        PlainField::Mlp { coarse, fine } => {
-            if (scene.sampling.n_fine > 0) != fine.is_some() {
-                return Err(ExportError::Network("sampling.n_fine and the networks disagree about a fine network".into()));
-            }
-            scene.position_encoding = Some((&coarse.spec.position_encoding).into());
-            scene.direction_encoding = Some((&coarse.spec.direction_encoding).into());
-            let mut graphs = vec![(Role::Coarse, compile(coarse, "coarse", opset, &scene_metadata(scene, Role::Coarse))?)];
-            if let Some(fine) = fine {
-                graphs.push((Role::Fine, compile(fine, "fine", opset, &scene_metadata(scene, Role::Fine))?));
-            }
-            Ok(graphs)
-        }
-        PlainField::Ngp(plain) => {
-            scene.sampling.n_fine = 0;
-            let ops = if opset >= HashOps::Bitwise.min_opset() { HashOps::Bitwise } else { HashOps::Arithmetic };
-            Ok(vec![(Role::Field, compile_ngp(plain, "field", opset, ops, &scene_metadata(scene, Role::Field))?)])
-        }
-    }
-}
-
 /// The contract metadata every graph of a scene carries.
-fn scene_metadata(scene: &SceneDescription, role: Role) -> Vec<(String, String)> {
+pub(crate) fn scene_metadata(scene: &SceneDescription, role: Role) -> Vec<(String, String)> {
     let s = &scene.sampling;
     let mut metadata = vec![
         ("nerf.stage".into(), role.name().into()),
@@ -90,10 +54,4 @@ fn scene_metadata(scene: &SceneDescription, role: Role) -> Vec<(String, String)>
         metadata.push(("nerf.ndc".into(), ndc));
     }
     metadata
-}
-
-/// The plain network stored in a bundle's MLP graph file `file` (`coarse.onnx`, `fine.onnx`).
-pub fn read_bundle_network(dir: &Path, file: &str) -> nerf_core::Result<PlainNetwork> {
-    let path = bundle_file(dir, file, "graphs")?;
-    read_network(&read_model(&path)?).map_err(|e| nerf_core::Error::invalid(&path, e))
 }

@@ -6,17 +6,17 @@
 //! models trained elsewhere (nerf-pytorch checkpoints) into bundles.
 #![warn(missing_docs)]
 
+pub mod builder;
 pub mod bundle;
-pub mod graph;
-pub mod hash_grid;
-pub mod import;
-pub mod ngp;
+pub mod field;
 
 /// The ONNX messages, shared with the bundle reader.
 pub use nerf_bundle::proto;
 
-pub use bundle::{Bundle, default_opset, read_bundle_network, write_bundle};
-pub use graph::{DEFAULT_OPSET, compile, read_network};
+pub use builder::DEFAULT_OPSET;
+pub use bundle::{Bundle, write_bundle};
+pub use field::default_opset;
+pub use field::mlp::{import, read_bundle_network};
 
 /// Why a network could not be compiled or a bundle written.
 #[derive(Debug, thiserror::Error)]

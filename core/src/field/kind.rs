@@ -1,8 +1,13 @@
-//! The kinds of radiance field, and the roles their graphs play in a bundle.
+//! The one description of the field kinds: their names ([`FieldKind`], what configs, graph
+//! metadata and `scene.json` carry), what differs between them (graph roles, bounded boxes),
+//! the roles of their graphs ([`Role`]) and a trained field of any kind as plain data
+//! ([`PlainField`]). Adding a kind adds a variant here and a folder beside this file.
 
 use serde::{Deserialize, Serialize};
 
 use super::eval::Stage;
+use super::mlp::PlainNetwork;
+use super::ngp::PlainNgp;
 
 /// Which kind of radiance field a run trains and a bundle holds: the one name the training
 /// config, checkpoints, graph metadata (`nerf.field`) and `scene.json` carry. What differs
@@ -72,6 +77,30 @@ impl Role {
             Role::Field => true,
             Role::Coarse => stage == Stage::Coarse,
             Role::Fine => stage == Stage::Fine,
+        }
+    }
+}
+
+/// A trained field's shape and weights.
+#[derive(Debug, Clone, PartialEq)]
+pub enum PlainField {
+    /// The NeRF MLPs: the coarse network and, for hierarchical sampling, the fine one.
+    Mlp {
+        /// The coarse network.
+        coarse: PlainNetwork,
+        /// The fine network, if any.
+        fine: Option<PlainNetwork>,
+    },
+    /// The hash-grid field.
+    Ngp(PlainNgp),
+}
+
+impl PlainField {
+    /// Its kind.
+    pub fn kind(&self) -> FieldKind {
+        match self {
+            PlainField::Mlp { .. } => FieldKind::Mlp,
+            PlainField::Ngp(_) => FieldKind::Ngp,
         }
     }
 }

@@ -215,7 +215,7 @@ fn bench_mlp(points: usize, repeats: usize) -> Result<Vec<MlpBench>> {
     let burn = nerf::bench::bench_mlp_burn(&net, &p, &d, repeats)?;
     let dir = tempfile::tempdir()?;
     let path = dir.path().join("paper.onnx");
-    let model = nerf_export::compile(&plain, "coarse", nerf_export::DEFAULT_OPSET, &[])?;
+    let model = nerf_export::field::mlp::compile(&plain, "coarse", nerf_export::DEFAULT_OPSET, &[])?;
     nerf_core::io::atomic::write_atomic(&path, &prost::Message::encode_to_vec(&model))?;
     let mut ort = OrtNetwork::load(&path, None)?;
     let ort_s = best_of(repeats, || ort.run(&p, &d).map(|_| ()))?;

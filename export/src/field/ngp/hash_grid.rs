@@ -32,7 +32,7 @@
 //! one of its nodes on the GPU was not checked here (no GPU, and its kernel list not read).
 
 use crate::ExportError;
-use crate::graph::{Builder, OPSETS, int_attribute, model_proto, value_info};
+use crate::builder::{Builder, OPSETS, int_attribute, model_proto, value_info};
 use crate::proto::*;
 use nerf_core::field::ngp::hash_grid::{GridBound, HashGrid};
 use nerf_core::field::ngp::spherical_harmonics::{SH4_CONSTANTS, SH4_DIM};

@@ -1,5 +1,5 @@
-//! Compiling one plain NeRF network ([`PlainNetwork`]) into an ONNX model, and reading its
-//! description and weights back.
+//! The NeRF MLPs' ONNX lowering: one plain network ([`PlainNetwork`]) into an ONNX model, and
+//! its description and weights read back; [`import`] reads nerf-pytorch's trained networks.
 //!
 //! # The graph contract
 //! - Inputs: `points` float32 `[N, 3]` (world positions) and `viewdirs` float32 `[N, 3]` (unit
@@ -15,29 +15,20 @@
 //!   [`NetworkSpec::layer_shapes`]) plus a few encoding constants, each stored once.
 //! - `metadata_props` carry the contract; `nerf.network` holds the [`NetworkSpec`] as JSON.
 
-use crate::proto::*;
-use crate::ExportError;
-use nerf_bundle::graph::{CONTRACT_INPUTS, CONTRACT_OUTPUTS, float_initializer};
-use nerf_core::field::mlp::{EncodingSpec, NetworkSpec, PlainNetwork};
-use nerf_core::field::DenseLayer;
+pub mod import;
 
-/// Opsets this compiler writes (`Gemm`, `Unsqueeze`-with-axes-input, `Slice`, `Reshape` are
-/// stable across them).
-pub const OPSETS: std::ops::RangeInclusive<i64> = 17..=23;
-/// The default opset.
-pub const DEFAULT_OPSET: i64 = 17;
+use crate::ExportError;
+use crate::builder::{Builder, OPSETS, contract_inputs, contract_outputs, int_attribute, model_proto};
+use crate::proto::*;
+use nerf_bundle::graph::float_initializer;
+use nerf_bundle::scene::EncodingDescription;
+use nerf_bundle::{bundle_file, read_model};
+use std::path::Path;
+use nerf_core::field::DenseLayer;
+use nerf_core::field::mlp::{EncodingSpec, NetworkSpec, PlainNetwork};
+
 /// Metadata key holding the network description as JSON.
 pub const NETWORK_KEY: &str = "nerf.network";
-
-/// The IR version that goes with an opset of the default domain (onnx's VERSION_TABLE).
-pub fn ir_version_for(opset: i64) -> i64 {
-    match opset {
-        ..=18 => 8,
-        19..=20 => 9,
-        21..=22 => 10,
-        _ => 11,
-    }
-}
 
 /// Compile `net` into a model named `name`; `metadata` is added to the contract entries.
 pub fn compile(net: &PlainNetwork, name: &str, opset: i64, metadata: &[(String, String)]) -> Result<ModelProto, ExportError> {
@@ -52,7 +43,7 @@ pub fn compile(net: &PlainNetwork, name: &str, opset: i64, metadata: &[(String, 
         }
     }
     let mut g = Builder::default();
-    let x = g.encoding("points", "position_encoding", &spec.position_encoding);
+    let x = lower_encoding(&mut g, "points", "position_encoding", &spec.position_encoding);
     let mut h = x.clone();
     for (i, layer) in net.layers[..spec.depth].iter().enumerate() {
         h = g.dense(layer, &h, Some("Relu"));
@@ -65,7 +56,7 @@ pub fn compile(net: &PlainNetwork, name: &str, opset: i64, metadata: &[(String, 
         let sigma_raw = g.dense(&heads[0], &h, None);
         g.unary("Relu", &sigma_raw, "sigma");
         let feature = g.dense(&heads[1], &h, None);
-        let d = g.encoding("viewdirs", "direction_encoding", &spec.direction_encoding);
+        let d = lower_encoding(&mut g, "viewdirs", "direction_encoding", &spec.direction_encoding);
         let view_in = g.concat(&[&feature, &d], "view.input");
         let v = g.dense(&heads[2], &view_in, Some("Relu"));
         let rgb_raw = g.dense(&heads[3], &v, None);
@@ -102,19 +93,28 @@ pub fn compile(net: &PlainNetwork, name: &str, opset: i64, metadata: &[(String, 
     Ok(model_proto(graph, opset, "A neural radiance field network compiled by nerf-rs (nerf export).", props))
 }
 
-/// A model around `graph` for `opset` (with the IR version to match), carrying `metadata`.
-pub(crate) fn model_proto(graph: GraphProto, opset: i64, doc: &str, metadata: Vec<(String, String)>) -> ModelProto {
-    ModelProto {
-        ir_version: ir_version_for(opset),
-        opset_import: vec![OperatorSetIdProto { domain: String::new(), version: opset }],
-        producer_name: "nerf-rs".into(),
-        producer_version: env!("CARGO_PKG_VERSION").into(),
-        domain: "rs.nerf".into(),
-        model_version: 1,
-        doc_string: doc.into(),
-        graph: Some(graph),
-        metadata_props: metadata.into_iter().map(|(key, value)| StringStringEntryProto { key, value }).collect(),
+/// The positional encoding of graph input `input` (`[N, 3]` → `[N, e.output_dim()]`).
+fn lower_encoding(g: &mut Builder, input: &str, tag: &str, e: &EncodingSpec) -> String {
+    if e.n_frequencies == 0 {
+        return input.to_string();
     }
+    let l = e.n_frequencies;
+    let axes = g.i64_constant("axes.1", &[1]);
+    let freqs = g.f32_tensor(&format!("{tag}.frequencies"), &[l, 1], &e.frequencies());
+    // Reshape [N, L, 6] → [N, 6L]; 0 copies N, so an empty batch works too.
+    let shape = g.i64_constant(&format!("{tag}.shape"), &[0, 6 * l as i64]);
+    let unsqueezed = g.node("Unsqueeze", &[input, &axes], &format!("{tag}.unsqueeze"), vec![]);
+    let scaled = g.node("Mul", &[&unsqueezed, &freqs], &format!("{tag}.scaled"), vec![]);
+    let sin = g.unary("Sin", &scaled, &format!("{tag}.sin"));
+    let cos = g.unary("Cos", &scaled, &format!("{tag}.cos"));
+    let pairs = g.node("Concat", &[&sin, &cos], &format!("{tag}.sincos"), vec![int_attribute("axis", 2)]);
+    let periodic = g.node("Reshape", &[&pairs, &shape], &format!("{tag}.periodic"), vec![]);
+    if e.include_input { g.concat(&[input, &periodic], &format!("{tag}.output")) } else { periodic }
+}
+
+/// An encoding as `scene.json` states it for other implementations.
+pub fn encoding_description(e: &EncodingSpec) -> EncodingDescription {
+    EncodingDescription { n_frequencies: e.n_frequencies, include_input: e.include_input, frequencies: e.frequencies(), output_dim: e.output_dim() }
 }
 
 fn encoding_text(e: &EncodingSpec) -> String {
@@ -124,124 +124,6 @@ fn encoding_text(e: &EncodingSpec) -> String {
         e.include_input,
         e.output_dim()
     )
-}
-
-/// The contract's inputs, documented.
-pub(crate) fn contract_inputs() -> Vec<ValueInfoProto> {
-    vec![
-        value_info(CONTRACT_INPUTS[0], "World-space sample positions, float32 [N, 3]."),
-        value_info(CONTRACT_INPUTS[1], "Unit view directions (the ray direction normalised), float32 [N, 3], one per point."),
-    ]
-}
-
-/// The contract's outputs; `sigma_doc` says how σ is made non-negative.
-pub(crate) fn contract_outputs(sigma_doc: &str) -> Vec<ValueInfoProto> {
-    vec![value_info(CONTRACT_OUTPUTS[0], "Colour in [0, 1] (sigmoid applied), float32 [N, 3]."), value_info(CONTRACT_OUTPUTS[1], sigma_doc)]
-}
-
-/// `name` float32 `[N, columns]`.
-pub(crate) fn value_info((name, columns): (&str, i64), doc: &str) -> ValueInfoProto {
-    use tensor_shape_proto::{Dimension, dimension::Value};
-    let dim = vec![Dimension { value: Some(Value::DimParam("N".into())) }, Dimension { value: Some(Value::DimValue(columns)) }];
-    ValueInfoProto {
-        name: name.into(),
-        r#type: Some(TypeProto {
-            value: Some(type_proto::Value::TensorType(type_proto::Tensor {
-                elem_type: data_type::FLOAT,
-                shape: Some(TensorShapeProto { dim }),
-            })),
-        }),
-        doc_string: doc.into(),
-    }
-}
-
-/// Accumulates nodes and initializers with unique names.
-#[derive(Default)]
-pub(crate) struct Builder {
-    pub(crate) nodes: Vec<NodeProto>,
-    pub(crate) initializers: Vec<TensorProto>,
-}
-
-impl Builder {
-    pub(crate) fn node(&mut self, op: &str, inputs: &[&str], output: &str, attribute: Vec<AttributeProto>) -> String {
-        self.nodes.push(NodeProto {
-            input: inputs.iter().map(|s| s.to_string()).collect(),
-            output: vec![output.to_string()],
-            name: output.to_string(),
-            op_type: op.to_string(),
-            domain: String::new(),
-            attribute,
-            doc_string: String::new(),
-        });
-        output.to_string()
-    }
-
-    pub(crate) fn unary(&mut self, op: &str, input: &str, output: &str) -> String {
-        self.node(op, &[input], output, vec![])
-    }
-
-    pub(crate) fn concat(&mut self, inputs: &[&str], output: &str) -> String {
-        self.node("Concat", inputs, output, vec![int_attribute("axis", 1)])
-    }
-
-    /// A named constant, stored once however often it is used.
-    pub(crate) fn i64_constant(&mut self, name: &str, values: &[i64]) -> String {
-        if !self.initializers.iter().any(|t| t.name == name) {
-            self.initializers.push(TensorProto {
-                dims: vec![values.len() as i64],
-                data_type: data_type::INT64,
-                name: name.into(),
-                raw_data: values.iter().flat_map(|v| v.to_le_bytes()).collect(),
-                ..Default::default()
-            });
-        }
-        name.to_string()
-    }
-
-    pub(crate) fn f32_tensor(&mut self, name: &str, dims: &[usize], values: &[f32]) -> String {
-        self.initializers.push(TensorProto {
-            dims: dims.iter().map(|&d| d as i64).collect(),
-            data_type: data_type::FLOAT,
-            name: name.into(),
-            raw_data: values.iter().flat_map(|v| v.to_le_bytes()).collect(),
-            ..Default::default()
-        });
-        name.to_string()
-    }
-
-    /// `Gemm(input, W, b)` (then `activation`), W stored `[in, out]`.
-    pub(crate) fn dense(&mut self, layer: &DenseLayer, input: &str, activation: Option<&str>) -> String {
-        let w = self.f32_tensor(&format!("{}.weight", layer.name), &[layer.in_dim, layer.out_dim], &layer.weight);
-        let b = self.f32_tensor(&format!("{}.bias", layer.name), &[layer.out_dim], &layer.bias);
-        let linear = self.node("Gemm", &[input, &w, &b], &format!("{}.linear", layer.name), vec![]);
-        match activation {
-            Some(op) => self.unary(op, &linear, &format!("{}.{}", layer.name, op.to_lowercase())),
-            None => linear,
-        }
-    }
-
-    /// The positional encoding of graph input `input` (`[N, 3]` → `[N, e.output_dim()]`).
-    fn encoding(&mut self, input: &str, tag: &str, e: &EncodingSpec) -> String {
-        if e.n_frequencies == 0 {
-            return input.to_string();
-        }
-        let l = e.n_frequencies;
-        let axes = self.i64_constant("axes.1", &[1]);
-        let freqs = self.f32_tensor(&format!("{tag}.frequencies"), &[l, 1], &e.frequencies());
-        // Reshape [N, L, 6] → [N, 6L]; 0 copies N, so an empty batch works too.
-        let shape = self.i64_constant(&format!("{tag}.shape"), &[0, 6 * l as i64]);
-        let unsqueezed = self.node("Unsqueeze", &[input, &axes], &format!("{tag}.unsqueeze"), vec![]);
-        let scaled = self.node("Mul", &[&unsqueezed, &freqs], &format!("{tag}.scaled"), vec![]);
-        let sin = self.unary("Sin", &scaled, &format!("{tag}.sin"));
-        let cos = self.unary("Cos", &scaled, &format!("{tag}.cos"));
-        let pairs = self.node("Concat", &[&sin, &cos], &format!("{tag}.sincos"), vec![int_attribute("axis", 2)]);
-        let periodic = self.node("Reshape", &[&pairs, &shape], &format!("{tag}.periodic"), vec![]);
-        if e.include_input { self.concat(&[input, &periodic], &format!("{tag}.output")) } else { periodic }
-    }
-}
-
-pub(crate) fn int_attribute(name: &str, value: i64) -> AttributeProto {
-    AttributeProto { name: name.into(), r#type: attribute_type::INT, i: value, ..Default::default() }
 }
 
 /// The network description and weights of a model written by [`compile`].
@@ -271,9 +153,16 @@ pub fn read_network(model: &ModelProto) -> Result<PlainNetwork, String> {
     Ok(PlainNetwork { spec, layers })
 }
 
+/// The plain network stored in a bundle's graph file `file` (`coarse.onnx`, `fine.onnx`).
+pub fn read_bundle_network(dir: &Path, file: &str) -> nerf_core::Result<PlainNetwork> {
+    let path = bundle_file(dir, file, "graphs")?;
+    read_network(&read_model(&path)?).map_err(|e| nerf_core::Error::invalid(&path, e))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::builder::DEFAULT_OPSET;
     use nerf_bundle::check_contract;
     use prost::Message;
 

@@ -8,9 +8,11 @@
 //! The MLPs are bias-free; their `Gemm`s add zero biases (exact).
 
 use crate::ExportError;
-use crate::graph::{Builder, contract_inputs, contract_outputs};
+pub mod hash_grid;
+
+use crate::builder::{Builder, contract_inputs, contract_outputs};
 use nerf_bundle::graph::float_initializer;
-use crate::hash_grid::{HashOps, check_opset, lower_hash_grid, lower_sh4, model, slice};
+use hash_grid::{HashOps, check_opset, lower_hash_grid, lower_sh4, model, slice};
 use crate::proto::*;
 use nerf_core::field::ngp::hash_grid::HashGrid;
 use nerf_core::field::DenseLayer;

@@ -1,0 +1,136 @@
+//! The compiler's generic parts: opsets, models around graphs, the contract's inputs and
+//! outputs, and a builder of nodes and initializers that every field kind's lowering writes
+//! its graph with.
+
+use crate::proto::*;
+use nerf_bundle::graph::{CONTRACT_INPUTS, CONTRACT_OUTPUTS};
+use nerf_core::field::DenseLayer;
+
+/// Opsets this compiler writes (`Gemm`, `Unsqueeze`-with-axes-input, `Slice`, `Reshape` are
+/// stable across them).
+pub const OPSETS: std::ops::RangeInclusive<i64> = 17..=23;
+/// The default opset.
+pub const DEFAULT_OPSET: i64 = 17;
+/// The IR version that goes with an opset of the default domain (onnx's VERSION_TABLE).
+pub fn ir_version_for(opset: i64) -> i64 {
+    match opset {
+        ..=18 => 8,
+        19..=20 => 9,
+        21..=22 => 10,
+        _ => 11,
+    }
+}
+
+/// A model around `graph` for `opset` (with the IR version to match), carrying `metadata`.
+pub(crate) fn model_proto(graph: GraphProto, opset: i64, doc: &str, metadata: Vec<(String, String)>) -> ModelProto {
+    ModelProto {
+        ir_version: ir_version_for(opset),
+        opset_import: vec![OperatorSetIdProto { domain: String::new(), version: opset }],
+        producer_name: "nerf-rs".into(),
+        producer_version: env!("CARGO_PKG_VERSION").into(),
+        domain: "rs.nerf".into(),
+        model_version: 1,
+        doc_string: doc.into(),
+        graph: Some(graph),
+        metadata_props: metadata.into_iter().map(|(key, value)| StringStringEntryProto { key, value }).collect(),
+    }
+}
+
+/// The contract's inputs, documented.
+pub(crate) fn contract_inputs() -> Vec<ValueInfoProto> {
+    vec![
+        value_info(CONTRACT_INPUTS[0], "World-space sample positions, float32 [N, 3]."),
+        value_info(CONTRACT_INPUTS[1], "Unit view directions (the ray direction normalised), float32 [N, 3], one per point."),
+    ]
+}
+
+/// The contract's outputs; `sigma_doc` says how σ is made non-negative.
+pub(crate) fn contract_outputs(sigma_doc: &str) -> Vec<ValueInfoProto> {
+    vec![value_info(CONTRACT_OUTPUTS[0], "Colour in [0, 1] (sigmoid applied), float32 [N, 3]."), value_info(CONTRACT_OUTPUTS[1], sigma_doc)]
+}
+
+/// `name` float32 `[N, columns]`.
+pub(crate) fn value_info((name, columns): (&str, i64), doc: &str) -> ValueInfoProto {
+    use tensor_shape_proto::{Dimension, dimension::Value};
+    let dim = vec![Dimension { value: Some(Value::DimParam("N".into())) }, Dimension { value: Some(Value::DimValue(columns)) }];
+    ValueInfoProto {
+        name: name.into(),
+        r#type: Some(TypeProto {
+            value: Some(type_proto::Value::TensorType(type_proto::Tensor {
+                elem_type: data_type::FLOAT,
+                shape: Some(TensorShapeProto { dim }),
+            })),
+        }),
+        doc_string: doc.into(),
+    }
+}
+
+/// Accumulates nodes and initializers with unique names.
+#[derive(Default)]
+pub(crate) struct Builder {
+    pub(crate) nodes: Vec<NodeProto>,
+    pub(crate) initializers: Vec<TensorProto>,
+}
+
+impl Builder {
+    pub(crate) fn node(&mut self, op: &str, inputs: &[&str], output: &str, attribute: Vec<AttributeProto>) -> String {
+        self.nodes.push(NodeProto {
+            input: inputs.iter().map(|s| s.to_string()).collect(),
+            output: vec![output.to_string()],
+            name: output.to_string(),
+            op_type: op.to_string(),
+            domain: String::new(),
+            attribute,
+            doc_string: String::new(),
+        });
+        output.to_string()
+    }
+
+    pub(crate) fn unary(&mut self, op: &str, input: &str, output: &str) -> String {
+        self.node(op, &[input], output, vec![])
+    }
+
+    pub(crate) fn concat(&mut self, inputs: &[&str], output: &str) -> String {
+        self.node("Concat", inputs, output, vec![int_attribute("axis", 1)])
+    }
+
+    /// A named constant, stored once however often it is used.
+    pub(crate) fn i64_constant(&mut self, name: &str, values: &[i64]) -> String {
+        if !self.initializers.iter().any(|t| t.name == name) {
+            self.initializers.push(TensorProto {
+                dims: vec![values.len() as i64],
+                data_type: data_type::INT64,
+                name: name.into(),
+                raw_data: values.iter().flat_map(|v| v.to_le_bytes()).collect(),
+                ..Default::default()
+            });
+        }
+        name.to_string()
+    }
+
+    pub(crate) fn f32_tensor(&mut self, name: &str, dims: &[usize], values: &[f32]) -> String {
+        self.initializers.push(TensorProto {
+            dims: dims.iter().map(|&d| d as i64).collect(),
+            data_type: data_type::FLOAT,
+            name: name.into(),
+            raw_data: values.iter().flat_map(|v| v.to_le_bytes()).collect(),
+            ..Default::default()
+        });
+        name.to_string()
+    }
+
+    /// `Gemm(input, W, b)` (then `activation`), W stored `[in, out]`.
+    pub(crate) fn dense(&mut self, layer: &DenseLayer, input: &str, activation: Option<&str>) -> String {
+        let w = self.f32_tensor(&format!("{}.weight", layer.name), &[layer.in_dim, layer.out_dim], &layer.weight);
+        let b = self.f32_tensor(&format!("{}.bias", layer.name), &[layer.out_dim], &layer.bias);
+        let linear = self.node("Gemm", &[input, &w, &b], &format!("{}.linear", layer.name), vec![]);
+        match activation {
+            Some(op) => self.unary(op, &linear, &format!("{}.{}", layer.name, op.to_lowercase())),
+            None => linear,
+        }
+    }
+}
+
+pub(crate) fn int_attribute(name: &str, value: i64) -> AttributeProto {
+    AttributeProto { name: name.into(), r#type: attribute_type::INT, i: value, ..Default::default() }
+}
