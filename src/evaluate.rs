@@ -7,8 +7,9 @@ use crate::run_dir::{RunDir, RunSource};
 use crate::config::TrainConfig;
 use nerf_core::PinholeCamera;
 use nerf_core::camera::Pose;
-use nerf_core::dataset::{Background, CaptureFormat, CaptureSplit, LoadOptions, SceneFrame, ScenePlacement, SplitData, load_dataset};
+use nerf_core::dataset::{Background, ScenePlacement};
 use nerf_core::io::frames::{FrameOutput, FrameSpec, FramesReport, render_frames};
+use nerf_core::io::views::{Images, SplitChoice, orbit_poses, split_views};
 use nerf_core::render::metrics::EvalReport;
 use nerf_core::sample::occupancy::OccupancyGrid;
 use nerf_core::render::RenderedImage;
@@ -46,25 +47,16 @@ impl LoadedRun {
         self.source.as_ref().and_then(|s| s.placement.as_ref())
     }
 
-    /// `split` of the dataset in `data`, its poses mapped into the field by the run's recorded
-    /// transform (never refitted to this data).
-    pub fn load_split(&self, data: &Path, format: Option<CaptureFormat>, split: CaptureSplit, downscale: u32, images: bool) -> Result<SplitData> {
+    /// The views of `choice`, poses mapped into the field by the run's recorded transform
+    /// (never refitted to this data), images on the run's background as `images` says.
+    pub fn split_views(&self, choice: &SplitChoice, images: Images) -> Result<Vec<FrameSpec>> {
         let transform = self.placement().map_or_else(nerf_core::SceneTransform::identity, |p| p.transform);
-        let background = Background::from_white(self.config.white_background);
-        let options = LoadOptions { format, downscale, images, background, frame: SceneFrame::Recorded(transform) };
-        let dataset = load_dataset(data, split, &options)?;
-        for w in &dataset.warnings {
-            eprintln!("warning: {w}");
-        }
-        Ok(dataset.data)
+        Ok(split_views(choice, transform, Background::from_white(self.config.white_background), images)?)
     }
 
     /// The run's orbit: around a capture's cameras, else the reference orbit.
     pub fn orbit(&self, frames: usize) -> Vec<Pose> {
-        match self.placement().and_then(|p| p.orbit) {
-            Some(orbit) => orbit.poses(frames),
-            None => Pose::orbit(frames),
-        }
+        orbit_poses(self.placement().and_then(|p| p.orbit.as_ref()), frames)
     }
 
     /// Render one view deterministically (test-time sampling, skipping empty space when the
@@ -82,34 +74,20 @@ impl LoadedRun {
     }
 }
 
-/// Which data `nerf eval`/`nerf render --split` read: directory, format (`None`: detected),
-/// split and downscale factor.
-#[derive(Debug, Clone)]
-pub struct DataChoice {
-    /// Dataset directory.
-    pub dir: PathBuf,
-    /// Its format, `None` to detect it.
-    pub format: Option<CaptureFormat>,
-    /// train, val, test or all.
-    pub split: CaptureSplit,
-    /// Image downscale factor.
-    pub downscale: u32,
-}
-
 /// Render a split's views, compare with its images, write PNGs and `<out>/metrics.json`.
-pub fn eval(run: &Path, data: &DataChoice, limit: Option<usize>, out: &Path, progress: bool) -> Result<EvalReport> {
+pub fn eval(run: &Path, data: &SplitChoice, limit: Option<usize>, out: &Path, progress: bool) -> Result<EvalReport> {
     let loaded = LoadedRun::open(run)?;
-    let mut scene = loaded.load_split(&data.dir, data.format, data.split, data.downscale, true)?;
-    scene.views.truncate(limit.unwrap_or(usize::MAX));
-    let report = loaded.render_frames(FrameSpec::from_split(scene), out, false, false, progress)?;
+    let mut views = loaded.split_views(data, Images::Required)?;
+    views.truncate(limit.unwrap_or(usize::MAX));
+    let report = loaded.render_frames(views, out, false, false, progress)?;
     report.metrics.ok_or_else(|| Error::invalid(&data.dir, format!("the {} split has no views", data.split)))
 }
 
 /// Render a split's poses (no ground truth needed) to PNGs and depth maps (and `.npy` with `raw`).
-pub fn render_split(run: &Path, data: &DataChoice, out: &Path, raw: bool, progress: bool) -> Result<usize> {
+pub fn render_split(run: &Path, data: &SplitChoice, out: &Path, raw: bool, progress: bool) -> Result<usize> {
     let loaded = LoadedRun::open(run)?;
-    let scene = loaded.load_split(&data.dir, data.format, data.split, data.downscale, false)?;
-    Ok(loaded.render_frames(FrameSpec::from_split(scene), out, false, raw, progress)?.frames)
+    let views = loaded.split_views(data, Images::Skip)?;
+    Ok(loaded.render_frames(views, out, false, raw, progress)?.frames)
 }
 
 /// Render the run's orbit (around a capture's cameras, a spiral in front of forward-facing

@@ -10,18 +10,19 @@ use nerf_bundle::{WrittenFile, pose_matrix};
 use nerf_core::PinholeCamera;
 use nerf_core::camera::{ORBIT_FRAMES, Pose};
 use nerf_core::dataset::{CaptureFormat, CaptureSplit};
+use nerf_core::io::views::{Images, SplitChoice};
 use nerf_core::sample::occupancy::OccupancyGrid;
 use nerf_export::{Bundle, write_bundle};
 use std::path::Path;
 
 /// The test poses of the run's dataset, in the field's frame, when it is recorded and still there.
-fn test_poses(loaded: &LoadedRun) -> Result<Vec<NamedPose>> {
-    let Some(source) = &loaded.source else { return Ok(vec![]) };
-    let format = source.placement.as_ref().map(|p| p.format);
-    Ok(match loaded.load_split(&source.data, format, CaptureSplit::Test, source.downscale, false) {
-        Ok(test) => test.views.iter().map(|v| NamedPose { name: v.name.clone(), transform_matrix: pose_matrix(&v.pose) }).collect(),
+fn test_poses(loaded: &LoadedRun) -> Vec<NamedPose> {
+    let Some(source) = &loaded.source else { return vec![] };
+    let choice = SplitChoice { dir: source.data.clone(), format: source.placement.as_ref().map(|p| p.format), split: CaptureSplit::Test, downscale: source.downscale };
+    match loaded.split_views(&choice, Images::Skip) {
+        Ok(test) => test.iter().map(|v| NamedPose { name: v.name.clone(), transform_matrix: pose_matrix(&v.pose) }).collect(),
         Err(_) => vec![],
-    })
+    }
 }
 
 /// The bundle of `field` trained with `config` on images from `camera` (the reference orbit,
@@ -37,7 +38,7 @@ pub fn field_bundle(field: &dyn TrainedField, config: &TrainConfig, camera: &Pin
 pub fn export_run(run: &Path, out: &Path, opset: Option<i64>) -> Result<Vec<WrittenFile>> {
     let loaded = LoadedRun::open(run)?;
     let mut bundle = field_bundle(loaded.model.as_ref(), &loaded.config, &loaded.camera, loaded.occupancy.clone());
-    bundle.scene.poses.test = test_poses(&loaded)?;
+    bundle.scene.poses.test = test_poses(&loaded);
     bundle.scene.poses.orbit = loaded.orbit(ORBIT_FRAMES).iter().map(pose_matrix).collect();
     // A capture's placement; Blender scenes are used as they are.
     bundle.scene.placement = loaded.placement().filter(|p| p.format != CaptureFormat::Blender).cloned();

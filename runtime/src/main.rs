@@ -1,12 +1,13 @@
 //! `nerf-render`: render an exported scene bundle through onnxruntime (no burn).
 
-use anyhow::{Result, anyhow, bail};
+use anyhow::{Result, bail};
 use clap::Parser;
 use nerf_core::PinholeCamera;
 use nerf_core::camera::Pose;
 use nerf_core::SceneTransform;
-use nerf_core::dataset::{Background, CaptureFormat, CaptureSplit, LoadOptions, SceneFrame, load_dataset};
+use nerf_core::dataset::{Background, CaptureFormat, CaptureSplit};
 use nerf_core::io::frames::{FrameOutput, FrameSpec, render_frames};
+use nerf_core::io::views::{Images, SplitChoice, named_views, orbit_poses, split_views};
 use nerf_core::io::limits::{self, Origin};
 use nerf_runtime::{OpenOptions, OrtScene, scene::DEFAULT_CHUNK};
 use std::io::IsTerminal;
@@ -102,10 +103,9 @@ fn run(cli: Cli) -> Result<()> {
             if let Some(n) = cli.frames {
                 limits::check_count(n, limits::MAX_FRAMES, "frames", Origin::Option("--frames"))?;
             }
-            let path = scene.description.placement.as_ref().and_then(|p| p.orbit);
-            let poses = match (cli.frames, path) {
-                (Some(n), Some(path)) if n != scene.description.poses.orbit.len() => path.poses(n),
-                (Some(n), None) if n != scene.description.poses.orbit.len() => Pose::orbit(n),
+            // The bundle's own orbit, unless another frame count asks for the same path anew.
+            let poses = match cli.frames {
+                Some(n) if n != scene.description.poses.orbit.len() => orbit_poses(scene.description.placement.as_ref().and_then(|p| p.orbit.as_ref()), n),
                 _ => scene.orbit_poses()?,
             };
             if poses.is_empty() {
@@ -116,20 +116,8 @@ fn run(cli: Cli) -> Result<()> {
         (false, Some(split), Some(data)) => {
             let transform = scene.description.placement.as_ref().map_or_else(SceneTransform::identity, |p| p.transform);
             let background = Background::from_white(scene.description.white_background);
-            let options = |images| LoadOptions { format: cli.format, downscale: cli.downscale, images, background, frame: SceneFrame::Recorded(transform) };
-            let loaded = match load_dataset(data, split, &options(true)) {
-                Ok(d) => d,
-                Err(with_images) => {
-                    let d = load_dataset(data, split, &options(false)).map_err(|e| anyhow!("{e}"))?;
-                    eprintln!("note: rendering the {split} poses without metrics: {with_images}");
-                    d
-                }
-            };
-            for w in &loaded.warnings {
-                eprintln!("warning: {w}");
-            }
-            let loaded = loaded.data;
-            let mut specs = FrameSpec::from_split(loaded);
+            let choice = SplitChoice { dir: data.clone(), format: cli.format, split, downscale: cli.downscale };
+            let mut specs = split_views(&choice, transform, background, Images::IfPresent)?;
             if cli.width.is_some() {
                 for f in &mut specs {
                     f.camera = resize(f.camera, cli.width, cli.height)?;
@@ -140,13 +128,7 @@ fn run(cli: Cli) -> Result<()> {
         }
         (false, Some(CaptureSplit::Test), None) => {
             let k = resize(scene.camera(None), cli.width, cli.height)?;
-            scene
-                .description
-                .poses
-                .test
-                .iter()
-                .map(|p| FrameSpec { name: p.name.clone(), camera: k, pose: Pose::from_rows(p.transform_matrix), target: None })
-                .collect()
+            named_views(&k, scene.description.poses.test.iter().map(|p| (p.name.as_str(), Pose::from_rows(p.transform_matrix))))
         }
         (false, Some(_), None) => bail!("--split val/train needs --data <scene dir> (the bundle only stores test poses)"),
         (false, None, _) => bail!("say what to render: --orbit, or --split <val|test> [--data <scene dir>]"),

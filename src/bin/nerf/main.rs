@@ -4,7 +4,8 @@ mod bench;
 
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
-use nerf::evaluate::{DataChoice, eval, render_orbit, render_split};
+use nerf::evaluate::{eval, render_orbit, render_split};
+use nerf_core::io::views::SplitChoice;
 use nerf::config::{Preset, TrainConfig};
 use nerf::train::{TrainOptions, train};
 use nerf_core::dataset::{CaptureFormat, CaptureSplit, SyntheticSceneConfig, generate_scene};
@@ -211,7 +212,7 @@ fn main() -> Result<()> {
             );
         }
         Command::Eval { run, data, format, split, downscale, limit, out } => {
-            let r = eval(&run, &DataChoice { dir: data, format, split, downscale }, limit, &out, progress)?;
+            let r = eval(&run, &SplitChoice { dir: data, format, split, downscale }, limit, &out, progress)?;
             println!("{} views: PSNR {:.2} dB, SSIM {:.4}; {}", r.per_image.len(), r.psnr_mean, r.ssim_mean, out.join("metrics.json").display());
         }
         Command::Render { run, orbit, frames, split, data, format, downscale, out, npy } => match (orbit, split, data) {
@@ -220,7 +221,7 @@ fn main() -> Result<()> {
                 println!("{frames} frames and depth maps in {}; {}", out.display(), gif.display());
             }
             (false, Some(split), Some(data)) => {
-                let n = render_split(&run, &DataChoice { dir: data, format, split, downscale }, &out, npy, progress)?;
+                let n = render_split(&run, &SplitChoice { dir: data, format, split, downscale }, &out, npy, progress)?;
                 println!("{n} views and depth maps in {}", out.display());
             }
             (false, Some(_), None) => bail!("--split needs --data <scene dir>"),
@@ -278,9 +279,9 @@ fn demo(out: PathBuf, minutes: f64, progress: bool) -> Result<()> {
     let s = train(&opts)?;
     println!("trained {} steps, train PSNR {:.2} dB", s.steps, s.train_psnr);
     let eval_dir = out.join("eval");
-    let r = eval(&run, &DataChoice { dir: scene.clone(), format: None, split: CaptureSplit::Val, downscale: 1 }, None, &eval_dir, progress)?;
+    let r = eval(&run, &SplitChoice { dir: scene.clone(), format: None, split: CaptureSplit::Val, downscale: 1 }, None, &eval_dir, progress)?;
     let orbit_dir = out.join("orbit");
-    let gif = render_orbit(&run, 40, 1, &orbit_dir, false, progress)?;
+    let gif = render_orbit(&run, nerf_core::camera::ORBIT_FRAMES, 1, &orbit_dir, false, progress)?;
     println!("\ndemo done in {:.1} min", start.elapsed().as_secs_f64() / 60.0);
     println!("  val PSNR {:.2} dB, SSIM {:.4} over {} views: {}", r.psnr_mean, r.ssim_mean, r.per_image.len(), eval_dir.join("metrics.json").display());
     println!("  renders and depth maps: {}", eval_dir.display());
