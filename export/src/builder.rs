@@ -4,6 +4,8 @@
 
 use crate::proto::*;
 use nerf_bundle::graph::{CONTRACT_INPUTS, CONTRACT_OUTPUTS};
+use nerf_bundle::scene::{CAMERA_CONVENTION, SceneDescription};
+use nerf_core::field::Role;
 use nerf_core::field::DenseLayer;
 
 /// Opsets this compiler writes (`Gemm`, `Unsqueeze`-with-axes-input, `Slice`, `Reshape` are
@@ -133,4 +135,24 @@ impl Builder {
 
 pub(crate) fn int_attribute(name: &str, value: i64) -> AttributeProto {
     AttributeProto { name: name.into(), r#type: attribute_type::INT, i: value, ..Default::default() }
+}
+
+/// The contract metadata every graph of a scene carries.
+pub(crate) fn scene_metadata(scene: &SceneDescription, role: Role) -> Vec<(String, String)> {
+    let s = &scene.sampling;
+    let mut metadata = vec![
+        ("nerf.stage".into(), role.name().into()),
+        ("nerf.near".into(), s.near.to_string()),
+        ("nerf.far".into(), s.far.to_string()),
+        ("nerf.n_coarse".into(), s.n_coarse.to_string()),
+        ("nerf.n_fine".into(), s.n_fine.to_string()),
+        ("nerf.lindisp".into(), s.lindisp.to_string()),
+        ("nerf.white_background".into(), scene.white_background.to_string()),
+        ("nerf.camera".into(), CAMERA_CONVENTION.into()),
+    ];
+    if let Some(n) = &s.ndc {
+        let ndc = format!("width {} height {} fx {} fy {} near {}", n.width, n.height, n.fx, n.fy, n.near);
+        metadata.push(("nerf.ndc".into(), ndc));
+    }
+    metadata
 }

@@ -4,9 +4,9 @@
 
 use crate::ExportError;
 use crate::field::{compile_field, default_opset};
-use nerf_bundle::scene::{CAMERA_CONVENTION, SceneDescription};
+use nerf_bundle::scene::SceneDescription;
 use nerf_bundle::WrittenFile;
-use nerf_core::field::{PlainField, Role};
+use nerf_core::field::PlainField;
 use nerf_core::sample::occupancy::OccupancyGrid;
 use prost::Message;
 use std::path::Path;
@@ -34,24 +34,4 @@ pub fn write_bundle(dir: &Path, bundle: &Bundle, opset: Option<i64>) -> Result<V
     }
     let graphs = graphs.into_iter().map(|(role, model)| (role, model.encode_to_vec())).collect();
     Ok(nerf_bundle::write_bundle(dir, &scene, graphs, bundle.occupancy.as_ref())?)
-}
-
-/// The contract metadata every graph of a scene carries.
-pub(crate) fn scene_metadata(scene: &SceneDescription, role: Role) -> Vec<(String, String)> {
-    let s = &scene.sampling;
-    let mut metadata = vec![
-        ("nerf.stage".into(), role.name().into()),
-        ("nerf.near".into(), s.near.to_string()),
-        ("nerf.far".into(), s.far.to_string()),
-        ("nerf.n_coarse".into(), s.n_coarse.to_string()),
-        ("nerf.n_fine".into(), s.n_fine.to_string()),
-        ("nerf.lindisp".into(), s.lindisp.to_string()),
-        ("nerf.white_background".into(), scene.white_background.to_string()),
-        ("nerf.camera".into(), CAMERA_CONVENTION.into()),
-    ];
-    if let Some(n) = &s.ndc {
-        let ndc = format!("width {} height {} fx {} fy {} near {}", n.width, n.height, n.fx, n.fy, n.near);
-        metadata.push(("nerf.ndc".into(), ndc));
-    }
-    metadata
 }

@@ -8,7 +8,7 @@ pub mod mlp;
 pub mod ngp;
 
 use crate::ExportError;
-use crate::bundle::scene_metadata;
+use crate::builder::scene_metadata;
 use crate::proto::ModelProto;
 use ngp::hash_grid::HashOps;
 use nerf_bundle::scene::SceneDescription;
