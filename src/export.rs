@@ -12,7 +12,7 @@ use nerf_core::camera::{ORBIT_FRAMES, Pose};
 use nerf_core::dataset::{CaptureFormat, CaptureSplit};
 use nerf_core::io::views::{Images, SplitChoice};
 use nerf_core::sample::occupancy::OccupancyGrid;
-use nerf_export::{Bundle, write_bundle};
+use nerf_export::{Bundle, CompileField, write_bundle};
 use std::path::Path;
 
 /// The test poses of the run's dataset, in the field's frame, when it is recorded and still there.
@@ -27,14 +27,14 @@ fn test_poses(loaded: &LoadedRun) -> Vec<NamedPose> {
 
 /// The bundle of `field` trained with `config` on images from `camera` (the reference orbit,
 /// no test poses), marched through `occupancy` (a bounded field without one: its whole box).
-pub fn field_bundle(field: &dyn TrainedField, config: &TrainConfig, camera: &PinholeCamera, occupancy: Option<OccupancyGrid>) -> Bundle {
-    let mut scene = SceneDescription::new(camera, &config.sampling, config.white_background, field.kind(), config.march_steps);
+pub fn field_bundle<'a>(field: &'a dyn TrainedField, config: &TrainConfig, camera: &PinholeCamera, occupancy: Option<OccupancyGrid>) -> Bundle<Box<dyn CompileField + 'a>> {
+    let mut scene = SceneDescription::new(camera, &config.sampling, config.white_background, config.march_steps);
     scene.poses.orbit = Pose::orbit(ORBIT_FRAMES).iter().map(pose_matrix).collect();
-    Bundle { field: field.to_plain(), scene, occupancy: field.marching_grid(occupancy) }
+    Bundle { field: field.lowering(), scene, occupancy: field.marching_grid(occupancy) }
 }
 
 /// Compile the latest checkpoint of `run` into a bundle at `out` (`opset` `None`:
-/// [`nerf_export::default_opset`]).
+/// the field's default, [`CompileField::default_opset`]).
 pub fn export_run(run: &Path, out: &Path, opset: Option<i64>) -> Result<Vec<WrittenFile>> {
     let loaded = LoadedRun::open(run)?;
     let mut bundle = field_bundle(loaded.model.as_ref(), &loaded.config, &loaded.camera, loaded.occupancy.clone());

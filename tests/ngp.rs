@@ -106,9 +106,9 @@ fn a_resumed_ngp_run_equals_an_uninterrupted_one() {
         std::fs::read(run.join("checkpoints").join(latest.trim()).join(nerf::field::ngp::GRID_FILE)).unwrap()
     };
     assert!(grid(&straight) == grid(&resumed), "table or its Adam state differ after resuming");
-    let load = |run: &Path| match nerf::field::load_latest(&RunDir::open(run).unwrap(), &nerf::backend::cpu()).unwrap().model.to_plain() {
-        nerf_core::field::PlainField::Ngp(f) => f,
-        _ => panic!("an ngp run"),
+    let load = |run: &Path| {
+        let model = nerf::field::load_latest(&RunDir::open(run).unwrap(), &nerf::backend::cpu()).unwrap().model;
+        model.as_any().downcast_ref::<nerf::field::ngp::NgpField>().expect("an ngp run").to_plain()
     };
     assert_eq!(load(&straight), load(&resumed));
 }

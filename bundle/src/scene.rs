@@ -4,7 +4,7 @@
 use nerf_core::PinholeCamera;
 use nerf_core::camera::Pose;
 use nerf_core::dataset::ScenePlacement;
-use nerf_core::field::{FieldKind, Role};
+use nerf_core::field::Role;
 use nerf_core::io::limits::{self, MAX_FRAMES, Origin};
 use nerf_core::sample::SamplingConfig;
 use serde::{Deserialize, Serialize};
@@ -39,11 +39,16 @@ pub struct SceneDescription {
     pub sampling: SamplingConfig,
     /// Composite over white: `rgb + (1 − acc)`.
     pub white_background: bool,
-    /// What the graphs hold: `mlp` (coarse/fine NeRF networks, sampled densely or marched)
-    /// or `ngp` (one hash-grid field graph, only ever marched through the occupancy grid: the
-    /// field is defined inside the grid's box alone). Absent: `mlp`.
+    /// The kind of field the graphs hold (`mlp`: coarse/fine NeRF networks; `ngp`: a hash-grid
+    /// field), for people and tools; a renderer needs only [`graphs`](Self::graphs) and
+    /// [`bounded`](Self::bounded). Absent: `mlp`.
+    #[serde(default = "default_kind")]
+    pub field: String,
+    /// The field is defined inside the occupancy grid's box only: it is always marched, through
+    /// its grid or, without one, through the whole box. Absent: false (in `nerf-rs-scene-1`
+    /// files: true for `ngp`, the one kind that was bounded then).
     #[serde(default)]
-    pub field: FieldKind,
+    pub bounded: bool,
     /// Positional encoding of points (inside the graphs; stated for other implementations;
     /// absent for `ngp`, whose encoding is the hash grid in the graph's metadata `nerf.ngp`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -153,15 +158,16 @@ pub fn pose_matrix(p: &Pose) -> [[f32; 4]; 4] {
 }
 
 impl SceneDescription {
-    /// A description of a `kind` field trained with `sampling` on images from `camera`, no graphs
-    /// yet ([`crate::write_bundle`] names them), no poses.
-    pub fn new(camera: &PinholeCamera, sampling: &SamplingConfig, white_background: bool, kind: FieldKind, march_steps: usize) -> Self {
+    /// A description of a field trained with `sampling` on images from `camera`: no graphs yet
+    /// (the writer names them, and the field's kind and bounds), no poses.
+    pub fn new(camera: &PinholeCamera, sampling: &SamplingConfig, white_background: bool, march_steps: usize) -> Self {
         SceneDescription {
             format: SCENE_FORMAT.into(),
             camera: CameraDescription::new(camera),
             sampling: sampling.clone(),
             white_background,
-            field: kind,
+            field: default_kind(),
+            bounded: false,
             position_encoding: None,
             direction_encoding: None,
             march_steps,
@@ -173,12 +179,18 @@ impl SceneDescription {
         }
     }
 
+    /// Whether the field is defined inside its box only ([`bounded`](Self::bounded), or a
+    /// `nerf-rs-scene-1` hash-grid bundle).
+    pub fn is_bounded(&self) -> bool {
+        self.bounded || (self.format == READ_FORMATS[0] && self.field == "ngp")
+    }
+
     /// The graph files by role, in role order, with the `scene.json` key that names each
     /// (`graphs.<role>`, or `networks.coarse`/`networks.fine` in a `nerf-rs-scene-1` file).
     pub fn graph_files(&self) -> Vec<GraphFile<'_>> {
         match &self.networks {
             Some(n) if self.graphs.is_empty() => {
-                let coarse = if self.field.roles(false) == [Role::Field] { Role::Field } else { Role::Coarse };
+                let coarse = if self.is_bounded() { Role::Field } else { Role::Coarse };
                 let mut files = vec![GraphFile { role: coarse, file: &n.coarse, key: "networks.coarse" }];
                 files.extend(n.fine.as_deref().map(|file| GraphFile { role: Role::Fine, file, key: "networks.fine" }));
                 files
@@ -200,14 +212,18 @@ impl SceneDescription {
         limits::check_sampling(&self.sampling, at("sampling"))?;
         let files = self.graph_files();
         let roles: Vec<Role> = files.iter().map(|g| g.role).collect();
-        let hierarchical = self.sampling.n_fine > 0;
-        if roles != self.field.roles(hierarchical) {
+        let wanted: &[Role] = match (roles.first(), self.sampling.n_fine > 0) {
+            (Some(Role::Field), _) => &[Role::Field],
+            (_, true) => &[Role::Coarse, Role::Fine],
+            (_, false) => &[Role::Coarse],
+        };
+        if roles != wanted || (wanted == [Role::Field] && self.sampling.n_fine > 0) {
             let names = |r: &[Role]| r.iter().map(|r| r.name()).collect::<Vec<_>>().join(", ");
-            let problem = format!("{} graphs: [{}], field {:?} with n_fine {} needs [{}]", files.first().map_or("graphs", |g| g.key), names(&roles), self.field.name(), self.sampling.n_fine, names(self.field.roles(hierarchical)));
-            return Err(at(if self.networks.is_some() { "networks" } else { "graphs" }).error(problem));
+            let problem = format!("graphs [{}] with sampling.n_fine {}: need [field] (n_fine 0), [coarse] (n_fine 0) or [coarse, fine] (n_fine > 0)", names(&roles), self.sampling.n_fine);
+            return Err(at(if self.networks.is_some() && self.graphs.is_empty() { "networks" } else { "graphs" }).error(problem));
         }
-        if self.field.bounded() && self.occupancy.is_none() {
-            return Err(at("occupancy").error(format!("a {} field is defined inside its box only and marched through its occupancy grid: the bundle needs one", self.field.name())));
+        if self.is_bounded() && self.occupancy.is_none() {
+            return Err(at("occupancy").error("a bounded field is defined inside its box only and marched through its occupancy grid: the bundle needs one"));
         }
         limits::check_count(self.march_steps, limits::MAX_SAMPLES_PER_RAY, "steps", at("march_steps"))?;
         for g in &files {
@@ -251,6 +267,10 @@ fn graph_key(role: Role) -> &'static str {
     }
 }
 
+fn default_kind() -> String {
+    "mlp".into()
+}
+
 fn default_march_steps() -> usize {
     nerf_core::render::DEFAULT_MARCH_STEPS
 }
@@ -260,24 +280,25 @@ mod tests {
     use super::*;
     use nerf_core::Intrinsics;
 
-    fn scene(kind: FieldKind, n_fine: usize) -> SceneDescription {
+    fn scene(kind: &str, n_fine: usize) -> SceneDescription {
         let camera = PinholeCamera::from(Intrinsics { width: 8, height: 8, focal: 8.0 });
         let sampling = SamplingConfig { near: 2.0, far: 6.0, n_coarse: 8, n_fine, lindisp: false, ndc: None };
-        SceneDescription::new(&camera, &sampling, true, kind, 256)
+        SceneDescription { field: kind.into(), ..SceneDescription::new(&camera, &sampling, true, 256) }
     }
 
     #[test]
     fn graphs_are_named_by_role_and_checked_against_the_kind() {
         let path = Path::new("b/scene.json");
-        let mut s = scene(FieldKind::Mlp, 4);
+        let mut s = scene("mlp", 4);
         s.graphs = [(Role::Coarse, "coarse.onnx".into()), (Role::Fine, "fine.onnx".into())].into();
         s.check(path).unwrap();
         let files = s.graph_files();
         assert_eq!(files.iter().map(|g| (g.role, g.file, g.key)).collect::<Vec<_>>(), [(Role::Coarse, "coarse.onnx", "graphs.coarse"), (Role::Fine, "fine.onnx", "graphs.fine")]);
         s.graphs.remove(&Role::Fine);
         let err = s.check(path).unwrap_err().to_string();
-        assert!(err.contains("graphs") && err.contains("needs [coarse, fine]"), "{err}");
-        let mut s = scene(FieldKind::Ngp, 0);
+        assert!(err.contains("graphs [coarse] with sampling.n_fine 4"), "{err}");
+        let mut s = scene("ngp", 0);
+        s.bounded = true;
         s.graphs = [(Role::Field, "../field.onnx".into())].into();
         s.occupancy = Some(OccupancyDescription { file: "occupancy.bin".into(), resolution: 4, bound: 1.5 });
         let err = s.check(path).unwrap_err().to_string();
@@ -291,13 +312,15 @@ mod tests {
     fn first_format_scenes_still_read() {
         // A hash-grid bundle as nerf-rs-scene-1 wrote it: its one graph under networks.coarse,
         // NDC in the placement too.
-        let mut v1 = serde_json::to_value(scene(FieldKind::Ngp, 0)).unwrap();
+        let mut v1 = serde_json::to_value(scene("ngp", 0)).unwrap();
         v1["format"] = "nerf-rs-scene-1".into();
         v1.as_object_mut().unwrap().remove("graphs");
+        v1.as_object_mut().unwrap().remove("bounded");
         v1["networks"] = serde_json::json!({ "coarse": "field.onnx", "fine": null });
         v1["occupancy"] = serde_json::json!({ "file": "occupancy.bin", "resolution": 4, "bound": 1.5 });
         let s: SceneDescription = serde_json::from_value(v1).unwrap();
         s.check(Path::new("scene.json")).unwrap();
+        assert!(s.is_bounded(), "version 1 hash-grid bundles are bounded");
         let files = s.graph_files();
         assert_eq!(files.iter().map(|g| (g.role, g.file, g.key)).collect::<Vec<_>>(), [(Role::Field, "field.onnx", "networks.coarse")]);
         // Written again, it names the graph by role and drops the old key.

@@ -3,7 +3,7 @@
 //! all).
 
 use crate::ExportError;
-use crate::field::{compile_field, default_opset};
+use crate::field::CompileField;
 use nerf_bundle::scene::SceneDescription;
 use nerf_bundle::WrittenFile;
 use nerf_core::field::PlainField;
@@ -11,11 +11,12 @@ use nerf_core::sample::occupancy::OccupancyGrid;
 use prost::Message;
 use std::path::Path;
 
-/// A trained field and its description.
+/// A trained field and its description (`F`: any kind the compiler can lower; the built-in
+/// kinds as [`PlainField`]).
 #[derive(Debug, Clone)]
-pub struct Bundle {
+pub struct Bundle<F = PlainField> {
     /// The field.
-    pub field: PlainField,
+    pub field: F,
     /// `scene.json` (its graphs, occupancy and field kind are filled in when writing).
     pub scene: SceneDescription,
     /// The occupancy grid it is marched through, if any (required for bounded kinds).
@@ -23,15 +24,16 @@ pub struct Bundle {
 }
 
 /// Compile the field and write the bundle to `dir` (replacing an existing bundle only once the
-/// new one is complete); `opset` `None`: [`crate::default_opset`].
-pub fn write_bundle(dir: &Path, bundle: &Bundle, opset: Option<i64>) -> Result<Vec<WrittenFile>, ExportError> {
+/// new one is complete); `opset` `None`: the field's default. A bounded field needs a grid.
+pub fn write_bundle<F: CompileField>(dir: &Path, bundle: &Bundle<F>, opset: Option<i64>) -> Result<Vec<WrittenFile>, ExportError> {
+    let field = &bundle.field;
     let mut scene = bundle.scene.clone();
-    scene.field = bundle.field.kind();
-    let opset = opset.unwrap_or(default_opset(scene.field));
-    let graphs = compile_field(&bundle.field, &mut scene, opset)?;
-    if scene.field.bounded() && bundle.occupancy.is_none() {
-        return Err(ExportError::Network(format!("a {} field is marched through its occupancy grid: the bundle needs one", scene.field.name())));
+    scene.field = field.kind().to_string();
+    scene.bounded = field.bounded().is_some();
+    if scene.bounded && bundle.occupancy.is_none() {
+        return Err(ExportError::Network(format!("a {} field is defined inside its box only: the bundle needs its occupancy grid", scene.field)));
     }
+    let graphs = field.compile(&mut scene, opset.unwrap_or(field.default_opset()))?;
     let graphs = graphs.into_iter().map(|(role, model)| (role, model.encode_to_vec())).collect();
     Ok(nerf_bundle::write_bundle(dir, &scene, graphs, bundle.occupancy.as_ref())?)
 }

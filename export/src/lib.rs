@@ -15,7 +15,7 @@ pub use nerf_bundle::proto;
 
 pub use builder::DEFAULT_OPSET;
 pub use bundle::{Bundle, write_bundle};
-pub use field::default_opset;
+pub use field::CompileField;
 pub use field::mlp::{import, read_bundle_network};
 
 /// Why a network could not be compiled or a bundle written.

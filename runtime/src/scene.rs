@@ -68,7 +68,7 @@ impl OrtScene {
             .collect::<Result<Vec<_>>>()?;
         let occupancy = if options.skip_empty_space { read_occupancy(dir, &description)? } else { None };
         // A bounded field's box is its grid's (scene.json checks it has one).
-        let bounded = description.field.bounded().then(|| description.occupancy.as_ref().map(|o| o.bound)).flatten();
+        let bounded = description.is_bounded().then(|| description.occupancy.as_ref().map(|o| o.bound)).flatten();
         let occupancy = marching_grid(occupancy, bounded);
         let mut render_options =
             RenderOptions::new(description.sampling.clone(), description.white_background, options.chunk, options.skip_empty_space);

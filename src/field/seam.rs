@@ -1,7 +1,9 @@
 //! The seam every field kind plugs into: what the run loop, `nerf eval`/`render`, the exporter
 //! and the bench ask of a field on burn, whatever its kind ([`TrainedField`] once trained,
 //! [`FieldTrainer`] while training). Each kind implements both in its folder; the dispatch from
-//! a configuration's [`nerf_core::field::FieldKind`] to a kind is in [`super`] alone.
+//! a configuration's [`nerf_core::field::FieldKind`] to a kind is in [`super`] alone. A field
+//! that is never trained from a config (an analytic one, say) needs only [`TrainedField`], the
+//! renderer's [`Field`] and the compiler's [`CompileField`].
 
 use crate::config::TrainConfig;
 use crate::error::Result;
@@ -10,7 +12,8 @@ use burn::tensor::Device;
 use nerf_core::PinholeCamera;
 use nerf_core::camera::Pose;
 use nerf_core::dataset::SplitData;
-use nerf_core::field::{Field, FieldKind, PlainField};
+use nerf_core::field::Field;
+use nerf_export::CompileField;
 use nerf_core::render::{RenderOptions, RenderedImage, render_image};
 use nerf_core::sample::occupancy::{OccupancyGrid, marching_grid};
 use std::borrow::Cow;
@@ -18,12 +21,10 @@ use std::convert::Infallible;
 
 /// A trained field on burn (no autodiff).
 pub trait TrainedField: std::fmt::Debug + Send + Sync {
-    /// Its kind.
-    fn kind(&self) -> FieldKind;
-    /// Its shape and weights as plain data, for the ONNX compiler.
-    fn to_plain(&self) -> PlainField;
-    /// Half the side of the cube the field is defined in, for a kind defined there only
-    /// ([`FieldKind::bounded`]); `None` for a field defined everywhere.
+    /// The field as the ONNX compiler lowers it (its kind's name, its graphs by role).
+    fn lowering(&self) -> Box<dyn CompileField + '_>;
+    /// Half the side of the origin-centred cube the field is defined in, for a field defined
+    /// there only (always marched); `None` for a field defined everywhere.
     fn bounded(&self) -> Option<f32>;
     /// The field as the shared renderer evaluates it, its networks running on `device`.
     fn evaluator<'a>(&'a self, device: &Device) -> Box<dyn Field<Error = Infallible> + 'a>;

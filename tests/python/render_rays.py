@@ -29,8 +29,8 @@ With occupancy.bin (nerf-render's default; --dense turns it off) rays are marche
 scene.json names the graphs by role: "graphs" {"field": ...} (one graph for every sample) or
 {"coarse": ..., "fine": ...}; bundles of format nerf-rs-scene-1 name them under "networks"
 (a hash-grid field's as "networks.coarse").
-A hash-grid bundle (scene.json "field": "ngp") has one graph, field.onnx, and is always marched:
-with --dense through one occupied cell covering the grid's cube (the field is only defined there).
+A bounded field (scene.json "bounded": true, e.g. the hash grid) is always marched: with --dense
+through one occupied cell covering the grid's cube (the field is only defined there).
 The .npy written by `nerf-render --npy` is float32 [H, W, 5]: r, g, b, depth, acc.
 """
 import argparse
@@ -109,11 +109,16 @@ def check_scene(scene, where):
             raise BundleError(f"{where}: poses.{key}: {len(scene['poses'][key])} poses is more than the limit of {MAX_FRAMES}")
     if not 1 <= scene.get("march_steps", 256) <= MAX_SAMPLES_PER_RAY:
         raise BundleError(f"{where}: march_steps: {scene['march_steps']} is outside 1..{MAX_SAMPLES_PER_RAY}")
-    if scene.get("field", "mlp") == "ngp" and not scene.get("occupancy"):
-        raise BundleError(f"{where}: occupancy: a hash-grid field (field \"ngp\") is marched through its occupancy grid: the bundle needs one")
+    if is_bounded(scene) and not scene.get("occupancy"):
+        raise BundleError(f"{where}: occupancy: a bounded field is defined inside its box only and marched through its occupancy grid: the bundle needs one")
     occ = scene.get("occupancy")
     if occ and not 1 <= occ["resolution"] <= MAX_GRID_RESOLUTION:
         raise BundleError(f"{where}: occupancy.resolution: {occ['resolution']} cells per axis is outside 1..{MAX_GRID_RESOLUTION}")
+
+
+def is_bounded(scene):
+    """A field defined inside its grid's box only: "bounded", or a version-1 hash-grid bundle."""
+    return scene.get("bounded", False) or (scene.get("format") == "nerf-rs-scene-1" and scene.get("field", "mlp") == "ngp")
 
 
 def graph_files(scene):
@@ -121,7 +126,7 @@ def graph_files(scene):
     if scene.get("graphs"):
         return {role: (f"graphs.{role}", name) for role, name in scene["graphs"].items()}
     nets = scene["networks"]
-    first = "field" if scene.get("field", "mlp") == "ngp" else "coarse"
+    first = "field" if is_bounded(scene) else "coarse"
     files = {first: ("networks.coarse", nets["coarse"])}
     if nets.get("fine"):
         files["fine"] = ("networks.fine", nets["fine"])
@@ -171,7 +176,7 @@ class Bundle:
             grid = bundle_file(path, occ["file"], "occupancy.file")
             density, bound, threshold = read_grid(bounded_file(grid, MAX_GRAPH_BYTES))
             self.occupied, self.bound = density > threshold, F32(bound)
-        elif self.scene.get("field", "mlp") == "ngp":
+        elif is_bounded(self.scene):
             self.occupied, self.bound = np.ones((1, 1, 1), bool), F32(occ["bound"])
 
     def is_occupied(self, points):

@@ -1,7 +1,6 @@
-//! The one description of the field kinds: their names ([`FieldKind`], what configs, graph
-//! metadata and `scene.json` carry), what differs between them (graph roles, bounded boxes),
-//! the roles of their graphs ([`Role`]) and a trained field of any kind as plain data
-//! ([`PlainField`]). Adding a kind adds a variant here and a folder beside this file.
+//! The one description of the built-in field kinds: their names ([`FieldKind`], what configs,
+//! graph metadata and `scene.json` carry) and a trained field of each as plain data
+//! ([`PlainField`]); and the roles graphs play in a bundle ([`Role`]), whatever the kind.
 
 use serde::{Deserialize, Serialize};
 
@@ -9,9 +8,8 @@ use super::eval::Stage;
 use super::mlp::PlainNetwork;
 use super::ngp::PlainNgp;
 
-/// Which kind of radiance field a run trains and a bundle holds: the one name the training
-/// config, checkpoints, graph metadata (`nerf.field`) and `scene.json` carry. What differs
-/// between kinds is asked of it here, so no consumer matches on it.
+/// Which kind of radiance field a run trains: the one name the training config (and with it
+/// the checkpoints), graph metadata (`nerf.field`) and `scene.json` carry.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum FieldKind {
@@ -30,21 +28,6 @@ impl FieldKind {
             FieldKind::Mlp => "mlp",
             FieldKind::Ngp => "ngp",
         }
-    }
-
-    /// The graphs a bundle of this kind holds, by role (`hierarchical`: with a fine network).
-    pub fn roles(self, hierarchical: bool) -> &'static [Role] {
-        match (self, hierarchical) {
-            (FieldKind::Mlp, false) => &[Role::Coarse],
-            (FieldKind::Mlp, true) => &[Role::Coarse, Role::Fine],
-            (FieldKind::Ngp, _) => &[Role::Field],
-        }
-    }
-
-    /// Whether the field is defined inside its box only: it is then always marched, through
-    /// the whole box when there is no occupancy grid ([`crate::sample::occupancy::marching_grid`]).
-    pub fn bounded(self) -> bool {
-        self == FieldKind::Ngp
     }
 }
 

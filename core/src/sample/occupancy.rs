@@ -256,8 +256,8 @@ impl OccupancyGrid {
 }
 
 /// The grid a field is marched through: its occupancy grid, or, for a field defined inside the
-/// cube ±`bound` only (`bounded`, see [`crate::field::FieldKind::bounded`]), one occupied cell
-/// over that cube (every interval inside it is evaluated). `None`: sample densely.
+/// cube ±`bounded` only, one occupied cell over that cube (every interval inside it is
+/// evaluated). `None`: sample densely.
 pub fn marching_grid(occupancy: Option<OccupancyGrid>, bounded: Option<f32>) -> Option<OccupancyGrid> {
     occupancy.or_else(|| bounded.map(OccupancyGrid::whole_cube))
 }

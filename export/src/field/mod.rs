@@ -1,5 +1,6 @@
-//! Each field kind's ONNX lowering, in its own folder; this file is the one place that picks
-//! the lowering for a [`PlainField`].
+//! The compiler's field seam: what a field gives the compiler ([`CompileField`]: its kind's
+//! name, whether it is bounded, its graphs by role), each built-in kind's lowering in its own
+//! folder, and the one place that picks the lowering of a built-in [`PlainField`].
 //!
 //! - [`mlp`]: the NeRF MLPs (positional encoding inside the graph), and the nerf-pytorch import.
 //! - [`ngp`]: the hash-grid field (the whole encoding in standard operators).
@@ -8,42 +9,68 @@ pub mod mlp;
 pub mod ngp;
 
 use crate::ExportError;
-use crate::builder::scene_metadata;
 use crate::proto::ModelProto;
-use ngp::hash_grid::HashOps;
 use nerf_bundle::scene::SceneDescription;
-use nerf_core::field::{FieldKind, PlainField, Role};
+use nerf_core::field::{PlainField, Role};
 
-/// The opset used when none is asked for: [`crate::DEFAULT_OPSET`], or for the hash-grid field
-/// the lowest with BitwiseXor (18; 17 lowers the hash without bitwise operators).
-pub fn default_opset(kind: FieldKind) -> i64 {
-    match kind {
-        FieldKind::Mlp => crate::DEFAULT_OPSET,
-        FieldKind::Ngp => HashOps::Bitwise.min_opset(),
+/// A trained field as the compiler sees it. A kind that implements this (and the contract its
+/// graphs follow: `points`, `viewdirs` in; `rgb`, `sigma` out) is written as a bundle every
+/// renderer reads, without the compiler or the renderers learning its name.
+pub trait CompileField {
+    /// The kind's name (`scene.json` `field`).
+    fn kind(&self) -> &str;
+    /// Half the side of the origin-centred cube the field is defined in, for a field defined
+    /// there only (always marched; `scene.json` `bounded`); `None`: defined everywhere.
+    fn bounded(&self) -> Option<f32>;
+    /// The opset used when none is asked for.
+    fn default_opset(&self) -> i64 {
+        crate::DEFAULT_OPSET
+    }
+    /// Its graphs by role at `opset`, each carrying the contract metadata of `scene`
+    /// ([`crate::builder::scene_metadata`]); `scene` learns what only the field knows (the
+    /// MLPs' encodings, no fine stage for a one-graph field).
+    fn compile(&self, scene: &mut SceneDescription, opset: i64) -> Result<Vec<(Role, ModelProto)>, ExportError>;
+}
+
+impl<T: CompileField + ?Sized> CompileField for Box<T> {
+    fn kind(&self) -> &str {
+        (**self).kind()
+    }
+    fn bounded(&self) -> Option<f32> {
+        (**self).bounded()
+    }
+    fn default_opset(&self) -> i64 {
+        (**self).default_opset()
+    }
+    fn compile(&self, scene: &mut SceneDescription, opset: i64) -> Result<Vec<(Role, ModelProto)>, ExportError> {
+        (**self).compile(scene, opset)
     }
 }
 
-/// Each graph of `field` by role, its metadata from `scene` (which learns what only the field
-/// knows: the encodings of the MLPs, no fine stage for the hash grid).
-pub(crate) fn compile_field(field: &PlainField, scene: &mut SceneDescription, opset: i64) -> Result<Vec<(Role, ModelProto)>, ExportError> {
-    match field {
-        PlainField::Mlp { coarse, fine } => {
-            if (scene.sampling.n_fine > 0) != fine.is_some() {
-                return Err(ExportError::Network("sampling.n_fine and the networks disagree about a fine network".into()));
-            }
-            scene.position_encoding = Some(mlp::encoding_description(&coarse.spec.position_encoding));
-            scene.direction_encoding = Some(mlp::encoding_description(&coarse.spec.direction_encoding));
-            let mut graphs = vec![(Role::Coarse, mlp::compile(coarse, "coarse", opset, &scene_metadata(scene, Role::Coarse))?)];
-            if let Some(fine) = fine {
-                graphs.push((Role::Fine, mlp::compile(fine, "fine", opset, &scene_metadata(scene, Role::Fine))?));
-            }
-            Ok(graphs)
+/// The built-in kinds, each lowered by its folder.
+impl CompileField for PlainField {
+    fn kind(&self) -> &str {
+        self.kind().name()
+    }
+
+    fn bounded(&self) -> Option<f32> {
+        match self {
+            PlainField::Mlp { .. } => None,
+            PlainField::Ngp(plain) => Some(plain.spec.bound.enclosing_half_size()),
         }
-        PlainField::Ngp(plain) => {
-            scene.sampling.n_fine = 0;
-            let ops = if opset >= HashOps::Bitwise.min_opset() { HashOps::Bitwise } else { HashOps::Arithmetic };
-            Ok(vec![(Role::Field, ngp::compile_ngp(plain, "field", opset, ops, &scene_metadata(scene, Role::Field))?)])
+    }
+
+    fn default_opset(&self) -> i64 {
+        match self {
+            PlainField::Mlp { .. } => crate::DEFAULT_OPSET,
+            PlainField::Ngp(_) => ngp::DEFAULT_OPSET,
+        }
+    }
+
+    fn compile(&self, scene: &mut SceneDescription, opset: i64) -> Result<Vec<(Role, ModelProto)>, ExportError> {
+        match self {
+            PlainField::Mlp { coarse, fine } => mlp::compile_field(coarse, fine.as_ref(), scene, opset),
+            PlainField::Ngp(plain) => ngp::compile_field(plain, scene, opset),
         }
     }
 }
-

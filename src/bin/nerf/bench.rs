@@ -354,8 +354,8 @@ fn bench_ngp_render(bundle: Option<&Path>, steps: usize, data: &Path, progress: 
         }
     };
     let mut scene = OrtScene::open(&bundle, &OpenOptions::default())?;
-    if scene.description.field != nerf_core::field::FieldKind::Ngp {
-        bail!("{}: not a hash-grid bundle (scene.json field {:?})", bundle.display(), scene.description.field.name());
+    if scene.description.field != nerf_core::field::FieldKind::Ngp.name() {
+        bail!("{}: not a hash-grid bundle (scene.json field {:?})", bundle.display(), scene.description.field);
     }
     let val = load_split(data, Split::Val, 1, true)?;
     let view = &val.views[0];

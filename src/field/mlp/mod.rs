@@ -22,7 +22,8 @@ use crate::run_dir::Checkpoint;
 use burn::tensor::{Device, Tensor, TensorData};
 use nerf_core::dataset::SplitData;
 use nerf_core::field::mlp::EncodingSpec;
-use nerf_core::field::{Field, FieldKind, FieldOutput, PlainField, Stage};
+use nerf_core::field::{Field, FieldOutput, PlainField, Stage};
+use nerf_export::CompileField;
 
 /// `[n]` 3-vectors, encoded as `spec` says, as an `[n, spec.output_dim()]` tensor.
 pub fn encoded_tensor(spec: &EncodingSpec, v: &[[f32; 3]], device: &Device) -> Tensor<2> {
@@ -30,12 +31,8 @@ pub fn encoded_tensor(spec: &EncodingSpec, v: &[[f32; 3]], device: &Device) -> T
 }
 
 impl TrainedField for NerfModel {
-    fn kind(&self) -> FieldKind {
-        FieldKind::Mlp
-    }
-
-    fn to_plain(&self) -> PlainField {
-        PlainField::Mlp { coarse: self.coarse.to_plain(), fine: self.fine.as_ref().map(|f| f.to_plain()) }
+    fn lowering(&self) -> Box<dyn CompileField + '_> {
+        Box::new(PlainField::Mlp { coarse: self.coarse.to_plain(), fine: self.fine.as_ref().map(|f| f.to_plain()) })
     }
 
     fn bounded(&self) -> Option<f32> {

@@ -135,12 +135,6 @@ impl NgpField {
         self.mlps.density(features).into_data().try_to_vec::<f32>().expect("f32 densities")
     }
 
-    /// Half the side of the cube the field is defined in (its box, centred or not, lies inside).
-    pub fn box_half_size(&self) -> f32 {
-        let b = &self.spec.bound;
-        (0..3).map(|k| b.max[k].abs().max(b.min[k].abs())).fold(0.0f32, f32::max)
-    }
-
     /// [`forward`](Self::forward) on an autodiff device, the grid features a leaf that requires a
     /// gradient; pass the returned [`GridInputs`] to
     /// [`accumulate_grid_gradient`](Self::accumulate_grid_gradient) after `backward`.

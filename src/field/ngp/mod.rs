@@ -19,19 +19,16 @@ use crate::inference::tensor_vec3;
 use crate::run_dir::Checkpoint;
 use burn::tensor::Device;
 use nerf_core::dataset::SplitData;
-use nerf_core::field::{Field, FieldKind, FieldOutput, PlainField, Stage};
+use nerf_core::field::{Field, FieldOutput, PlainField, Stage};
+use nerf_export::CompileField;
 
 impl TrainedField for NgpField {
-    fn kind(&self) -> FieldKind {
-        FieldKind::Ngp
-    }
-
-    fn to_plain(&self) -> PlainField {
-        PlainField::Ngp(NgpField::to_plain(self))
+    fn lowering(&self) -> Box<dyn CompileField + '_> {
+        Box::new(PlainField::Ngp(self.to_plain()))
     }
 
     fn bounded(&self) -> Option<f32> {
-        Some(self.box_half_size())
+        Some(self.spec.bound.enclosing_half_size())
     }
 
     fn evaluator<'a>(&'a self, device: &Device) -> Box<dyn Field<Error = std::convert::Infallible> + 'a> {

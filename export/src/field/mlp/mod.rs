@@ -18,10 +18,11 @@
 pub mod import;
 
 use crate::ExportError;
-use crate::builder::{Builder, OPSETS, contract_inputs, contract_outputs, int_attribute, model_proto};
+use crate::builder::{Builder, OPSETS, contract_inputs, contract_outputs, int_attribute, model_proto, scene_metadata};
 use crate::proto::*;
 use nerf_bundle::graph::float_initializer;
-use nerf_bundle::scene::EncodingDescription;
+use nerf_bundle::scene::{EncodingDescription, SceneDescription};
+use nerf_core::field::Role;
 use nerf_bundle::{bundle_file, read_model};
 use std::path::Path;
 use nerf_core::field::DenseLayer;
@@ -151,6 +152,21 @@ pub fn read_network(model: &ModelProto) -> Result<PlainNetwork, String> {
         })
         .collect::<Result<Vec<_>, String>>()?;
     Ok(PlainNetwork { spec, layers })
+}
+
+/// The coarse and fine networks as bundle graphs (`coarse.onnx`, `fine.onnx`); `scene` learns
+/// their encodings.
+pub fn compile_field(coarse: &PlainNetwork, fine: Option<&PlainNetwork>, scene: &mut SceneDescription, opset: i64) -> Result<Vec<(Role, ModelProto)>, ExportError> {
+    if (scene.sampling.n_fine > 0) != fine.is_some() {
+        return Err(ExportError::Network("sampling.n_fine and the networks disagree about a fine network".into()));
+    }
+    scene.position_encoding = Some(encoding_description(&coarse.spec.position_encoding));
+    scene.direction_encoding = Some(encoding_description(&coarse.spec.direction_encoding));
+    let mut graphs = vec![(Role::Coarse, compile(coarse, "coarse", opset, &scene_metadata(scene, Role::Coarse))?)];
+    if let Some(fine) = fine {
+        graphs.push((Role::Fine, compile(fine, "fine", opset, &scene_metadata(scene, Role::Fine))?));
+    }
+    Ok(graphs)
 }
 
 /// The plain network stored in a bundle's graph file `file` (`coarse.onnx`, `fine.onnx`).

@@ -49,7 +49,7 @@ pub enum HashOps {
 
 impl HashOps {
     /// The lowest opset this lowering needs.
-    pub fn min_opset(self) -> i64 {
+    pub const fn min_opset(self) -> i64 {
         match self {
             HashOps::Bitwise => 18,
             HashOps::Arithmetic => 17,

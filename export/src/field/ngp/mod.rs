@@ -10,7 +10,9 @@
 use crate::ExportError;
 pub mod hash_grid;
 
-use crate::builder::{Builder, contract_inputs, contract_outputs};
+use crate::builder::{Builder, contract_inputs, contract_outputs, scene_metadata};
+use nerf_bundle::scene::SceneDescription;
+use nerf_core::field::Role;
 use nerf_bundle::graph::float_initializer;
 use hash_grid::{HashOps, check_opset, lower_hash_grid, lower_sh4, model, slice};
 use crate::proto::*;
@@ -73,6 +75,18 @@ pub fn compile_ngp(field: &PlainNgp, name: &str, opset: i64, ops: HashOps, metad
     props.extend(metadata.iter().cloned());
     model.metadata_props.extend(props.into_iter().map(|(key, value)| StringStringEntryProto { key, value }));
     Ok(model)
+}
+
+/// The opset used when none is asked for: the lowest with BitwiseXor (17 lowers the hash
+/// without bitwise operators).
+pub const DEFAULT_OPSET: i64 = HashOps::Bitwise.min_opset();
+
+/// The field as a bundle's one graph (`field.onnx`): BitwiseXor/And at opset ≥ 18, the
+/// bitwise-free lowering at 17; `scene` learns it has no fine stage.
+pub fn compile_field(plain: &PlainNgp, scene: &mut SceneDescription, opset: i64) -> Result<Vec<(Role, ModelProto)>, ExportError> {
+    scene.sampling.n_fine = 0;
+    let ops = if opset >= HashOps::Bitwise.min_opset() { HashOps::Bitwise } else { HashOps::Arithmetic };
+    Ok(vec![(Role::Field, compile_ngp(plain, "field", opset, ops, &scene_metadata(scene, Role::Field))?)])
 }
 
 /// Whether `model` is a hash-grid field graph (metadata `nerf.field` = `ngp`).

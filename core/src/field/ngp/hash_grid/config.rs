@@ -164,6 +164,11 @@ impl GridBound {
         GridBound { min: [-half; 3], max: [half; 3] }
     }
 
+    /// Half the side of the smallest origin-centred cube holding the box.
+    pub fn enclosing_half_size(&self) -> f32 {
+        (0..3).map(|k| self.max[k].abs().max(self.min[k].abs())).fold(0.0f32, f32::max)
+    }
+
     /// Check the box is finite and not flat.
     pub fn validate(&self) -> Result<()> {
         for d in 0..3 {

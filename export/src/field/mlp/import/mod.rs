@@ -15,7 +15,7 @@ pub mod checkpoint;
 use crate::ExportError;
 use crate::bundle::Bundle;
 use nerf_bundle::scene::{NamedPose, SceneDescription, pose_matrix};
-use nerf_core::field::{FieldKind, PlainField};
+use nerf_core::field::PlainField;
 use args::NerfPytorchArgs;
 use checkpoint::{ExpectedNetwork, MappingError, read_checkpoint, to_plain_network};
 use nerf_core::PinholeCamera;
@@ -148,7 +148,7 @@ fn blender_scene(data: &Path, args: &NerfPytorchArgs) -> Result<SceneDescription
     let camera: PinholeCamera = test.camera().ok_or_else(|| ImportError::Data(format!("{}: the test split has no views", data.display())))?;
     let (near, far) = BLENDER_NEAR_FAR;
     let sampling = SamplingConfig { near, far, n_coarse: args.n_samples, n_fine: args.n_importance, lindisp: args.lindisp, ndc: None };
-    let mut scene = SceneDescription::new(&camera, &sampling, args.white_bkgd, FieldKind::Mlp, nerf_core::render::DEFAULT_MARCH_STEPS);
+    let mut scene = SceneDescription::new(&camera, &sampling, args.white_bkgd, nerf_core::render::DEFAULT_MARCH_STEPS);
     scene.poses.orbit = Pose::orbit(ORBIT_FRAMES).iter().map(pose_matrix).collect();
     scene.poses.test = test.views.iter().map(|v| NamedPose { name: v.name.clone(), transform_matrix: pose_matrix(&v.pose) }).collect();
     Ok(scene)
@@ -167,7 +167,7 @@ fn llff_scene(data: &Path, args: &NerfPytorchArgs) -> Result<SceneDescription, I
     let bounds = capture.near_far.ok_or_else(|| ImportError::Data(format!("{}: no depth bounds", capture.source.display())))?;
     let (near, far, ndc, lindisp) = if args.no_ndc { (bounds.0, bounds.1, None, args.lindisp) } else { (0.0, 1.0, Some(Ndc::for_camera(&camera, 1.0)), false) };
     let sampling = SamplingConfig { near, far, n_coarse: args.n_samples, n_fine: args.n_importance, lindisp, ndc };
-    let mut scene = SceneDescription::new(&camera, &sampling, args.white_bkgd, FieldKind::Mlp, nerf_core::render::DEFAULT_MARCH_STEPS);
+    let mut scene = SceneDescription::new(&camera, &sampling, args.white_bkgd, nerf_core::render::DEFAULT_MARCH_STEPS);
     let spiral = SpiralPath::around(&capture.poses(), bounds.0, bounds.1).map(CameraPath::Spiral);
     scene.poses.orbit = spiral.map(|p| p.poses(ORBIT_FRAMES)).unwrap_or_default().iter().map(pose_matrix).collect();
     // nerf-pytorch's i_test = np.arange(N)[::llffhold].
