@@ -24,7 +24,7 @@ pub fn ir_version_for(opset: i64) -> i64 {
 }
 
 /// A model around `graph` for `opset` (with the IR version to match), carrying `metadata`.
-pub(crate) fn model_proto(graph: GraphProto, opset: i64, doc: &str, metadata: Vec<(String, String)>) -> ModelProto {
+pub fn model_proto(graph: GraphProto, opset: i64, doc: &str, metadata: Vec<(String, String)>) -> ModelProto {
     ModelProto {
         ir_version: ir_version_for(opset),
         opset_import: vec![OperatorSetIdProto { domain: String::new(), version: opset }],
@@ -39,7 +39,7 @@ pub(crate) fn model_proto(graph: GraphProto, opset: i64, doc: &str, metadata: Ve
 }
 
 /// The contract's inputs, documented.
-pub(crate) fn contract_inputs() -> Vec<ValueInfoProto> {
+pub fn contract_inputs() -> Vec<ValueInfoProto> {
     vec![
         value_info(CONTRACT_INPUTS[0], "World-space sample positions, float32 [N, 3]."),
         value_info(CONTRACT_INPUTS[1], "Unit view directions (the ray direction normalised), float32 [N, 3], one per point."),
@@ -47,12 +47,12 @@ pub(crate) fn contract_inputs() -> Vec<ValueInfoProto> {
 }
 
 /// The contract's outputs; `sigma_doc` says how σ is made non-negative.
-pub(crate) fn contract_outputs(sigma_doc: &str) -> Vec<ValueInfoProto> {
+pub fn contract_outputs(sigma_doc: &str) -> Vec<ValueInfoProto> {
     vec![value_info(CONTRACT_OUTPUTS[0], "Colour in [0, 1] (sigmoid applied), float32 [N, 3]."), value_info(CONTRACT_OUTPUTS[1], sigma_doc)]
 }
 
 /// `name` float32 `[N, columns]`.
-pub(crate) fn value_info((name, columns): (&str, i64), doc: &str) -> ValueInfoProto {
+pub fn value_info((name, columns): (&str, i64), doc: &str) -> ValueInfoProto {
     use tensor_shape_proto::{Dimension, dimension::Value};
     let dim = vec![Dimension { value: Some(Value::DimParam("N".into())) }, Dimension { value: Some(Value::DimValue(columns)) }];
     ValueInfoProto {
@@ -67,15 +67,20 @@ pub(crate) fn value_info((name, columns): (&str, i64), doc: &str) -> ValueInfoPr
     }
 }
 
-/// Accumulates nodes and initializers with unique names.
+/// Accumulates nodes and initializers with unique names: every kind's lowering writes its graph
+/// with it, then wraps `nodes` and `initializers` in a `GraphProto` with the contract's
+/// [`contract_inputs`] and [`contract_outputs`].
 #[derive(Default)]
-pub(crate) struct Builder {
-    pub(crate) nodes: Vec<NodeProto>,
-    pub(crate) initializers: Vec<TensorProto>,
+pub struct Builder {
+    /// The nodes, in topological order.
+    pub nodes: Vec<NodeProto>,
+    /// The constants and weights.
+    pub initializers: Vec<TensorProto>,
 }
 
 impl Builder {
-    pub(crate) fn node(&mut self, op: &str, inputs: &[&str], output: &str, attribute: Vec<AttributeProto>) -> String {
+    /// A node `op(inputs) → output` (the node is named after its output); returns `output`.
+    pub fn node(&mut self, op: &str, inputs: &[&str], output: &str, attribute: Vec<AttributeProto>) -> String {
         self.nodes.push(NodeProto {
             input: inputs.iter().map(|s| s.to_string()).collect(),
             output: vec![output.to_string()],
@@ -88,16 +93,18 @@ impl Builder {
         output.to_string()
     }
 
-    pub(crate) fn unary(&mut self, op: &str, input: &str, output: &str) -> String {
+    /// A node of one input and no attributes.
+    pub fn unary(&mut self, op: &str, input: &str, output: &str) -> String {
         self.node(op, &[input], output, vec![])
     }
 
-    pub(crate) fn concat(&mut self, inputs: &[&str], output: &str) -> String {
+    /// `Concat` along the last axis (1).
+    pub fn concat(&mut self, inputs: &[&str], output: &str) -> String {
         self.node("Concat", inputs, output, vec![int_attribute("axis", 1)])
     }
 
     /// A named constant, stored once however often it is used.
-    pub(crate) fn i64_constant(&mut self, name: &str, values: &[i64]) -> String {
+    pub fn i64_constant(&mut self, name: &str, values: &[i64]) -> String {
         if !self.initializers.iter().any(|t| t.name == name) {
             self.initializers.push(TensorProto {
                 dims: vec![values.len() as i64],
@@ -110,7 +117,8 @@ impl Builder {
         name.to_string()
     }
 
-    pub(crate) fn f32_tensor(&mut self, name: &str, dims: &[usize], values: &[f32]) -> String {
+    /// A float32 initializer of shape `dims`.
+    pub fn f32_tensor(&mut self, name: &str, dims: &[usize], values: &[f32]) -> String {
         self.initializers.push(TensorProto {
             dims: dims.iter().map(|&d| d as i64).collect(),
             data_type: data_type::FLOAT,
@@ -122,7 +130,7 @@ impl Builder {
     }
 
     /// `Gemm(input, W, b)` (then `activation`), W stored `[in, out]`.
-    pub(crate) fn dense(&mut self, layer: &DenseLayer, input: &str, activation: Option<&str>) -> String {
+    pub fn dense(&mut self, layer: &DenseLayer, input: &str, activation: Option<&str>) -> String {
         let w = self.f32_tensor(&format!("{}.weight", layer.name), &[layer.in_dim, layer.out_dim], &layer.weight);
         let b = self.f32_tensor(&format!("{}.bias", layer.name), &[layer.out_dim], &layer.bias);
         let linear = self.node("Gemm", &[input, &w, &b], &format!("{}.linear", layer.name), vec![]);
@@ -133,12 +141,13 @@ impl Builder {
     }
 }
 
-pub(crate) fn int_attribute(name: &str, value: i64) -> AttributeProto {
+/// An integer attribute.
+pub fn int_attribute(name: &str, value: i64) -> AttributeProto {
     AttributeProto { name: name.into(), r#type: attribute_type::INT, i: value, ..Default::default() }
 }
 
 /// The contract metadata every graph of a scene carries.
-pub(crate) fn scene_metadata(scene: &SceneDescription, role: Role) -> Vec<(String, String)> {
+pub fn scene_metadata(scene: &SceneDescription, role: Role) -> Vec<(String, String)> {
     let s = &scene.sampling;
     let mut metadata = vec![
         ("nerf.stage".into(), role.name().into()),
