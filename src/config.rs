@@ -291,8 +291,8 @@ impl TrainConfig {
             return Err("precrop_fraction must be in (0, 1]".into());
         }
         limits::check_count(self.march_steps, limits::MAX_SAMPLES_PER_RAY, "steps", Origin::Key("march_steps")).map_err(|e| e.to_string())?;
-        if self.field != FieldKind::Ngp && self.train_background.is_some_and(|b| b != Background::from_white(self.white_background)) {
-            return Err("train_background: the MLP field trains on white_background's colour (random needs field = \"ngp\")".into());
+        if !self.field.trains_on_random_backgrounds() && self.train_background.is_some_and(|b| b != Background::from_white(self.white_background)) {
+            return Err(format!("train_background: the {} field trains on white_background's colour (random needs field = \"ngp\")", self.field.name()));
         }
         if self.field == FieldKind::Ngp {
             self.ngp.validate().map_err(|e| format!("ngp: {e}"))?;

@@ -7,7 +7,6 @@ use crate::error::{Error, Result};
 use crate::run_dir::{RunDir, RunSource};
 use indicatif::{ProgressBar, ProgressStyle};
 use nerf_core::dataset::{Background, CaptureFormat, CaptureSplit, LoadOptions, SceneFrame, SplitData, detect_format, load_dataset};
-use nerf_core::field::FieldKind;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -126,7 +125,7 @@ fn start_or_resume(run: &RunDir, options: &TrainOptions) -> Result<(Box<dyn Fiel
     if config.train_background.is_none() {
         // Captures' photos are opaque: random backgrounds teach the field to be opaque too.
         // (A run from before this key resumes as it started.)
-        let random = checkpoint.is_none() && format != CaptureFormat::Blender && config.field == FieldKind::Ngp;
+        let random = checkpoint.is_none() && format != CaptureFormat::Blender && config.field.trains_on_random_backgrounds();
         config.train_background = Some(if random { Background::Random } else { Background::from_white(config.white_background) });
     }
     let load = move |split, frame, background| {

@@ -22,6 +22,12 @@ pub enum FieldKind {
 }
 
 impl FieldKind {
+    /// Whether its trainer composites each training ray on a colour of its own (`random`
+    /// backgrounds); the others train on the render background.
+    pub fn trains_on_random_backgrounds(self) -> bool {
+        self == FieldKind::Ngp
+    }
+
     /// The kind as written in configs and metadata.
     pub fn name(self) -> &'static str {
         match self {
