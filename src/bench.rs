@@ -232,8 +232,8 @@ pub fn bench_view(data: Option<&Path>) -> Result<(PinholeCamera, Pose)> {
 pub fn paper_model(chunk: usize) -> Result<(TrainConfig, PlainNetwork, PlainNetwork, NerfModel)> {
     let mut config = Preset::Paper.config();
     config.chunk = chunk;
-    let coarse = PlainNetwork::seeded(&config.network, 3);
-    let fine = PlainNetwork::seeded(&config.network, 4);
+    let coarse = PlainNetwork::seeded(&config.shapes.network, 3);
+    let fine = PlainNetwork::seeded(&config.shapes.network, 4);
     let device = crate::backend::cpu();
     let model = NerfModel { coarse: NerfMlp::from_plain(&coarse, &device)?, fine: Some(NerfMlp::from_plain(&fine, &device)?) };
     Ok((config, coarse, fine, model))

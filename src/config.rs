@@ -3,10 +3,8 @@
 use crate::error::{Error, Result};
 use nerf_core::SamplingConfig;
 use nerf_core::dataset::Background;
-use nerf_core::field::ngp::hash_grid::GridBound;
 use nerf_core::field::mlp::{EncodingSpec, NetworkSpec};
-use nerf_core::field::FieldKind;
-use nerf_core::field::ngp::NgpSpec;
+use nerf_core::field::{FieldKind, FieldShapes};
 use nerf_core::sample::occupancy::OccupancyConfig;
 use nerf_core::io::limits::{self, Origin};
 use nerf_core::render::{DEFAULT_MARCH_STEPS, RenderOptions};
@@ -54,7 +52,7 @@ impl Preset {
         match self {
             Preset::Paper => TrainConfig {
                 preset: *self,
-                network: NetworkSpec::paper(),
+                shapes: FieldShapes { network: NetworkSpec::paper(), ..FieldShapes::default() },
                 sampling: SamplingConfig { near: 2.0, far: 6.0, n_coarse: 64, n_fine: 128, lindisp: false, ndc: None },
                 white_background: true,
                 train_background: None,
@@ -77,19 +75,21 @@ impl Preset {
                 skip_empty_space: false,
                 occupancy: OccupancyConfig::default(),
                 field: FieldKind::Mlp,
-                ngp: NgpSpec::default(),
                 target_samples: DEFAULT_TARGET_SAMPLES,
                 march_steps: DEFAULT_MARCH_STEPS,
             },
             Preset::CpuFast => TrainConfig {
                 preset: *self,
-                network: NetworkSpec {
-                    depth: 6,
-                    width: 128,
-                    skips: vec![3],
-                    position_encoding: EncodingSpec { n_frequencies: 10, include_input: true },
-                    direction_encoding: EncodingSpec { n_frequencies: 4, include_input: true },
-                    use_viewdirs: true,
+                shapes: FieldShapes {
+                    network: NetworkSpec {
+                        depth: 6,
+                        width: 128,
+                        skips: vec![3],
+                        position_encoding: EncodingSpec { n_frequencies: 10, include_input: true },
+                        direction_encoding: EncodingSpec { n_frequencies: 4, include_input: true },
+                        use_viewdirs: true,
+                    },
+                    ..FieldShapes::default()
                 },
                 sampling: SamplingConfig { near: 2.0, far: 6.0, n_coarse: 32, n_fine: 64, lindisp: false, ndc: None },
                 batch_rays: 256,
@@ -141,8 +141,6 @@ impl Preset {
 pub struct TrainConfig {
     /// The preset this configuration started from.
     pub preset: Preset,
-    /// Shape of both the coarse and the fine network.
-    pub network: NetworkSpec,
     /// Near/far and samples per ray.
     pub sampling: SamplingConfig,
     /// Composite on white (Blender scenes).
@@ -193,12 +191,14 @@ pub struct TrainConfig {
     pub skip_empty_space: bool,
     /// The occupancy grid's size and update schedule (used with `skip_empty_space`).
     pub occupancy: OccupancyConfig,
-    /// Which field to train: `mlp` (coarse/fine `network`) or `ngp` (the hash-grid `ngp`).
+    /// Which field to train: `mlp` (the coarse/fine networks of `[network]`) or `ngp` (the
+    /// hash-grid field of `[ngp]`).
     #[serde(default)]
     pub field: FieldKind,
-    /// The hash-grid field's shape (with `field = "ngp"`).
-    #[serde(default)]
-    pub ngp: NgpSpec,
+    /// Each kind's shape, one section per kind (`[network]`, `[ngp]`); `field` says which is
+    /// trained.
+    #[serde(flatten)]
+    pub shapes: FieldShapes,
     /// Samples per step of the hash-grid field: the rays of a step are as many as fit, judged
     /// by the samples per ray of the previous step (with `field = "ngp"`).
     #[serde(default = "default_target_samples")]
@@ -269,7 +269,7 @@ impl TrainConfig {
     }
 
     fn check(&self) -> std::result::Result<(), String> {
-        self.network.validate()?;
+        self.shapes.check(self.field)?;
         let s = &self.sampling;
         limits::check_sampling(s, Origin::Key("sampling")).map_err(|e| e.to_string())?;
         limits::check_chunk(self.chunk, s.n_coarse + s.n_fine, Origin::Key("chunk")).map_err(|e| e.to_string())?;
@@ -294,17 +294,18 @@ impl TrainConfig {
         if !self.field.trains_on_random_backgrounds() && self.train_background.is_some_and(|b| b != Background::from_white(self.white_background)) {
             return Err(format!("train_background: the {} field trains on white_background's colour (random needs field = \"ngp\")", self.field.name()));
         }
-        if self.field == FieldKind::Ngp {
-            self.ngp.validate().map_err(|e| format!("ngp: {e}"))?;
+        if let Some((section, (min, max))) = self.shapes.field_box(self.field) {
+            // A field defined inside its box only is marched through the occupancy grid, whose
+            // cube that box must be.
             if !self.skip_empty_space || s.n_fine > 0 {
-                return Err("field = \"ngp\" marches through the occupancy grid: it needs skip_empty_space = true and sampling.n_fine = 0".into());
+                return Err(format!("field = {:?} is marched through the occupancy grid: it needs skip_empty_space = true and sampling.n_fine = 0", self.field.name()));
             }
-            if self.ngp.bound != GridBound::cube(o.bound) {
-                return Err(format!("ngp.bound {:?} must be the occupancy grid's cube ±{} (occupancy.bound)", self.ngp.bound, o.bound));
+            if (min, max) != ([-o.bound; 3], [o.bound; 3]) {
+                return Err(format!("{section}.bound {min:?}..{max:?} must be the occupancy grid's cube ±{} (occupancy.bound)", o.bound));
             }
-            if self.target_samples == 0 || self.target_samples > limits::MAX_POINTS_PER_CALL {
-                return Err(format!("target_samples must be in 1..={}", limits::MAX_POINTS_PER_CALL));
-            }
+        }
+        if self.target_samples == 0 || self.target_samples > limits::MAX_POINTS_PER_CALL {
+            return Err(format!("target_samples must be in 1..={}", limits::MAX_POINTS_PER_CALL));
         }
         Ok(())
     }
@@ -328,7 +329,7 @@ mod tests {
     #[test]
     fn toml_overrides_a_preset_and_round_trips() {
         let c = TrainConfig::from_toml_str("preset = 'paper'\nbatch_rays = 256\n[sampling]\nn_fine = 0\n", None).unwrap();
-        assert_eq!(c.network, NetworkSpec::paper());
+        assert_eq!(c.shapes.network, NetworkSpec::paper());
         assert_eq!(c.batch_rays, 256);
         assert_eq!(c.sampling.n_fine, 0);
         assert_eq!(c.sampling.n_coarse, 64);

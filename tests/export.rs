@@ -84,7 +84,7 @@ fn export_failures_leave_no_bundle() {
     // A checkpoint from another network shape (foreign weights).
     let other = dir.path().join("other");
     let mut config = tiny_config();
-    config.network.width = 32;
+    config.shapes.network.width = 32;
     config.iters = 1;
     let scene = small_scene(&dir.path().join("s2"));
     train(&TrainOptions { format: None, data: scene, run: other.clone(), config, ndc: None, downscale: 1, time_budget_min: None, iters: None, progress: false }).unwrap();

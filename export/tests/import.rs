@@ -14,7 +14,7 @@ fn fixture(path: &str) -> PathBuf {
 /// The coarse and fine networks of an imported field.
 fn networks(field: &PlainField) -> (&PlainNetwork, Option<&PlainNetwork>) {
     match field {
-        PlainField::Mlp { coarse, fine } => (coarse, fine.as_ref()),
+        PlainField::Mlp(mlp) => (&mlp.coarse, mlp.fine.as_ref()),
         other => panic!("nerf-pytorch imports NeRF MLPs, got {:?}", other.kind()),
     }
 }

@@ -1,31 +1,40 @@
 //! Fields on burn, behind one seam ([`seam`]: [`TrainedField`], [`FieldTrainer`]). Each kind
-//! lives in its own folder (burn modules, trainer, checkpoint parts, evaluator); this file is
-//! the one place that turns a configuration's [`FieldKind`] into a kind.
-//!
-//! - [`mlp`]: the NeRF MLPs with positional encoding (coarse and fine).
-//! - [`ngp`]: the hash-grid field with tiny MLPs.
+//! lives in its own folder (burn modules, trainer, checkpoint parts, evaluator), named as in
+//! [`nerf_core::field_kinds!`], which expands the one turn from a configuration's
+//! [`FieldKind`] to its folder here.
 
-pub mod mlp;
-pub mod ngp;
 pub mod seam;
 
 pub use seam::{FieldTrainer, StepStats, StepTiming, TrainedField};
 
 use crate::config::TrainConfig;
 use crate::error::{Error, Result};
-use crate::run_dir::{CheckpointState, RunDir};
+use crate::run_dir::{Checkpoint, CheckpointState, RunDir};
 use burn::tensor::Device;
 use nerf_core::dataset::SplitData;
 use nerf_core::field::FieldKind;
 use nerf_core::sample::occupancy::OccupancyGrid;
 
-/// A fresh trainer for `config.field` on `train` data.
-pub fn trainer(config: TrainConfig, train: SplitData) -> Result<Box<dyn FieldTrainer>> {
-    match config.field {
-        FieldKind::Mlp => mlp::trainer(config, train),
-        FieldKind::Ngp => ngp::trainer(config, train),
-    }
+macro_rules! kinds {
+    ($($(#[$doc:meta])* $kind:ident { folder: $folder:ident, $($rest:tt)* },)*) => {
+        $(pub mod $folder;)*
+
+        /// A fresh trainer for `config.field` on `train` data.
+        pub fn trainer(config: TrainConfig, train: SplitData) -> Result<Box<dyn FieldTrainer>> {
+            match config.field {
+                $(FieldKind::$kind => $folder::trainer(config, train),)*
+            }
+        }
+
+        /// The field of `config.field`, weights from `checkpoint`, on `device`.
+        fn load(config: &TrainConfig, checkpoint: &Checkpoint, device: &Device) -> Result<Box<dyn TrainedField>> {
+            match config.field {
+                $(FieldKind::$kind => $folder::load(config, checkpoint, device),)*
+            }
+        }
+    };
 }
+nerf_core::field_kinds!(kinds);
 
 /// The latest checkpoint of a run, loaded.
 pub struct RunCheckpoint {
@@ -44,10 +53,7 @@ pub fn load_latest(run: &RunDir, device: &Device) -> Result<RunCheckpoint> {
     let config = run.read_config()?;
     let checkpoint = run.latest_checkpoint()?.ok_or_else(|| Error::invalid(&run.checkpoints_dir(), "the run has no checkpoint yet"))?;
     let state = checkpoint.state()?;
-    let model = match config.field {
-        FieldKind::Mlp => mlp::load(&config, &checkpoint, device)?,
-        FieldKind::Ngp => ngp::load(&config, &checkpoint, device)?,
-    };
+    let model = load(&config, &checkpoint, device)?;
     let occupancy = if config.skip_empty_space { checkpoint.load_occupancy()? } else { None };
     Ok(RunCheckpoint { config, model, state, occupancy })
 }

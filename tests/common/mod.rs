@@ -16,9 +16,9 @@ pub fn lego_dir() -> PathBuf {
 /// A small network and batch so a test trains in seconds.
 pub fn tiny_config() -> TrainConfig {
     let mut c = Preset::CpuFast.config();
-    c.network.depth = 4;
-    c.network.width = 64;
-    c.network.skips = vec![2];
+    c.shapes.network.depth = 4;
+    c.shapes.network.width = 64;
+    c.shapes.network.skips = vec![2];
     c.batch_rays = 256;
     c.sampling.n_coarse = 16;
     c.sampling.n_fine = 32;
@@ -32,9 +32,9 @@ pub fn tiny_config() -> TrainConfig {
 /// The `ngp` preset shrunk so that a test trains in seconds.
 pub fn tiny_ngp() -> TrainConfig {
     let mut c = Preset::Ngp.config();
-    c.ngp.grid = HashGridConfig { levels: 8, features_per_level: 2, log2_table_size: 14, base_resolution: 8, max_resolution: 128 };
-    c.ngp.density_hidden = 32;
-    c.ngp.color_hidden = 32;
+    c.shapes.ngp.grid = HashGridConfig { levels: 8, features_per_level: 2, log2_table_size: 14, base_resolution: 8, max_resolution: 128 };
+    c.shapes.ngp.density_hidden = 32;
+    c.shapes.ngp.color_hidden = 32;
     c.target_samples = 1 << 13;
     c.march_steps = 256;
     c.occupancy.resolution = 32;

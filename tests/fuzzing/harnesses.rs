@@ -78,9 +78,9 @@ fn small_scene(work: &Path) -> Result<PathBuf, String> {
 /// A tiny network trained for two steps on the small scene, with an occupancy grid.
 fn tiny_config() -> TrainConfig {
     let mut c = Preset::CpuFast.config();
-    c.network.depth = 2;
-    c.network.width = 16;
-    c.network.skips = vec![0];
+    c.shapes.network.depth = 2;
+    c.shapes.network.width = 16;
+    c.shapes.network.skips = vec![0];
     c.sampling.n_coarse = 8;
     c.sampling.n_fine = 8;
     c.batch_rays = 32;

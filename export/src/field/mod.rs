@@ -1,12 +1,7 @@
 //! The compiler's field seam: what a field gives the compiler ([`CompileField`]: its kind's
-//! name, whether it is bounded, its graphs by role), each built-in kind's lowering in its own
-//! folder, and the one place that picks the lowering of a built-in [`PlainField`].
-//!
-//! - [`mlp`]: the NeRF MLPs (positional encoding inside the graph), and the nerf-pytorch import.
-//! - [`ngp`]: the hash-grid field (the whole encoding in standard operators).
-
-pub mod mlp;
-pub mod ngp;
+//! name, whether it is bounded, its graphs by role), and each built-in kind's lowering in its
+//! own folder (named as in [`nerf_core::field_kinds!`], which also expands the choice of
+//! lowering for a [`PlainField`] here).
 
 use crate::ExportError;
 use crate::proto::ModelProto;
@@ -47,30 +42,34 @@ impl<T: CompileField + ?Sized> CompileField for Box<T> {
     }
 }
 
-/// The built-in kinds, each lowered by its folder.
-impl CompileField for PlainField {
-    fn kind(&self) -> &str {
-        self.kind().name()
-    }
+macro_rules! lowerings {
+    ($($(#[$doc:meta])* $kind:ident { folder: $folder:ident, $($rest:tt)* },)*) => {
+        $(pub mod $folder;)*
 
-    fn bounded(&self) -> Option<f32> {
-        match self {
-            PlainField::Mlp { .. } => None,
-            PlainField::Ngp(plain) => Some(plain.spec.bound.enclosing_half_size()),
-        }
-    }
+        /// The built-in kinds, each lowered by its folder.
+        impl CompileField for PlainField {
+            fn kind(&self) -> &str {
+                PlainField::kind(self).name()
+            }
 
-    fn default_opset(&self) -> i64 {
-        match self {
-            PlainField::Mlp { .. } => crate::DEFAULT_OPSET,
-            PlainField::Ngp(_) => ngp::DEFAULT_OPSET,
-        }
-    }
+            fn bounded(&self) -> Option<f32> {
+                match self {
+                    $(PlainField::$kind(plain) => plain.bounded(),)*
+                }
+            }
 
-    fn compile(&self, scene: &mut SceneDescription, opset: i64) -> Result<Vec<(Role, ModelProto)>, ExportError> {
-        match self {
-            PlainField::Mlp { coarse, fine } => mlp::compile_field(coarse, fine.as_ref(), scene, opset),
-            PlainField::Ngp(plain) => ngp::compile_field(plain, scene, opset),
+            fn default_opset(&self) -> i64 {
+                match self {
+                    $(PlainField::$kind(plain) => plain.default_opset(),)*
+                }
+            }
+
+            fn compile(&self, scene: &mut SceneDescription, opset: i64) -> Result<Vec<(Role, ModelProto)>, ExportError> {
+                match self {
+                    $(PlainField::$kind(plain) => plain.compile(scene, opset),)*
+                }
+            }
         }
-    }
+    };
 }
+nerf_core::field_kinds!(lowerings);

@@ -22,7 +22,8 @@ use crate::run_dir::Checkpoint;
 use burn::tensor::{Device, Tensor, TensorData};
 use nerf_core::dataset::SplitData;
 use nerf_core::field::mlp::EncodingSpec;
-use nerf_core::field::{Field, FieldOutput, PlainField, Stage};
+use nerf_core::field::mlp::PlainMlp;
+use nerf_core::field::{Field, FieldOutput, Stage};
 use nerf_export::CompileField;
 
 /// `[n]` 3-vectors, encoded as `spec` says, as an `[n, spec.output_dim()]` tensor.
@@ -32,7 +33,7 @@ pub fn encoded_tensor(spec: &EncodingSpec, v: &[[f32; 3]], device: &Device) -> T
 
 impl TrainedField for NerfModel {
     fn lowering(&self) -> Box<dyn CompileField + '_> {
-        Box::new(PlainField::Mlp { coarse: self.coarse.to_plain(), fine: self.fine.as_ref().map(|f| f.to_plain()) })
+        Box::new(PlainMlp { coarse: self.coarse.to_plain(), fine: self.fine.as_ref().map(|f| f.to_plain()) })
     }
 
     fn bounded(&self) -> Option<f32> {
@@ -50,7 +51,7 @@ impl TrainedField for NerfModel {
 
 /// The networks of `config`, weights from `checkpoint`, on `device`.
 pub fn load(config: &TrainConfig, checkpoint: &Checkpoint, device: &Device) -> Result<Box<dyn TrainedField>> {
-    let mut model = NerfModel::new(&config.network, config.sampling.n_fine > 0, device);
+    let mut model = NerfModel::new(&config.shapes.network, config.sampling.n_fine > 0, device);
     checkpoint.load_model(&mut model)?;
     Ok(Box::new(model))
 }

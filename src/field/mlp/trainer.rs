@@ -42,7 +42,7 @@ impl Trainer {
     pub fn new(config: TrainConfig, train: SplitData, device: Device) -> Result<Self> {
         config.validate()?;
         device.seed(config.seed);
-        let model = NerfModel::new(&config.network, config.sampling.n_fine > 0, &device);
+        let model = NerfModel::new(&config.shapes.network, config.sampling.n_fine > 0, &device);
         let mut adam = AdamConfig::new()
             .with_beta_1(config.adam_beta1)
             .with_beta_2(config.adam_beta2)

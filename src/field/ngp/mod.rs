@@ -19,12 +19,12 @@ use crate::inference::tensor_vec3;
 use crate::run_dir::Checkpoint;
 use burn::tensor::Device;
 use nerf_core::dataset::SplitData;
-use nerf_core::field::{Field, FieldOutput, PlainField, Stage};
+use nerf_core::field::{Field, FieldOutput, Stage};
 use nerf_export::CompileField;
 
 impl TrainedField for NgpField {
     fn lowering(&self) -> Box<dyn CompileField + '_> {
-        Box::new(PlainField::Ngp(self.to_plain()))
+        Box::new(self.to_plain())
     }
 
     fn bounded(&self) -> Option<f32> {
@@ -42,9 +42,9 @@ impl TrainedField for NgpField {
 
 /// The field of `config`, table and MLPs from `checkpoint`, on `device`.
 pub fn load(config: &TrainConfig, checkpoint: &Checkpoint, device: &Device) -> Result<Box<dyn TrainedField>> {
-    let mut field = NgpField::new(config.ngp, config.seed, device).map_err(Error::Config)?;
+    let mut field = NgpField::new(config.shapes.ngp, config.seed, device).map_err(Error::Config)?;
     checkpoint.load_model(&mut field.mlps)?;
-    field.grid = state::load_grid(checkpoint, &config.ngp.grid, Default::default())?.0;
+    field.grid = state::load_grid(checkpoint, &config.shapes.ngp.grid, Default::default())?.0;
     Ok(Box::new(field))
 }
 

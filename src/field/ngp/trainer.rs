@@ -55,7 +55,7 @@ impl NgpTrainer {
     pub fn new(config: TrainConfig, train: SplitData, device: Device) -> Result<Self> {
         config.validate()?;
         device.seed(config.seed);
-        let field = NgpField::new(config.ngp, config.seed, &device).map_err(Error::Config)?;
+        let field = NgpField::new(config.shapes.ngp, config.seed, &device).map_err(Error::Config)?;
         let optim = AdamConfig::new().with_beta_1(config.adam_beta1).with_beta_2(config.adam_beta2).with_epsilon(config.adam_epsilon).init();
         let table_adam = SparseAdam::new(table_adam_config(&config), &field.grid);
         let grad = HashGridGradient::new(&field.grid);
@@ -213,7 +213,7 @@ impl FieldTrainer for NgpTrainer {
         let state = checkpoint.state()?;
         let mut field = self.field.take().expect("field present");
         let loaded = checkpoint.load_model(&mut field.mlps);
-        let grid = load_grid(checkpoint, &self.config.ngp.grid, table_adam_config(&self.config));
+        let grid = load_grid(checkpoint, &self.config.shapes.ngp.grid, table_adam_config(&self.config));
         self.field = Some(field);
         loaded?;
         let (grid, adam) = grid?;

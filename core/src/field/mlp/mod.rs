@@ -158,6 +158,32 @@ pub struct PlainNetwork {
     pub layers: Vec<DenseLayer>,
 }
 
+/// The NeRF MLPs of a trained field as plain data.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlainMlp {
+    /// The coarse network (stratified samples).
+    pub coarse: PlainNetwork,
+    /// The fine network (coarse ∪ importance samples), if any.
+    pub fine: Option<PlainNetwork>,
+}
+
+impl Default for NetworkSpec {
+    /// The paper network.
+    fn default() -> Self {
+        NetworkSpec::paper()
+    }
+}
+
+impl crate::field::KindShape for NetworkSpec {
+    fn check(&self) -> Result<(), String> {
+        self.validate()
+    }
+
+    fn field_box(&self) -> Option<([f32; 3], [f32; 3])> {
+        None
+    }
+}
+
 /// What a NeRF network says about one point: sigmoid colour and raw density (ReLU is applied by
 /// the compositing, so the raw value is kept here).
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -64,6 +64,16 @@ impl NgpSpec {
     }
 }
 
+impl crate::field::KindShape for NgpSpec {
+    fn check(&self) -> Result<(), String> {
+        self.validate().map_err(|e| e.to_string())
+    }
+
+    fn field_box(&self) -> Option<([f32; 3], [f32; 3])> {
+        Some((self.bound.min, self.bound.max))
+    }
+}
+
 /// A trained field as plain data: spec, hash table and dense layers (bias all zero: the
 /// networks are bias-free, the zeros keep one layer type for the compiler).
 #[derive(Debug, Clone, PartialEq)]

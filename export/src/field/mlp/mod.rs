@@ -26,7 +26,9 @@ use nerf_core::field::Role;
 use nerf_bundle::{bundle_file, read_model};
 use std::path::Path;
 use nerf_core::field::DenseLayer;
-use nerf_core::field::mlp::{EncodingSpec, NetworkSpec, PlainNetwork};
+use crate::field::CompileField;
+use nerf_core::field::FieldKind;
+use nerf_core::field::mlp::{EncodingSpec, NetworkSpec, PlainMlp, PlainNetwork};
 
 /// Metadata key holding the network description as JSON.
 pub const NETWORK_KEY: &str = "nerf.network";
@@ -156,17 +158,28 @@ pub fn read_network(model: &ModelProto) -> Result<PlainNetwork, String> {
 
 /// The coarse and fine networks as bundle graphs (`coarse.onnx`, `fine.onnx`); `scene` learns
 /// their encodings.
-pub fn compile_field(coarse: &PlainNetwork, fine: Option<&PlainNetwork>, scene: &mut SceneDescription, opset: i64) -> Result<Vec<(Role, ModelProto)>, ExportError> {
-    if (scene.sampling.n_fine > 0) != fine.is_some() {
-        return Err(ExportError::Network("sampling.n_fine and the networks disagree about a fine network".into()));
+impl CompileField for PlainMlp {
+    fn kind(&self) -> &str {
+        FieldKind::Mlp.name()
     }
-    scene.position_encoding = Some(encoding_description(&coarse.spec.position_encoding));
-    scene.direction_encoding = Some(encoding_description(&coarse.spec.direction_encoding));
-    let mut graphs = vec![(Role::Coarse, compile(coarse, "coarse", opset, &scene_metadata(scene, Role::Coarse))?)];
-    if let Some(fine) = fine {
-        graphs.push((Role::Fine, compile(fine, "fine", opset, &scene_metadata(scene, Role::Fine))?));
+
+    fn bounded(&self) -> Option<f32> {
+        None
     }
-    Ok(graphs)
+
+    fn compile(&self, scene: &mut SceneDescription, opset: i64) -> Result<Vec<(Role, ModelProto)>, ExportError> {
+        let PlainMlp { coarse, fine } = self;
+        if (scene.sampling.n_fine > 0) != fine.is_some() {
+            return Err(ExportError::Network("sampling.n_fine and the networks disagree about a fine network".into()));
+        }
+        scene.position_encoding = Some(encoding_description(&coarse.spec.position_encoding));
+        scene.direction_encoding = Some(encoding_description(&coarse.spec.direction_encoding));
+        let mut graphs = vec![(Role::Coarse, compile(coarse, "coarse", opset, &scene_metadata(scene, Role::Coarse))?)];
+        if let Some(fine) = fine {
+            graphs.push((Role::Fine, compile(fine, "fine", opset, &scene_metadata(scene, Role::Fine))?));
+        }
+        Ok(graphs)
+    }
 }
 
 /// The plain network stored in a bundle's graph file `file` (`coarse.onnx`, `fine.onnx`).

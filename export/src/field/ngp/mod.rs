@@ -12,7 +12,8 @@ pub mod hash_grid;
 
 use crate::builder::{Builder, contract_inputs, contract_outputs, scene_metadata};
 use nerf_bundle::scene::SceneDescription;
-use nerf_core::field::Role;
+use crate::field::CompileField;
+use nerf_core::field::{FieldKind, Role};
 use nerf_bundle::graph::float_initializer;
 use hash_grid::{HashOps, check_opset, lower_hash_grid, lower_sh4, model, slice};
 use crate::proto::*;
@@ -83,10 +84,24 @@ pub const DEFAULT_OPSET: i64 = HashOps::Bitwise.min_opset();
 
 /// The field as a bundle's one graph (`field.onnx`): BitwiseXor/And at opset ≥ 18, the
 /// bitwise-free lowering at 17; `scene` learns it has no fine stage.
-pub fn compile_field(plain: &PlainNgp, scene: &mut SceneDescription, opset: i64) -> Result<Vec<(Role, ModelProto)>, ExportError> {
-    scene.sampling.n_fine = 0;
-    let ops = if opset >= HashOps::Bitwise.min_opset() { HashOps::Bitwise } else { HashOps::Arithmetic };
-    Ok(vec![(Role::Field, compile_ngp(plain, "field", opset, ops, &scene_metadata(scene, Role::Field))?)])
+impl CompileField for PlainNgp {
+    fn kind(&self) -> &str {
+        FieldKind::Ngp.name()
+    }
+
+    fn bounded(&self) -> Option<f32> {
+        Some(self.spec.bound.enclosing_half_size())
+    }
+
+    fn default_opset(&self) -> i64 {
+        DEFAULT_OPSET
+    }
+
+    fn compile(&self, scene: &mut SceneDescription, opset: i64) -> Result<Vec<(Role, ModelProto)>, ExportError> {
+        scene.sampling.n_fine = 0;
+        let ops = if opset >= HashOps::Bitwise.min_opset() { HashOps::Bitwise } else { HashOps::Arithmetic };
+        Ok(vec![(Role::Field, compile_ngp(self, "field", opset, ops, &scene_metadata(scene, Role::Field))?)])
+    }
 }
 
 /// Whether `model` is a hash-grid field graph (metadata `nerf.field` = `ngp`).

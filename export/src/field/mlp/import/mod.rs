@@ -16,6 +16,7 @@ use crate::ExportError;
 use crate::bundle::Bundle;
 use nerf_bundle::scene::{NamedPose, SceneDescription, pose_matrix};
 use nerf_core::field::PlainField;
+use nerf_core::field::mlp::PlainMlp;
 use args::NerfPytorchArgs;
 use checkpoint::{ExpectedNetwork, MappingError, read_checkpoint, to_plain_network};
 use nerf_core::PinholeCamera;
@@ -223,5 +224,5 @@ pub fn import_nerf_pytorch(opts: &NerfPytorchImport) -> Result<Imported, ImportE
         "llff" => llff_scene(&data, &args)?,
         _ => blender_scene(&data, &args)?,
     };
-    Ok(Imported { bundle: Bundle { field: PlainField::Mlp { coarse, fine }, scene, occupancy: None }, args_file, data, args })
+    Ok(Imported { bundle: Bundle { field: PlainField::Mlp(PlainMlp { coarse, fine }), scene, occupancy: None }, args_file, data, args })
 }
