@@ -1,19 +1,16 @@
-//! The burn side of `nerf bench`: training steps, the network's forward throughput and frame
-//! times in burn, and the PyTorch comparison. The onnxruntime side lives in the `nerf` binary,
+//! The burn side of `nerf bench`: training steps, timing helpers, frame times in burn, and the
+//! PyTorch comparison (the paper network's own measurements are its kind's: `field::mlp::bench`). The onnxruntime side lives in the `nerf` binary,
 //! so this library does not depend on the runtime; the binary measures both in one run, so
 //! ratios between them are fair on a shared, noisy machine.
 
 use crate::error::{Error, Result};
 use crate::field::TrainedField;
-use crate::field::mlp::{NerfMlp, NerfModel};
-use crate::inference::vec3_tensor;
 use crate::config::{Preset, TrainConfig};
 use crate::field::StepTiming;
 use nerf_core::Rng;
 use nerf_core::camera::{Intrinsics, Pose, length};
 use nerf_core::PinholeCamera;
 use nerf_core::dataset::{Split, SyntheticSceneConfig, generate_scene, load_split};
-use nerf_core::field::mlp::{NetworkSpec, PlainNetwork};
 use nerf_core::render::RenderedImage;
 use std::path::Path;
 use std::time::Instant;
@@ -133,7 +130,7 @@ pub fn bench_pytorch_step(python: &Path, steps: usize) -> Result<PytorchStep> {
 
 /// Forward throughput of one network on a batch of points.
 #[derive(Debug, Clone, serde::Serialize)]
-pub struct MlpBench {
+pub struct NetworkBench {
     /// `burn` or `onnxruntime`.
     pub backend: String,
     /// Points per forward pass.
@@ -172,29 +169,10 @@ pub fn best_of<E>(repeats: usize, mut f: impl FnMut() -> std::result::Result<(),
     Ok(best)
 }
 
-/// The paper network with seeded weights, as plain data and in burn (the same weights the
-/// onnxruntime side compiles).
-pub fn paper_network(seed: u64) -> Result<(PlainNetwork, NerfMlp)> {
-    let plain = PlainNetwork::seeded(&NetworkSpec::paper(), seed);
-    let net = NerfMlp::from_plain(&plain, &crate::backend::cpu())?;
-    Ok((plain, net))
-}
-
-/// Best of `repeats` forward passes of `net` in burn on `points` and `dirs`.
-pub fn bench_mlp_burn(net: &NerfMlp, points: &[[f32; 3]], dirs: &[[f32; 3]], repeats: usize) -> Result<MlpBench> {
-    let device = crate::backend::cpu();
-    let seconds = best_of(repeats, || {
-        let (rgb, sigma) = net.forward(vec3_tensor(points, &device), vec3_tensor(dirs, &device));
-        let _ = (rgb.into_data(), sigma.into_data());
-        Ok::<_, Error>(())
-    })?;
-    Ok(MlpBench::new("burn", points.len(), seconds, net.macs_per_point()))
-}
-
-impl MlpBench {
+impl NetworkBench {
     /// A measurement of `points` points in `seconds`, `macs` multiply-adds per point.
     pub fn new(backend: &str, points: usize, seconds: f64, macs: usize) -> Self {
-        MlpBench { backend: backend.into(), points, seconds, gflops: 2.0 * macs as f64 * points as f64 / seconds / 1e9 }
+        NetworkBench { backend: backend.into(), points, seconds, gflops: 2.0 * macs as f64 * points as f64 / seconds / 1e9 }
     }
 }
 
@@ -225,18 +203,6 @@ pub fn bench_view(data: Option<&Path>) -> Result<(PinholeCamera, Pose)> {
         }
         None => Ok((Intrinsics::from_camera_angle_x(800, 800, nerf_core::dataset::CAMERA_ANGLE_X).into(), Pose::orbit(1)[0])),
     }
-}
-
-/// The paper preset with `chunk` rays per call, and its networks with seeded weights (as plain
-/// data for the compiler and in burn).
-pub fn paper_model(chunk: usize) -> Result<(TrainConfig, PlainNetwork, PlainNetwork, NerfModel)> {
-    let mut config = Preset::Paper.config();
-    config.chunk = chunk;
-    let coarse = PlainNetwork::seeded(&config.shapes.network, 3);
-    let fine = PlainNetwork::seeded(&config.shapes.network, 4);
-    let device = crate::backend::cpu();
-    let model = NerfModel { coarse: NerfMlp::from_plain(&coarse, &device)?, fine: Some(NerfMlp::from_plain(&fine, &device)?) };
-    Ok((config, coarse, fine, model))
 }
 
 /// One frame of `field` rendered by burn (without a grid: dense, or a bounded field's whole

@@ -292,7 +292,8 @@ impl TrainConfig {
         }
         limits::check_count(self.march_steps, limits::MAX_SAMPLES_PER_RAY, "steps", Origin::Key("march_steps")).map_err(|e| e.to_string())?;
         if !self.field.trains_on_random_backgrounds() && self.train_background.is_some_and(|b| b != Background::from_white(self.white_background)) {
-            return Err(format!("train_background: the {} field trains on white_background's colour (random needs field = \"ngp\")", self.field.name()));
+            let random: Vec<&str> = FieldKind::ALL.iter().filter(|k| k.trains_on_random_backgrounds()).map(|k| k.name()).collect();
+            return Err(format!("train_background: the {} field trains on white_background's colour (random needs field = {random:?})", self.field.name()));
         }
         if let Some((section, (min, max))) = self.shapes.field_box(self.field) {
             // A field defined inside its box only is marched through the occupancy grid, whose

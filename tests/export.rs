@@ -43,8 +43,8 @@ fn export_writes_a_bundle_that_onnx_and_onnxruntime_accept() {
 
     // The graphs carry exactly the trained weights.
     let model = nerf::field::load_latest(&RunDir::open(&run).unwrap(), &nerf::backend::cpu()).unwrap().model.as_any().downcast_ref::<nerf::field::mlp::NerfModel>().unwrap().clone();
-    let coarse = nerf_export::read_bundle_network(&bundle, "coarse.onnx").unwrap();
-    let fine = nerf_export::read_bundle_network(&bundle, "fine.onnx").unwrap();
+    let coarse = nerf_export::field::mlp::read_bundle_network(&bundle, "coarse.onnx").unwrap();
+    let fine = nerf_export::field::mlp::read_bundle_network(&bundle, "fine.onnx").unwrap();
     assert_eq!(coarse, model.coarse.to_plain());
     assert_eq!(fine, model.fine.as_ref().unwrap().to_plain());
 

@@ -1,9 +1,10 @@
-//! The ONNX compiler: turns trained fields as plain data ([`nerf_core::field::PlainField`]) into
-//! ONNX graphs written with our own prost messages ([`nerf_bundle::proto`]), and writes scene
-//! bundles ([`nerf_bundle`]) that a renderer needs nothing else to use.
+//! The ONNX compiler: turns trained fields ([`CompileField`]; the built-in kinds as
+//! [`nerf_core::field::PlainField`]) into ONNX graphs written with our own prost messages
+//! ([`nerf_bundle::proto`]), and writes scene bundles ([`nerf_bundle`]) that a renderer needs
+//! nothing else to use.
 //!
-//! It does not depend on burn: any network given as plain data can be compiled. [`import`] reads
-//! models trained elsewhere (nerf-pytorch checkpoints) into bundles.
+//! It does not depend on burn: any field given as plain data can be compiled. Each kind's
+//! lowering is in its folder of [`field`] (the NeRF MLPs' also reads nerf-pytorch checkpoints).
 #![warn(missing_docs)]
 
 pub mod builder;
@@ -16,7 +17,6 @@ pub use nerf_bundle::proto;
 pub use builder::DEFAULT_OPSET;
 pub use bundle::{Bundle, write_bundle};
 pub use field::CompileField;
-pub use field::mlp::{import, read_bundle_network};
 
 /// Why a network could not be compiled or a bundle written.
 #[derive(Debug, thiserror::Error)]

@@ -4,7 +4,7 @@
 
 use nerf_core::field::PlainField;
 use nerf_core::field::mlp::PlainNetwork;
-use nerf_export::import::{NerfPytorchImport, import_nerf_pytorch};
+use nerf_export::field::mlp::import::{NerfPytorchImport, import_nerf_pytorch};
 use std::path::{Path, PathBuf};
 
 fn fixture(path: &str) -> PathBuf {

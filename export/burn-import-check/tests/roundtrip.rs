@@ -32,7 +32,7 @@ fn imported_graphs_match_our_burn_model() {
     let tensor = |v: &[f32]| Tensor::<2>::from_data(TensorData::new(v.to_vec(), [POINTS, 3]), &device);
 
     for file in ["coarse.onnx", "fine.onnx"] {
-        let plain = nerf_export::read_bundle_network(&bundle, file).unwrap();
+        let plain = nerf_export::field::mlp::read_bundle_network(&bundle, file).unwrap();
         let ours = NerfMlp::from_plain(&plain, &device).unwrap();
         let (rgb, raw_sigma) = ours.forward(tensor(&points), tensor(&dirs));
         let sigma = relu(raw_sigma).reshape([POINTS, 1]);

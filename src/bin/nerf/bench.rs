@@ -4,7 +4,8 @@
 
 use super::BenchPart;
 use anyhow::{Result, bail};
-use nerf::bench::{FrameBench, MlpBench, best_of, bench_view, burn_frame, paper_model, paper_network, random_points, timed_frame};
+use nerf::bench::{FrameBench, NetworkBench, best_of, bench_view, burn_frame, random_points, timed_frame};
+use nerf::field::mlp::bench::{bench_mlp_burn, paper_model, paper_network};
 use nerf::export::field_bundle;
 use nerf::config::Preset;
 use nerf_core::dataset::{Split, load_split};
@@ -209,17 +210,17 @@ pub fn run(options: &BenchOptions, progress: bool) -> Result<()> {
 
 /// The paper network (seeded weights) in burn and through onnxruntime on the same `points`
 /// random inputs: best of `repeats` forward passes each.
-fn bench_mlp(points: usize, repeats: usize) -> Result<Vec<MlpBench>> {
+fn bench_mlp(points: usize, repeats: usize) -> Result<Vec<NetworkBench>> {
     let (plain, net) = paper_network(1)?;
     let (p, d) = random_points(points, 2);
-    let burn = nerf::bench::bench_mlp_burn(&net, &p, &d, repeats)?;
+    let burn = bench_mlp_burn(&net, &p, &d, repeats)?;
     let dir = tempfile::tempdir()?;
     let path = dir.path().join("paper.onnx");
     let model = nerf_export::field::mlp::compile(&plain, "coarse", nerf_export::DEFAULT_OPSET, &[])?;
     nerf_core::io::atomic::write_atomic(&path, &prost::Message::encode_to_vec(&model))?;
     let mut ort = OrtNetwork::load(&path, None)?;
     let ort_s = best_of(repeats, || ort.run(&p, &d).map(|_| ()))?;
-    Ok(vec![burn, MlpBench::new("onnxruntime", points, ort_s, plain.spec.macs_per_point())])
+    Ok(vec![burn, NetworkBench::new("onnxruntime", points, ort_s, plain.spec.macs_per_point())])
 }
 
 /// Render one frame per size with the paper network (seeded weights; 64 + 128 samples, dense)

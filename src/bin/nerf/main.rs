@@ -234,8 +234,8 @@ fn main() -> Result<()> {
             }
         }
         Command::Import { source: ImportSource::NerfPytorch { checkpoint, args, data, out, opset } } => {
-            let opts = nerf_export::import::NerfPytorchImport { checkpoint, args, data };
-            let imported = nerf_export::import::import_nerf_pytorch(&opts)?;
+            let opts = nerf_export::field::mlp::import::NerfPytorchImport { checkpoint, args, data };
+            let imported = nerf_export::field::mlp::import::import_nerf_pytorch(&opts)?;
             let b = &imported.bundle;
             let a = &imported.args;
             let fine = if a.n_importance > 0 { format!("{}×{}", a.netdepth_fine, a.netwidth_fine) } else { "none".into() };

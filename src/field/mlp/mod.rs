@@ -2,6 +2,7 @@
 //! encoding, their differentiable volume rendering and trainer, checkpoint parts, and their
 //! place at the field seam ([`crate::field::seam`]).
 
+pub mod bench;
 mod encoding;
 mod model;
 mod network;
