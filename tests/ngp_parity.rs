@@ -14,9 +14,20 @@ use prost::Message;
 
 #[test]
 fn ngp_field_graph_matches_burn() {
+    // int32 indices (the default grids).
+    parity(HashGridConfig { log2_table_size: 17, ..HashGridConfig::default() });
+}
+
+#[test]
+fn a_grid_too_wide_for_int32_indices_matches_burn() {
+    // 4097 · (2²² − 1) > 2³¹: the lowering keeps int64 indices.
+    parity(HashGridConfig { levels: 4, log2_table_size: 22, max_resolution: 4096, ..HashGridConfig::default() });
+}
+
+fn parity(grid: HashGridConfig) {
     let device = nerf::backend::cpu();
     device.seed(21);
-    let spec = NgpSpec { grid: HashGridConfig { log2_table_size: 17, ..HashGridConfig::default() }, ..NgpSpec::default() };
+    let spec = NgpSpec { grid, ..NgpSpec::default() };
     let field = NgpField::new(spec, 3, &device).unwrap();
     // Trained-like magnitudes: a U(−1, 1) table, weights U(±2/√fan_in) and σ's layer ×4, so
     // that σ = exp(raw) spans orders of magnitude (a fresh field gives σ ≈ 1 everywhere).

@@ -170,6 +170,8 @@ pub struct TensorProto {
 pub mod data_type {
     /// FLOAT (f32).
     pub const FLOAT: i32 = 1;
+    /// INT32.
+    pub const INT32: i32 = 6;
     /// INT64.
     pub const INT64: i32 = 7;
     /// BOOL.

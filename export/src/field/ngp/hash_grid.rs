@@ -6,12 +6,14 @@
 //!    the same f32 operations as [`GridBound::to_unit`] and the clamp in
 //!    [`nerf_core::field::ngp::hash_grid::corners`].
 //! 2. `Unsqueeze` to `[N, 1, 3]`, `Mul` by the level scales `[L, 1]`, `Add` 0.5: positions
-//!    `[N, L, 3]`; `Floor`, `Sub` (fractions), `Cast` to int64 (cells).
+//!    `[N, L, 3]`; `Floor`, `Sub` (fractions), `Cast` to int32 (cells; int64 for grids too wide
+//!    for it, [`IndexType`]).
 //! 3. Per axis d (`Slice`): corner coordinates `cell_d + bit_d(k)` for the 8 corners `[N, L, 8]`,
 //!    multiplied by the level's stride on that axis (dense: 1, res, res²; hashed: the primes
-//!    1, 2654435761, 805459861); weights `Where(bit_d(k), frac_d, 1 − frac_d)`, multiplied
-//!    x·y·z as tiny-cuda-nn does. int64 holds the products exactly (< 2⁴⁹), and since T divides
-//!    2³², `(a ⊕ b ⊕ c) mod T` on int64 equals the u32 hash mod T.
+//!    1, 2654435761, 805459861 taken mod T); weights `Where(bit_d(k), frac_d, 1 − frac_d)`,
+//!    multiplied x·y·z as tiny-cuda-nn does. Since T = 2ᵏ divides 2³², `(x·p mod 2³²) mod T =
+//!    (x·(p mod T)) mod T` and XOR commutes with `mod 2ᵏ`, so the hash of the reduced products
+//!    equals the u32 hash mod T, and the products stay below 2³¹ (int32) for the default grids.
 //! 4. Dense index `Mod(Σ terms, entries)`, hashed index `BitwiseAnd(a ⊕ b ⊕ c, T − 1)`, chosen
 //!    per level by `Where`, plus the level's offset: rows of the table.
 //! 5. `Gather` the rows of the table `[entries, F]` → `[N, L, 8, F]`, weight, `ReduceSum` the
@@ -26,8 +28,8 @@
 //! same hash without any bitwise operator: each term's low k = log₂T bits are extracted with
 //! `Div` by 2^j and `Mod` 2, the XOR of three bits is their sum `Mod` 2, and the bits are
 //! weighted back by 2^j and summed. It runs at opset 17, with only `Div`, `Mod`, `Add`, `Mul`,
-//! `ReduceSum`, `Where` on int64, at the price of k× the memory for the index computation
-//! (`[N, L, 8, k]` int64): render in smaller batches. It computes the same values as the
+//! `ReduceSum`, `Where` on integers, at the price of k× the memory for the index computation
+//! (`[N, L, 8, k]`): render in smaller batches. It computes the same values as the
 //! bitwise graph in onnxruntime's CPU provider (tested); whether the CUDA provider runs every
 //! one of its nodes on the GPU was not checked here (no GPU, and its kernel list not read).
 
@@ -115,8 +117,49 @@ fn tensor(g: &mut Builder, name: &str, dims: &[i64], data_type: i32, raw_data: V
     name.to_string()
 }
 
-fn i64_tensor(g: &mut Builder, name: &str, dims: &[i64], values: &[i64]) -> String {
-    tensor(g, name, dims, data_type::INT64, values.iter().flat_map(|v| v.to_le_bytes()).collect())
+/// The integer type of the index computation: int32 (half the traffic of int64) wherever every
+/// intermediate fits, which holds for the default grids; int64 otherwise.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum IndexType {
+    /// Every corner term, dense sum and row below 2³¹.
+    Int32,
+    /// Wider grids.
+    Int64,
+}
+
+impl IndexType {
+    /// The narrowest type that holds `grid`'s intermediates: corner coordinates up to the
+    /// resolution times a stride (res, res² or a prime mod T, all < T), their dense sums, and
+    /// the rows of the whole table.
+    pub fn for_grid(grid: &HashGrid) -> Self {
+        let widest = grid
+            .levels()
+            .iter()
+            .map(|v| {
+                let c = v.resolution as u64 + 1;
+                let stride = if v.dense { c * c } else { v.entries as u64 };
+                c * stride + c * c + c + (v.offset + v.entries) as u64
+            })
+            .max()
+            .unwrap_or(0);
+        if widest < 1 << 31 { IndexType::Int32 } else { IndexType::Int64 }
+    }
+
+    fn data_type(self) -> i32 {
+        match self {
+            IndexType::Int32 => data_type::INT32,
+            IndexType::Int64 => data_type::INT64,
+        }
+    }
+
+    /// An initializer of this type (`values` fit: they are strides, masks and offsets).
+    fn tensor(self, g: &mut Builder, name: &str, dims: &[i64], values: &[i64]) -> String {
+        let raw = match self {
+            IndexType::Int32 => values.iter().flat_map(|&v| i32::try_from(v).expect("checked by for_grid").to_le_bytes()).collect(),
+            IndexType::Int64 => values.iter().flat_map(|v| v.to_le_bytes()).collect(),
+        };
+        tensor(g, name, dims, self.data_type(), raw)
+    }
 }
 
 fn bool_tensor(g: &mut Builder, name: &str, dims: &[i64], values: &[bool]) -> String {
@@ -159,22 +202,27 @@ pub(crate) fn lower_hash_grid(g: &mut Builder, input: &str, grid: &HashGrid, bou
     let floor = g.unary("Floor", &pos, "grid.floor");
     let frac = g.node("Sub", &[&pos, &floor], "grid.frac", vec![]);
     let one_minus = g.node("Sub", &[&one, &frac], "grid.one_minus_frac", vec![]);
-    let cell = g.node("Cast", &[&floor], "grid.cell", vec![int_attribute("to", data_type::INT64 as i64)]);
+    let index = IndexType::for_grid(grid);
+    let cell = g.node("Cast", &[&floor], "grid.cell", vec![int_attribute("to", index.data_type() as i64)]);
     // 3. Per-axis corner terms and weights, [N, L, 8].
     let per_level = |v: &dyn Fn(&nerf_core::field::ngp::hash_grid::LevelLayout) -> i64| levels.iter().map(v).collect::<Vec<i64>>();
     let mut terms = Vec::new();
     let mut weights = Vec::new();
     for d in 0..3i64 {
         let bits: Vec<i64> = (0..8).map(|k| (k >> d) & 1).collect();
-        let bits_i = i64_tensor(g, &format!("grid.corner_bits{d}"), &[8], &bits);
+        let bits_i = index.tensor(g, &format!("grid.corner_bits{d}"), &[8], &bits);
         let bits_b = bool_tensor(g, &format!("grid.corner_mask{d}"), &[8], &bits.iter().map(|&b| b == 1).collect::<Vec<_>>());
         let c = slice(g, &cell, (d, d + 1), 2, &format!("grid.cell{d}"));
         let coord = g.node("Add", &[&c, &bits_i], &format!("grid.corner{d}"), vec![]);
         let term = if d == 0 {
             coord // stride 1 for dense and hashed levels alike
         } else {
-            let stride = per_level(&|v| if v.dense { (v.resolution as i64).pow(d as u32) } else { nerf_core::field::ngp::hash_grid::config::PRIMES[d as usize] as i64 });
-            let stride = i64_tensor(g, &format!("grid.stride{d}"), &[l, 1], &stride);
+            // A hashed level's prime is taken mod T: T = 2ᵏ divides 2³², so the hash's low k bits
+            // are unchanged, and the products stay below 2³¹ (see [`IndexType`]).
+            let stride = per_level(&|v| {
+                if v.dense { (v.resolution as i64).pow(d as u32) } else { (nerf_core::field::ngp::hash_grid::config::PRIMES[d as usize] % v.entries) as i64 }
+            });
+            let stride = index.tensor(g, &format!("grid.stride{d}"), &[l, 1], &stride);
             g.node("Mul", &[&coord, &stride], &format!("grid.term{d}"), vec![])
         };
         terms.push(term);
@@ -187,20 +235,20 @@ pub(crate) fn lower_hash_grid(g: &mut Builder, input: &str, grid: &HashGrid, bou
     // 4. Entry indices.
     let sum01 = g.node("Add", &[&terms[0], &terms[1]], "grid.dense_sum01", vec![]);
     let sum = g.node("Add", &[&sum01, &terms[2]], "grid.dense_sum", vec![]);
-    let entries = i64_tensor(g, "grid.level_entries", &[l, 1], &per_level(&|v| v.entries as i64));
+    let entries = index.tensor(g, "grid.level_entries", &[l, 1], &per_level(&|v| v.entries as i64));
     let dense = g.node("Mod", &[&sum, &entries], "grid.dense_index", vec![]);
     let hashed = match ops {
         HashOps::Bitwise => {
             let x01 = g.node("BitwiseXor", &[&terms[0], &terms[1]], "grid.hash01", vec![]);
             let x = g.node("BitwiseXor", &[&x01, &terms[2]], "grid.hash", vec![]);
-            let mask = i64_tensor(g, "grid.level_mask", &[l, 1], &per_level(&|v| v.entries as i64 - 1));
+            let mask = index.tensor(g, "grid.level_mask", &[l, 1], &per_level(&|v| v.entries as i64 - 1));
             g.node("BitwiseAnd", &[&x, &mask], "grid.hash_index", vec![])
         }
-        HashOps::Arithmetic => xor_low_bits(g, &terms, grid.config().log2_table_size),
+        HashOps::Arithmetic => xor_low_bits(g, &terms, grid.config().log2_table_size, index),
     };
     let is_dense = bool_tensor(g, "grid.level_dense", &[l, 1], &levels.iter().map(|v| v.dense).collect::<Vec<_>>());
     let local = g.node("Where", &[&is_dense, &dense, &hashed], "grid.local_index", vec![]);
-    let offsets = i64_tensor(g, "grid.level_offsets", &[l, 1], &per_level(&|v| v.offset as i64));
+    let offsets = index.tensor(g, "grid.level_offsets", &[l, 1], &per_level(&|v| v.offset as i64));
     let rows = g.node("Add", &[&local, &offsets], "grid.rows", vec![]);
     // 5. Lookup, weighting, sum over corners.
     let total = grid.params().len() / f as usize;
@@ -215,12 +263,12 @@ pub(crate) fn lower_hash_grid(g: &mut Builder, input: &str, grid: &HashGrid, bou
     g.node("Reshape", &[&summed, &shape], "grid.features", vec![])
 }
 
-/// `(t₀ ⊕ t₁ ⊕ t₂) mod 2^k` for non-negative int64 `[N, L, 8]` terms, without bitwise operators:
+/// `(t₀ ⊕ t₁ ⊕ t₂) mod 2^k` for non-negative integer `[N, L, 8]` terms, without bitwise operators:
 /// bit j of each term is `(t / 2^j) mod 2`, the XOR of three bits is their sum mod 2.
-fn xor_low_bits(g: &mut Builder, terms: &[String], k: u32) -> String {
+fn xor_low_bits(g: &mut Builder, terms: &[String], k: u32, index: IndexType) -> String {
     let powers: Vec<i64> = (0..k).map(|j| 1i64 << j).collect();
-    let powers = i64_tensor(g, "grid.bit_values", &[k as i64], &powers);
-    let two = i64_tensor(g, "grid.two", &[], &[2]);
+    let powers = index.tensor(g, "grid.bit_values", &[k as i64], &powers);
+    let two = index.tensor(g, "grid.two", &[], &[2]);
     let axes3 = g.i64_constant("axes.3", &[3]);
     let mut bit_sum: Option<String> = None;
     for (d, t) in terms.iter().enumerate() {
@@ -296,6 +344,15 @@ pub(crate) fn lower_sh4(g: &mut Builder, input: &str) -> String {
 mod tests {
     use super::*;
     use nerf_core::field::ngp::hash_grid::HashGridConfig;
+
+    #[test]
+    fn index_type_is_int32_for_the_default_grid_and_widens_when_products_could_overflow() {
+        let default = HashGrid::new(HashGridConfig::default(), 1).unwrap();
+        assert_eq!(IndexType::for_grid(&default), IndexType::Int32);
+        // T = 2²² with coordinates up to 4097: 4097 · (2²² − 1) > 2³¹.
+        let wide = HashGridConfig { levels: 2, log2_table_size: 22, max_resolution: 4096, ..HashGridConfig::default() };
+        assert_eq!(IndexType::for_grid(&HashGrid::new(wide, 1).unwrap()), IndexType::Int64);
+    }
 
     fn grid() -> HashGrid {
         HashGrid::new(HashGridConfig { levels: 4, features_per_level: 2, log2_table_size: 9, base_resolution: 4, max_resolution: 17 }, 1).unwrap()
