@@ -141,6 +141,11 @@ impl Builder {
     }
 }
 
+/// An attribute holding a list of integers.
+pub fn ints_attribute(name: &str, values: &[i64]) -> AttributeProto {
+    AttributeProto { name: name.into(), r#type: attribute_type::INTS, ints: values.to_vec(), ..Default::default() }
+}
+
 /// An integer attribute.
 pub fn int_attribute(name: &str, value: i64) -> AttributeProto {
     AttributeProto { name: name.into(), r#type: attribute_type::INT, i: value, ..Default::default() }

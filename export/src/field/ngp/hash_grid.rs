@@ -2,22 +2,29 @@
 //! hash-grid field runs in any ONNX runtime with its table as one initializer.
 //!
 //! # The encoding, op by op (`points [N, 3]` → `features [N, L·F]`)
+//! Laid out for onnxruntime's CPU kernels (measured with its profiler): level-major
+//! intermediates so per-level constants broadcast over whole levels, int32 indices, no `Where`,
+//! full shapes where a broadcast would be tiny, and products as `MatMul`s.
 //! 1. `Sub` the bound's min, `Mul` by its f32 scale, `Clip` to [0, 1]: the unit-cube point,
 //!    the same f32 operations as [`GridBound::to_unit`] and the clamp in
 //!    [`nerf_core::field::ngp::hash_grid::corners`].
-//! 2. `Unsqueeze` to `[N, 1, 3]`, `Mul` by the level scales `[L, 1]`, `Add` 0.5: positions
-//!    `[N, L, 3]`; `Floor`, `Sub` (fractions), `Cast` to int32 (cells; int64 for grids too wide
+//! 2. `Unsqueeze` to `[1, N, 3]`, `Mul` by the level scales `[L, 1, 1]`, `Add` 0.5: positions
+//!    `[L, N, 3]`; `Floor`, `Sub` (fractions), `Cast` to int32 (cells; int64 for grids too wide
 //!    for it, [`IndexType`]).
-//! 3. Per axis d (`Slice`): corner coordinates `cell_d + bit_d(k)` for the 8 corners `[N, L, 8]`,
-//!    multiplied by the level's stride on that axis (dense: 1, res, res²; hashed: the primes
-//!    1, 2654435761, 805459861 taken mod T); weights `Where(bit_d(k), frac_d, 1 − frac_d)`,
-//!    multiplied x·y·z as tiny-cuda-nn does. Since T = 2ᵏ divides 2³², `(x·p mod 2³²) mod T =
-//!    (x·(p mod T)) mod T` and XOR commutes with `mod 2ᵏ`, so the hash of the reduced products
-//!    equals the u32 hash mod T, and the products stay below 2³¹ (int32) for the default grids.
-//! 4. Dense index `Mod(Σ terms, entries)`, hashed index `BitwiseAnd(a ⊕ b ⊕ c, T − 1)`, chosen
-//!    per level by `Where`, plus the level's offset: rows of the table.
-//! 5. `Gather` the rows of the table `[entries, F]` → `[N, L, 8, F]`, weight, `ReduceSum` the
-//!    corners, `Reshape` to `[N, L·F]` (level-major, as the Rust encoding).
+//! 3. Rows, `[L, N, 8]`, for the dense levels (a prefix) and the hashed ones as two groups: per
+//!    axis d, corner coordinates `cell_d + bit_d(k)` times the level's stride (dense: 1, res,
+//!    res²; hashed: the primes 1, 2654435761, 805459861 taken mod T). Dense: the sum `Mod` the
+//!    level's entries; hashed: `BitwiseXor` of the three terms, `BitwiseAnd` T − 1. Since
+//!    T = 2ᵏ divides 2³², `(x·p mod 2³²) mod T = (x·(p mod T)) mod T` and XOR commutes with
+//!    `mod 2ᵏ`: the u32 hash mod T, with every product below 2³¹. Plus the level's offset;
+//!    `Concat` the groups.
+//! 4. Weights, `[L, N, 8·F]`: per axis a `MatMul` of `[frac, 1 − frac]` with a 0/1 matrix picks
+//!    `frac_d` or `1 − frac_d` for each corner (one value plus exact zeros), repeated for the F
+//!    features; multiplied x·y·z as tiny-cuda-nn does.
+//! 5. `Gather` the rows of the table `[entries, F]` → `[L, N, 8, F]`, `Reshape` to
+//!    `[L, N, 8·F]`, `Mul` by the weights, `MatMul` with a 0/1 matrix `[8·F, F]` (the sum over
+//!    corners), `Transpose` to `[N, L, F]`, `Reshape` to `[N, L·F]` (level-major per point, as
+//!    the Rust encoding).
 //!
 //! # GPU consumers
 //! `BitwiseXor` and `BitwiseAnd` need opset 18. onnxruntime's CPU provider implements them for
@@ -34,7 +41,7 @@
 //! one of its nodes on the GPU was not checked here (no GPU, and its kernel list not read).
 
 use crate::ExportError;
-use crate::builder::{Builder, OPSETS, int_attribute, model_proto, value_info};
+use crate::builder::{Builder, OPSETS, int_attribute, ints_attribute, model_proto, value_info};
 use crate::proto::*;
 use nerf_core::field::ngp::hash_grid::{GridBound, HashGrid};
 use nerf_core::field::ngp::spherical_harmonics::{SH4_CONSTANTS, SH4_DIM};
@@ -162,10 +169,6 @@ impl IndexType {
     }
 }
 
-fn bool_tensor(g: &mut Builder, name: &str, dims: &[i64], values: &[bool]) -> String {
-    tensor(g, name, dims, data_type::BOOL, values.iter().map(|&b| u8::from(b)).collect())
-}
-
 fn f32_scalar(g: &mut Builder, name: &str, value: f32) -> String {
     g.f32_tensor(name, &[], &[value])
 }
@@ -191,11 +194,12 @@ pub(crate) fn lower_hash_grid(g: &mut Builder, input: &str, grid: &HashGrid, bou
     let zero = f32_scalar(g, "grid.zero", 0.0);
     let one = f32_scalar(g, "grid.one", 1.0);
     let clipped = g.node("Clip", &[&unit, &zero, &one], "grid.clipped", vec![]);
-    // 2. Positions, cells, fractions per level.
-    let axes1 = g.i64_constant("axes.1", &[1]);
-    let u = g.node("Unsqueeze", &[&clipped, &axes1], "grid.unsqueezed", vec![]);
+    // 2. Positions, cells, fractions per level, level-major [L, N, 3]: every per-level constant
+    //    then broadcasts over a whole level's points at once.
+    let axes0 = g.i64_constant("axes.0", &[0]);
+    let u = g.node("Unsqueeze", &[&clipped, &axes0], "grid.unsqueezed", vec![]);
     let scales: Vec<f32> = levels.iter().map(|v| v.scale).collect();
-    let scales = g.f32_tensor("grid.level_scales", &[levels.len(), 1], &scales);
+    let scales = g.f32_tensor("grid.level_scales", &[levels.len(), 1, 1], &scales);
     let scaled = g.node("Mul", &[&u, &scales], "grid.scaled", vec![]);
     let half = f32_scalar(g, "grid.half", 0.5);
     let pos = g.node("Add", &[&scaled, &half], "grid.pos", vec![]);
@@ -204,63 +208,103 @@ pub(crate) fn lower_hash_grid(g: &mut Builder, input: &str, grid: &HashGrid, bou
     let one_minus = g.node("Sub", &[&one, &frac], "grid.one_minus_frac", vec![]);
     let index = IndexType::for_grid(grid);
     let cell = g.node("Cast", &[&floor], "grid.cell", vec![int_attribute("to", index.data_type() as i64)]);
-    // 3. Per-axis corner terms and weights, [N, L, 8].
-    let per_level = |v: &dyn Fn(&nerf_core::field::ngp::hash_grid::LevelLayout) -> i64| levels.iter().map(v).collect::<Vec<i64>>();
-    let mut terms = Vec::new();
-    let mut weights = Vec::new();
-    for d in 0..3i64 {
-        let bits: Vec<i64> = (0..8).map(|k| (k >> d) & 1).collect();
-        let bits_i = index.tensor(g, &format!("grid.corner_bits{d}"), &[8], &bits);
-        let bits_b = bool_tensor(g, &format!("grid.corner_mask{d}"), &[8], &bits.iter().map(|&b| b == 1).collect::<Vec<_>>());
-        let c = slice(g, &cell, (d, d + 1), 2, &format!("grid.cell{d}"));
-        let coord = g.node("Add", &[&c, &bits_i], &format!("grid.corner{d}"), vec![]);
-        let term = if d == 0 {
-            coord // stride 1 for dense and hashed levels alike
-        } else {
-            // A hashed level's prime is taken mod T: T = 2ᵏ divides 2³², so the hash's low k bits
-            // are unchanged, and the products stay below 2³¹ (see [`IndexType`]).
-            let stride = per_level(&|v| {
-                if v.dense { (v.resolution as i64).pow(d as u32) } else { (nerf_core::field::ngp::hash_grid::config::PRIMES[d as usize] % v.entries) as i64 }
+    // 3. Rows of the table, [L, N, 8]: dense levels (a prefix: resolutions grow with the level)
+    //    and hashed ones as two groups, each computing only its own index.
+    let bits: Vec<String> = (0..3).map(|d| index.tensor(g, &format!("grid.corner_bits{d}"), &[8], &(0..8).map(|k| (k >> d) & 1).collect::<Vec<i64>>())).collect();
+    let n_dense = levels.iter().take_while(|v| v.dense).count();
+    let groups: Vec<(usize, usize)> = [(0, n_dense), (n_dense, levels.len())].into_iter().filter(|(a, b)| a < b).collect();
+    let mut group_rows = Vec::new();
+    for &(start, end) in &groups {
+        let group = &levels[start..end];
+        let dense = group[0].dense;
+        let tag = if dense { "grid.dense" } else { "grid.hashed" };
+        let cell = if groups.len() == 1 { cell.clone() } else { slice(g, &cell, (start as i64, end as i64), 0, &format!("{tag}.cell")) };
+        let per_level = |v: &dyn Fn(&nerf_core::field::ngp::hash_grid::LevelLayout) -> i64| group.iter().map(v).collect::<Vec<i64>>();
+        let lg = group.len() as i64;
+        let mut terms = Vec::new();
+        for d in 0..3i64 {
+            let c = slice(g, &cell, (d, d + 1), 2, &format!("{tag}.cell{d}"));
+            let coord = g.node("Add", &[&c, &bits[d as usize]], &format!("{tag}.corner{d}"), vec![]);
+            terms.push(if d == 0 {
+                coord // stride 1 for dense and hashed levels alike
+            } else {
+                // Dense: res^d. Hashed: the prime taken mod T (T = 2ᵏ divides 2³², so the hash's
+                // low k bits are unchanged, and the products stay below 2³¹, see [`IndexType`]).
+                let stride = per_level(&|v| {
+                    if dense { (v.resolution as i64).pow(d as u32) } else { (nerf_core::field::ngp::hash_grid::config::PRIMES[d as usize] % v.entries) as i64 }
+                });
+                let stride = index.tensor(g, &format!("{tag}.stride{d}"), &[lg, 1, 1], &stride);
+                g.node("Mul", &[&coord, &stride], &format!("{tag}.term{d}"), vec![])
             });
-            let stride = index.tensor(g, &format!("grid.stride{d}"), &[l, 1], &stride);
-            g.node("Mul", &[&coord, &stride], &format!("grid.term{d}"), vec![])
+        }
+        let local = if dense {
+            let sum01 = g.node("Add", &[&terms[0], &terms[1]], &format!("{tag}.sum01"), vec![]);
+            let sum = g.node("Add", &[&sum01, &terms[2]], &format!("{tag}.sum"), vec![]);
+            let entries = index.tensor(g, &format!("{tag}.entries"), &[lg, 1, 1], &per_level(&|v| v.entries as i64));
+            g.node("Mod", &[&sum, &entries], &format!("{tag}.index"), vec![])
+        } else {
+            match ops {
+                HashOps::Bitwise => {
+                    let x01 = g.node("BitwiseXor", &[&terms[0], &terms[1]], &format!("{tag}.xor01"), vec![]);
+                    let x = g.node("BitwiseXor", &[&x01, &terms[2]], &format!("{tag}.xor"), vec![]);
+                    let mask = index.tensor(g, &format!("{tag}.mask"), &[lg, 1, 1], &per_level(&|v| v.entries as i64 - 1));
+                    g.node("BitwiseAnd", &[&x, &mask], &format!("{tag}.index"), vec![])
+                }
+                HashOps::Arithmetic => xor_low_bits(g, &terms, grid.config().log2_table_size, index),
+            }
         };
-        terms.push(term);
-        let fd = slice(g, &frac, (d, d + 1), 2, &format!("grid.frac{d}"));
-        let gd = slice(g, &one_minus, (d, d + 1), 2, &format!("grid.one_minus_frac{d}"));
-        weights.push(g.node("Where", &[&bits_b, &fd, &gd], &format!("grid.weight{d}"), vec![]));
+        let offsets = index.tensor(g, &format!("{tag}.offsets"), &[lg, 1, 1], &per_level(&|v| v.offset as i64));
+        group_rows.push(g.node("Add", &[&local, &offsets], &format!("{tag}.rows"), vec![]));
     }
+    let rows = if group_rows.len() == 1 {
+        group_rows.pop().expect("one group")
+    } else {
+        g.node("Concat", &[&group_rows[0], &group_rows[1]], "grid.rows", vec![int_attribute("axis", 0)])
+    };
+    // 4. Trilinear weights, [L, N, 8].
+    // Each axis's weight for each corner, frac_d where the corner's bit d is set, else 1 − frac_d,
+    // as a MatMul of [frac, 1 − frac] with a 0/1 selection matrix [6, 8] per axis (each output sums
+    // one value and five exact zeros: the same values as selecting, without Where).
+    let both = g.node("Concat", &[&frac, &one_minus], "grid.frac_both", vec![int_attribute("axis", 2)]);
+    // Each corner's weight is repeated for its F features ([L, N, 8·F]), so the weighting below
+    // multiplies full shapes.
+    let fu = f as usize;
+    let weights: Vec<String> = (0..3usize)
+        .map(|d| {
+            let mut select = vec![0.0f32; 6 * 8 * fu];
+            for k in 0..8usize {
+                let row = if (k >> d) & 1 == 1 { d } else { 3 + d };
+                for j in 0..fu {
+                    select[row * 8 * fu + k * fu + j] = 1.0;
+                }
+            }
+            let select = g.f32_tensor(&format!("grid.corner_select{d}"), &[6, 8 * fu], &select);
+            g.node("MatMul", &[&both, &select], &format!("grid.weight{d}"), vec![])
+        })
+        .collect();
     let wxy = g.node("Mul", &[&weights[0], &weights[1]], "grid.weight01", vec![]);
     let weight = g.node("Mul", &[&wxy, &weights[2]], "grid.weight", vec![]);
-    // 4. Entry indices.
-    let sum01 = g.node("Add", &[&terms[0], &terms[1]], "grid.dense_sum01", vec![]);
-    let sum = g.node("Add", &[&sum01, &terms[2]], "grid.dense_sum", vec![]);
-    let entries = index.tensor(g, "grid.level_entries", &[l, 1], &per_level(&|v| v.entries as i64));
-    let dense = g.node("Mod", &[&sum, &entries], "grid.dense_index", vec![]);
-    let hashed = match ops {
-        HashOps::Bitwise => {
-            let x01 = g.node("BitwiseXor", &[&terms[0], &terms[1]], "grid.hash01", vec![]);
-            let x = g.node("BitwiseXor", &[&x01, &terms[2]], "grid.hash", vec![]);
-            let mask = index.tensor(g, "grid.level_mask", &[l, 1], &per_level(&|v| v.entries as i64 - 1));
-            g.node("BitwiseAnd", &[&x, &mask], "grid.hash_index", vec![])
-        }
-        HashOps::Arithmetic => xor_low_bits(g, &terms, grid.config().log2_table_size, index),
-    };
-    let is_dense = bool_tensor(g, "grid.level_dense", &[l, 1], &levels.iter().map(|v| v.dense).collect::<Vec<_>>());
-    let local = g.node("Where", &[&is_dense, &dense, &hashed], "grid.local_index", vec![]);
-    let offsets = index.tensor(g, "grid.level_offsets", &[l, 1], &per_level(&|v| v.offset as i64));
-    let rows = g.node("Add", &[&local, &offsets], "grid.rows", vec![]);
     // 5. Lookup, weighting, sum over corners.
     let total = grid.params().len() / f as usize;
     let table = g.f32_tensor("grid.table", &[total, f as usize], grid.params());
     let values = g.node("Gather", &[&table, &rows], "grid.values", vec![int_attribute("axis", 0)]);
-    let axes3 = g.i64_constant("axes.3", &[3]);
-    let w = g.node("Unsqueeze", &[&weight, &axes3], "grid.weight_unsqueezed", vec![]);
-    let weighted = g.node("Mul", &[&values, &w], "grid.weighted", vec![]);
-    let axes2 = g.i64_constant("axes.2", &[2]);
-    let summed = g.node("ReduceSum", &[&weighted, &axes2], "grid.summed", vec![int_attribute("keepdims", 0)]);
+    // [L, N, 8, F] → [L, N, 8·F], weighted, then summed over the corners per feature by a
+    // MatMul with a 0/1 matrix [8·F, F].
+    let flat_shape = g.i64_constant("grid.values_flat_shape", &[l, -1, 8 * f]);
+    let flat = g.node("Reshape", &[&values, &flat_shape], "grid.values_flat", vec![]);
+    let weighted = g.node("Mul", &[&flat, &weight], "grid.weighted", vec![]);
+    let mut sum = vec![0.0f32; 8 * fu * fu];
+    for k in 0..8 {
+        for j in 0..fu {
+            sum[(k * fu + j) * fu + j] = 1.0;
+        }
+    }
+    let sum = g.f32_tensor("grid.corner_sum", &[8 * fu, fu], &sum);
+    let summed = g.node("MatMul", &[&weighted, &sum], "grid.summed", vec![]);
+    // [L, N, F] → [N, L, F] → [N, L·F], level-major per point as the Rust encoding.
+    let point_major = g.node("Transpose", &[&summed], "grid.point_major", vec![ints_attribute("perm", &[1, 0, 2])]);
     let shape = g.i64_constant("grid.output_shape", &[0, l * f]);
-    g.node("Reshape", &[&summed, &shape], "grid.features", vec![])
+    g.node("Reshape", &[&point_major, &shape], "grid.features", vec![])
 }
 
 /// `(t₀ ⊕ t₁ ⊕ t₂) mod 2^k` for non-negative integer `[N, L, 8]` terms, without bitwise operators:
