@@ -30,8 +30,8 @@
 //! `BitwiseXor` and `BitwiseAnd` need opset 18. onnxruntime's CPU provider implements them for
 //! int32/int64, but its CUDA provider has no kernels for them: a CUDA session still loads and
 //! computes the right values, but places those nodes on the CPU, so every batch copies the
-//! `[N, L, 8]` int64 hash terms to the host and the indices back (≈ 3·N·L·8·8 bytes each
-//! way), which costs far more than the lookups themselves. [`HashOps::Arithmetic`] writes the
+//! `[L, N, 8]` hash terms (int32 for the default grids) to the host and the indices back
+//! (≈ 3·N·L·8·4 bytes each way), which costs far more than the lookups themselves. [`HashOps::Arithmetic`] writes the
 //! same hash without any bitwise operator: each term's low k = log₂T bits are extracted with
 //! `Div` by 2^j and `Mod` 2, the XOR of three bits is their sum `Mod` 2, and the bits are
 //! weighted back by 2^j and summed. It runs at opset 17, with only `Div`, `Mod`, `Add`, `Mul`,
