@@ -192,8 +192,11 @@ pub fn run(options: &BenchOptions, progress: bool) -> Result<()> {
             Some(d) => {
                 let b = bench_ngp_render(ngp_bundle.as_deref(), ngp_steps, d, progress)?;
                 println!("\nhash-grid field through onnxruntime: {} ({}), val {} at {}×{}", b.bundle, b.trained, b.view, b.width, b.height);
-                println!("{:>10} {:>14} {:>13} {:>12} {:>9}", "s / frame", "onnxruntime s", "points / ray", "PSNR", "bundle MB");
-                println!("{:>10.2} {:>14.2} {:>13.1} {:>9.2} dB {:>9.1}", b.seconds, b.onnxruntime_s, b.points_per_ray, b.psnr_db, b.bundle_mb);
+                println!("{:>10} {:>14} {:>13} {:>12} {:>9} {:>8} {:>8} {:>12} {:>16}", "s / frame", "onnxruntime s", "points / ray", "PSNR", "bundle MB", "burn s", "ort/burn", "burn PSNR", "graph points/s");
+                println!(
+                    "{:>10.2} {:>14.2} {:>13.1} {:>9.2} dB {:>9.1} {:>8.2} {:>8.2} {:>9.2} dB {:>16.0}",
+                    b.seconds, b.onnxruntime_s, b.points_per_ray, b.psnr_db, b.bundle_mb, b.burn_s, b.seconds / b.burn_s, b.burn_psnr_db, b.graph_points_per_s
+                );
                 report.insert("ngp_frame_s".into(), b.seconds.into());
                 report.insert("ngp".into(), serde_json::to_value(b)?);
             }
@@ -334,6 +337,13 @@ pub struct NgpRenderBench {
     pub psnr_db: f32,
     /// Size of the bundle directory.
     pub bundle_mb: f64,
+    /// Seconds for the same frame through burn (the bundle's field read back into burn and the
+    /// Rust encoding, as `nerf eval` renders the `ngp` preset: 4,096 rays per call).
+    pub burn_s: f64,
+    /// PSNR of the burn frame against the ground truth.
+    pub burn_psnr_db: f32,
+    /// The field graph alone in onnxruntime: points/s at 65,536 random points in the box.
+    pub graph_points_per_s: f64,
 }
 
 /// Render lego val view 0 at full resolution through the hash-grid bundle `bundle`, or through
@@ -363,7 +373,20 @@ fn bench_ngp_render(bundle: Option<&Path>, steps: usize, data: &Path, progress: 
     let k = view.camera;
     let (image, seconds) = timed_frame(progress, "ngp frame", k.num_pixels(), |p| scene.render(&k, &view.pose, p));
     let image = image?;
-    let net = &scene.field.graphs[0].1;
+    let (onnxruntime_s, evaluated) = (scene.field.graphs[0].1.seconds, scene.field.graphs[0].1.evaluated);
+    let truth = view.image.as_ref().expect("loaded with images");
+    // The same field in burn: read back from the bundle's graph.
+    let graph = scene.description.graph_files()[0].file.to_string();
+    let path = nerf_bundle::bundle_file(&bundle, &graph, "graphs")?;
+    let plain = nerf_export::field::ngp::read_ngp(&nerf_bundle::read_model(&path)?).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let device = nerf::backend::cpu();
+    let field = nerf::field::ngp::NgpField::from_plain(&plain, &device).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let field: &dyn nerf::field::TrainedField = &field;
+    let options = nerf_core::render::RenderOptions { chunk: 4096, ..scene.options.clone() };
+    let (burn_image, burn_s) = timed_frame(progress, "ngp frame (burn)", k.num_pixels(), |p| field.render(&device, scene.occupancy.as_ref(), &k, &view.pose, &options, p));
+    let (points, dirs) = random_points(1 << 16, 2);
+    let net = &mut scene.field.graphs[0].1;
+    let graph_s = best_of(3, || net.run(&points, &dirs).map(|_| ()))?;
     let bundle_bytes: u64 = std::fs::read_dir(&bundle)?.filter_map(|e| e.ok()?.metadata().ok()).map(|m| m.len()).sum();
     Ok(NgpRenderBench {
         bundle: bundle.display().to_string(),
@@ -372,9 +395,12 @@ fn bench_ngp_render(bundle: Option<&Path>, steps: usize, data: &Path, progress: 
         width: k.width,
         height: k.height,
         seconds,
-        onnxruntime_s: net.seconds,
-        points_per_ray: net.evaluated as f64 / k.num_pixels() as f64,
-        psnr_db: psnr(&image.rays.rgb, view.image.as_ref().expect("loaded with images")),
+        onnxruntime_s,
+        points_per_ray: evaluated as f64 / k.num_pixels() as f64,
+        psnr_db: psnr(&image.rays.rgb, truth),
         bundle_mb: bundle_bytes as f64 / 1e6,
+        burn_s,
+        burn_psnr_db: psnr(&burn_image.rays.rgb, truth),
+        graph_points_per_s: (1 << 16) as f64 / graph_s,
     })
 }
