@@ -18,9 +18,9 @@
 //!    T = 2ᵏ divides 2³², `(x·p mod 2³²) mod T = (x·(p mod T)) mod T` and XOR commutes with
 //!    `mod 2ᵏ`: the u32 hash mod T, with every product below 2³¹. Plus the level's offset;
 //!    `Concat` the groups.
-//! 4. Weights, `[L, N, 8·F]`: per axis a `MatMul` of `[frac, 1 − frac]` with a 0/1 matrix picks
-//!    `frac_d` or `1 − frac_d` for each corner (one value plus exact zeros), repeated for the F
-//!    features; multiplied x·y·z as tiny-cuda-nn does.
+//! 4. Weights: per axis a `MatMul` of `[frac, 1 − frac]` with a 0/1 matrix picks `frac_d` or
+//!    `1 − frac_d` for each corner (one value plus exact zeros), `[L, N, 8]`; multiplied x·y·z
+//!    as tiny-cuda-nn does; repeated for the F features by another 0/1 `MatMul`, `[L, N, 8·F]`.
 //! 5. `Gather` the rows of the table `[entries, F]` → `[L, N, 8, F]`, `Reshape` to
 //!    `[L, N, 8·F]`, `Mul` by the weights, `MatMul` with a 0/1 matrix `[8·F, F]` (the sum over
 //!    corners), `Transpose` to `[N, L, F]`, `Reshape` to `[N, L·F]` (level-major per point, as
@@ -266,24 +266,30 @@ pub(crate) fn lower_hash_grid(g: &mut Builder, input: &str, grid: &HashGrid, bou
     // as a MatMul of [frac, 1 − frac] with a 0/1 selection matrix [6, 8] per axis (each output sums
     // one value and five exact zeros: the same values as selecting, without Where).
     let both = g.node("Concat", &[&frac, &one_minus], "grid.frac_both", vec![int_attribute("axis", 2)]);
-    // Each corner's weight is repeated for its F features ([L, N, 8·F]), so the weighting below
-    // multiplies full shapes.
     let fu = f as usize;
     let weights: Vec<String> = (0..3usize)
         .map(|d| {
-            let mut select = vec![0.0f32; 6 * 8 * fu];
+            let mut select = vec![0.0f32; 6 * 8];
             for k in 0..8usize {
                 let row = if (k >> d) & 1 == 1 { d } else { 3 + d };
-                for j in 0..fu {
-                    select[row * 8 * fu + k * fu + j] = 1.0;
-                }
+                select[row * 8 + k] = 1.0;
             }
-            let select = g.f32_tensor(&format!("grid.corner_select{d}"), &[6, 8 * fu], &select);
+            let select = g.f32_tensor(&format!("grid.corner_select{d}"), &[6, 8], &select);
             g.node("MatMul", &[&both, &select], &format!("grid.weight{d}"), vec![])
         })
         .collect();
     let wxy = g.node("Mul", &[&weights[0], &weights[1]], "grid.weight01", vec![]);
-    let weight = g.node("Mul", &[&wxy, &weights[2]], "grid.weight", vec![]);
+    let weight8 = g.node("Mul", &[&wxy, &weights[2]], "grid.weight8", vec![]);
+    // Each corner's weight repeated for its F features ([L, N, 8·F], a 0/1 MatMul: exact), so
+    // the weighting below multiplies full shapes.
+    let mut repeat = vec![0.0f32; 8 * 8 * fu];
+    for k in 0..8 {
+        for j in 0..fu {
+            repeat[k * 8 * fu + k * fu + j] = 1.0;
+        }
+    }
+    let repeat = g.f32_tensor("grid.weight_repeat", &[8, 8 * fu], &repeat);
+    let weight = g.node("MatMul", &[&weight8, &repeat], "grid.weight", vec![]);
     // 5. Lookup, weighting, sum over corners.
     let total = grid.params().len() / f as usize;
     let table = g.f32_tensor("grid.table", &[total, f as usize], grid.params());
