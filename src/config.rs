@@ -328,6 +328,21 @@ mod tests {
     use super::*;
 
     #[test]
+    fn configs_written_before_the_kind_sections_still_read() {
+        // A cpu-fast config.toml as runs wrote it before `field` and `[ngp]` existed: the MLP,
+        // its own section, the other kinds' shapes at their defaults.
+        let mut old = toml::Table::try_from(Preset::CpuFast.config()).unwrap();
+        old.remove("field");
+        old.remove("ngp");
+        old.remove("target_samples");
+        old.remove("march_steps");
+        let c = TrainConfig::from_toml_str(&toml::to_string(&old).unwrap(), None).unwrap();
+        assert_eq!(c.field, FieldKind::Mlp);
+        assert_eq!(c.shapes, Preset::CpuFast.config().shapes);
+        assert!(old.contains_key("network") && !toml::Table::try_from(&c).unwrap()["ngp"].as_table().unwrap().is_empty());
+    }
+
+    #[test]
     fn toml_overrides_a_preset_and_round_trips() {
         let c = TrainConfig::from_toml_str("preset = 'paper'\nbatch_rays = 256\n[sampling]\nn_fine = 0\n", None).unwrap();
         assert_eq!(c.shapes.network, NetworkSpec::paper());
