@@ -35,12 +35,17 @@ pub fn write_bundle(dir: &Path, scene: &SceneDescription, graphs: Vec<(Role, Vec
     let mut scene = scene.clone();
     scene.format = scene::SCENE_FORMAT.into();
     scene.networks = None;
-    scene.graphs = graphs.iter().map(|(role, _)| (*role, format!("{}.onnx", role.name()))).collect();
+    let mut files: Vec<(String, Vec<u8>)> = Vec::with_capacity(graphs.len() + 2);
+    scene.graphs.clear();
+    for (role, bytes) in graphs {
+        let file = format!("{}.onnx", role.name());
+        scene.graphs.insert(role, file.clone());
+        files.push((file, bytes));
+    }
     scene.occupancy = occupancy.map(|g| OccupancyDescription { file: occupancy::FILE_NAME.into(), resolution: g.resolution(), bound: g.bound() });
     if let Some(p) = &mut scene.placement {
         p.ndc = None; // stated once, in sampling.ndc
     }
-    let mut files: Vec<(String, Vec<u8>)> = graphs.into_iter().map(|(role, bytes)| (format!("{}.onnx", role.name()), bytes)).collect();
     files.extend(occupancy.map(|g| (occupancy::FILE_NAME.to_string(), g.to_bytes())));
     files.push((SCENE_FILE.into(), serde_json::to_vec_pretty(&scene).expect("a scene serialises")));
     nerf_core::io::atomic::write_dir_atomic(dir, |tmp| {

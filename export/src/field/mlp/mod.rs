@@ -18,14 +18,13 @@
 pub mod import;
 
 use crate::ExportError;
-use crate::builder::{Builder, OPSETS, contract_inputs, contract_outputs, int_attribute, model_proto, scene_metadata};
+use crate::builder::{Builder, OPSETS, contract_inputs, contract_outputs, int_attribute, model_proto, read_dense_layers, scene_metadata};
 use crate::proto::*;
-use nerf_bundle::graph::float_initializer;
+use nerf_bundle::graph::metadata;
 use nerf_bundle::scene::{EncodingDescription, SceneDescription};
 use nerf_core::field::Role;
 use nerf_bundle::{bundle_file, read_model};
 use std::path::Path;
-use nerf_core::field::DenseLayer;
 use crate::field::CompileField;
 use nerf_core::field::FieldKind;
 use nerf_core::field::mlp::{EncodingSpec, NetworkSpec, PlainMlp, PlainNetwork};
@@ -131,28 +130,11 @@ fn encoding_text(e: &EncodingSpec) -> String {
 
 /// The network description and weights of a model written by [`compile`].
 pub fn read_network(model: &ModelProto) -> Result<PlainNetwork, String> {
-    let spec_json = model
-        .metadata_props
-        .iter()
-        .find(|p| p.key == NETWORK_KEY)
-        .ok_or_else(|| format!("no {NETWORK_KEY} metadata: not a graph written by nerf export"))?;
-    let spec: NetworkSpec = serde_json::from_str(&spec_json.value).map_err(|e| format!("{NETWORK_KEY}: {e}"))?;
+    let spec_json = metadata(model, NETWORK_KEY).ok_or_else(|| format!("no {NETWORK_KEY} metadata: not a graph written by nerf export"))?;
+    let spec: NetworkSpec = serde_json::from_str(spec_json).map_err(|e| format!("{NETWORK_KEY}: {e}"))?;
     spec.validate()?;
     let graph = model.graph.as_ref().ok_or("the model has no graph")?;
-    let tensor = |name: &str, dims: &[usize]| float_initializer(graph, name, dims);
-    let layers = spec
-        .layer_shapes()
-        .into_iter()
-        .map(|(name, in_dim, out_dim)| {
-            Ok(DenseLayer {
-                weight: tensor(&format!("{name}.weight"), &[in_dim, out_dim])?,
-                bias: tensor(&format!("{name}.bias"), &[out_dim])?,
-                name,
-                in_dim,
-                out_dim,
-            })
-        })
-        .collect::<Result<Vec<_>, String>>()?;
+    let layers = read_dense_layers(graph, spec.layer_shapes())?;
     Ok(PlainNetwork { spec, layers })
 }
 

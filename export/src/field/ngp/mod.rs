@@ -10,15 +10,14 @@
 use crate::ExportError;
 pub mod hash_grid;
 
-use crate::builder::{Builder, contract_inputs, contract_outputs, scene_metadata};
+use crate::builder::{Builder, contract_inputs, contract_outputs, read_dense_layers, scene_metadata};
 use nerf_bundle::scene::SceneDescription;
 use crate::field::CompileField;
 use nerf_core::field::{FieldKind, Role};
-use nerf_bundle::graph::float_initializer;
+use nerf_bundle::graph::{float_initializer, metadata};
 use hash_grid::{HashOps, check_opset, lower_hash_grid, lower_sh4, model, slice};
 use crate::proto::*;
 use nerf_core::field::ngp::hash_grid::HashGrid;
-use nerf_core::field::DenseLayer;
 use nerf_core::field::ngp::{NgpSpec, PlainNgp};
 
 /// Metadata key naming the field kind.
@@ -104,35 +103,18 @@ impl CompileField for PlainNgp {
     }
 }
 
-/// Whether `model` is a hash-grid field graph (metadata `nerf.field` = `ngp`).
-pub fn is_ngp(model: &ModelProto) -> bool {
-    model.metadata_props.iter().any(|p| p.key == FIELD_KEY && p.value == "ngp")
-}
-
 /// The field a graph written by [`compile_ngp`] holds: the spec from its metadata, the table
 /// and the layers from its initializers, every size checked against the spec (a truncated or
 /// resized table is an error, not a wrong lookup later).
 pub fn read_ngp(model: &ModelProto) -> Result<PlainNgp, String> {
-    let spec_json = model.metadata_props.iter().find(|p| p.key == NGP_KEY).ok_or_else(|| format!("no {NGP_KEY} metadata: not a hash-grid graph written by nerf export"))?;
-    let spec: NgpSpec = serde_json::from_str(&spec_json.value).map_err(|e| format!("{NGP_KEY}: {e}"))?;
+    let spec_json = metadata(model, NGP_KEY).ok_or_else(|| format!("no {NGP_KEY} metadata: not a hash-grid graph written by nerf export"))?;
+    let spec: NgpSpec = serde_json::from_str(spec_json).map_err(|e| format!("{NGP_KEY}: {e}"))?;
     spec.validate().map_err(|e| format!("{NGP_KEY}: {e}"))?;
     let graph = model.graph.as_ref().ok_or("the model has no graph")?;
     let f = spec.grid.features_per_level;
     let entries = spec.grid.total_entries().map_err(|e| e.to_string())?;
     let table = float_initializer(graph, "grid.table", &[entries, f]).map_err(|e| format!("hash table: {e}"))?;
-    let layers = spec
-        .layer_shapes()
-        .into_iter()
-        .map(|(name, in_dim, out_dim)| {
-            Ok(DenseLayer {
-                weight: float_initializer(graph, &format!("{name}.weight"), &[in_dim, out_dim])?,
-                bias: float_initializer(graph, &format!("{name}.bias"), &[out_dim])?,
-                name,
-                in_dim,
-                out_dim,
-            })
-        })
-        .collect::<Result<Vec<_>, String>>()?;
+    let layers = read_dense_layers(graph, spec.layer_shapes())?;
     let plain = PlainNgp { spec, table, layers };
     plain.validate().map_err(|e| e.to_string())?;
     Ok(plain)
