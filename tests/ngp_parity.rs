@@ -9,22 +9,26 @@ use nerf_core::Rng;
 use nerf_core::field::ngp::hash_grid::HashGridConfig;
 use nerf_core::field::ngp::NgpSpec;
 use nerf_export::field::ngp::hash_grid::HashOps;
+use nerf_export::field::ngp::hash_grid::table::TablePrecision;
 use nerf_runtime::OrtNetwork;
 use prost::Message;
 
 #[test]
 fn ngp_field_graph_matches_burn() {
-    // int32 indices (the default grids).
-    parity(HashGridConfig { log2_table_size: 17, ..HashGridConfig::default() });
+    let grid = HashGridConfig { log2_table_size: 17, ..HashGridConfig::default() };
+    parity(grid, HashOps::Bitwise, 18);
+    parity(grid, HashOps::Portable, 17);
 }
 
 #[test]
-fn a_grid_too_wide_for_int32_indices_matches_burn() {
-    // 4097 · (2²² − 1) > 2³¹: the lowering keeps int64 indices.
-    parity(HashGridConfig { levels: 4, log2_table_size: 22, max_resolution: 4096, ..HashGridConfig::default() });
+fn a_wide_grid_matches_burn() {
+    // Products up to 4097 · (2²² − 1) > 2³¹ in the hash: the lookup tables hold them mod T.
+    let grid = HashGridConfig { levels: 4, log2_table_size: 22, max_resolution: 4096, ..HashGridConfig::default() };
+    parity(grid, HashOps::Bitwise, 18);
+    parity(grid, HashOps::Portable, 17);
 }
 
-fn parity(grid: HashGridConfig) {
+fn parity(grid: HashGridConfig, ops: HashOps, opset: i64) {
     let device = nerf::backend::cpu();
     device.seed(21);
     let spec = NgpSpec { grid, ..NgpSpec::default() };
@@ -42,7 +46,7 @@ fn parity(grid: HashGridConfig) {
 
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("field.onnx");
-    let model = nerf_export::field::ngp::compile_ngp(&plain, "field", 18, HashOps::Bitwise, &[]).unwrap();
+    let model = nerf_export::field::ngp::compile_ngp(&plain, "field", opset, ops, TablePrecision::F32, &[]).unwrap();
     std::fs::write(&path, model.encode_to_vec()).unwrap();
     let mut ort = OrtNetwork::load(&path, None).unwrap();
     let (points, dirs) = random_points(12_000, 8);
@@ -53,7 +57,7 @@ fn parity(grid: HashGridConfig) {
     let d_rgb = burn_rgb.iter().flatten().zip(ort_out.rgb.iter().flatten()).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
     let d_sigma = burn_sigma.iter().zip(&ort_out.sigma).map(|(a, b)| (a - b).abs() / a.abs().max(1.0)).fold(0.0, f32::max);
     let max_sigma = burn_sigma.iter().copied().fold(0.0, f32::max);
-    println!("ngp field: max |Δrgb| {d_rgb:.2e}, max |Δσ|/max(1, σ) {d_sigma:.2e} (σ up to {max_sigma:.1})");
+    println!("ngp field ({ops:?}): max |Δrgb| {d_rgb:.2e}, max |Δσ|/max(1, σ) {d_sigma:.2e} (σ up to {max_sigma:.1})");
     assert!(d_rgb <= 1e-5 && d_sigma <= 1e-5, "max |Δrgb| {d_rgb:e}, relative |Δσ| {d_sigma:e}");
     assert!(max_sigma > 10.0, "σ stays below 10 ({max_sigma}): the comparison would be lenient");
 }

@@ -77,33 +77,48 @@ pub fn metadata<'a>(model: &'a ModelProto, key: &str) -> Option<&'a str> {
     model.metadata_props.iter().find(|p| p.key == key).map(|p| p.value.as_str())
 }
 
-/// Check that every float initializer holds exactly as many values as its shape says, so a
-/// truncated or resized table is refused by name before a runtime indexes into it.
+/// Check that every initializer of a numeric type holds exactly as many values as its shape
+/// says, so a truncated or resized table is refused by name before a runtime indexes into it.
 pub fn check_initializers(model: &ModelProto) -> Result<(), String> {
     let graph = model.graph.as_ref().ok_or("the model has no graph")?;
-    graph.initializer.iter().filter(|t| t.data_type == data_type::FLOAT).try_for_each(check_float_size)
+    graph.initializer.iter().try_for_each(check_size)
 }
 
-/// The float initializer `name` of `graph`, checked to have exactly `dims` (raw or typed data).
+/// The float initializer `name` of `graph` (float32, or float16 widened to float32), checked to
+/// have exactly `dims` (raw or typed data).
 pub fn float_initializer(graph: &GraphProto, name: &str, dims: &[usize]) -> Result<Vec<f32>, String> {
     let t = graph.initializer.iter().find(|t| t.name == name).ok_or_else(|| format!("initializer {name} is missing"))?;
     let want: Vec<i64> = dims.iter().map(|&d| d as i64).collect();
-    if t.dims != want || t.data_type != data_type::FLOAT {
+    if t.dims != want || !matches!(t.data_type, data_type::FLOAT | data_type::FLOAT16) {
         return Err(format!("initializer {name}: dims {:?} type {}, expected {want:?} float", t.dims, t.data_type));
     }
-    check_float_size(t)?;
-    Ok(if t.raw_data.is_empty() { t.float_data.clone() } else { t.raw_data.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect() })
+    check_size(t)?;
+    let f16 = |bits: u16| half::f16::from_bits(bits).to_f32();
+    Ok(match (t.data_type, t.raw_data.is_empty()) {
+        (data_type::FLOAT, true) => t.float_data.clone(),
+        (data_type::FLOAT, false) => t.raw_data.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect(),
+        // Typed float16 values sit in int32_data, one per entry (the low 16 bits).
+        (_, true) => t.int32_data.iter().map(|&v| f16(v as u16)).collect(),
+        (_, false) => t.raw_data.chunks_exact(2).map(|c| f16(u16::from_le_bytes([c[0], c[1]]))).collect(),
+    })
 }
 
-/// A float tensor's data (raw bytes or typed values) holds exactly the values its dims say.
-fn check_float_size(t: &TensorProto) -> Result<(), String> {
+/// A tensor's data (raw bytes or typed values) holds exactly the values its dims say, for the
+/// types the graphs use (float32, float16, int32, int64); others are not checked.
+fn check_size(t: &TensorProto) -> Result<(), String> {
+    let (bytes_per_value, typed) = match t.data_type {
+        data_type::FLOAT => (4, t.float_data.len()),
+        data_type::FLOAT16 | data_type::INT32 => (if t.data_type == data_type::INT32 { 4 } else { 2 }, t.int32_data.len()),
+        data_type::INT64 => (8, t.int64_data.len()),
+        _ => return Ok(()),
+    };
     let name = &t.name;
     let n = t.dims.iter().try_fold(1usize, |n, &d| usize::try_from(d).ok().and_then(|d| n.checked_mul(d)));
     let n = n.ok_or_else(|| format!("initializer {name}: dims {:?} are negative or too large", t.dims))?;
-    match (t.raw_data.len(), t.float_data.len()) {
+    match (t.raw_data.len(), typed) {
         (0, values) if values == n => Ok(()),
         (0, values) => Err(format!("initializer {name}: {values} values, expected {n} (truncated?)")),
-        (bytes, _) if bytes == 4 * n => Ok(()),
-        (bytes, _) => Err(format!("initializer {name}: {bytes} bytes, expected {} (truncated?)", 4 * n)),
+        (bytes, _) if bytes == bytes_per_value * n => Ok(()),
+        (bytes, _) => Err(format!("initializer {name}: {bytes} bytes, expected {} (truncated?)", bytes_per_value * n)),
     }
 }

@@ -152,6 +152,9 @@ pub struct TensorProto {
     /// FLOAT values when not in `raw_data`.
     #[prost(float, repeated, tag = "4")]
     pub float_data: Vec<f32>,
+    /// INT32 values (and FLOAT16 bit patterns, one per entry) when not in `raw_data`.
+    #[prost(int32, repeated, tag = "5")]
+    pub int32_data: Vec<i32>,
     /// INT64 values when not in `raw_data`.
     #[prost(int64, repeated, tag = "7")]
     pub int64_data: Vec<i64>,
@@ -172,6 +175,8 @@ pub mod data_type {
     pub const FLOAT: i32 = 1;
     /// INT32.
     pub const INT32: i32 = 6;
+    /// FLOAT16.
+    pub const FLOAT16: i32 = 10;
     /// INT64.
     pub const INT64: i32 = 7;
     /// BOOL.

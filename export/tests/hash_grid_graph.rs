@@ -1,13 +1,14 @@
 //! The hash-grid, spherical-harmonics and whole-field lowerings against the Rust evaluations:
 //! onnx.checker (full), strict shape inference and onnxruntime (Python,
 //! `tests/python/check_hash_grid.py`) on 12,000 random points, within 1e-5 (σ relative to
-//! max(1, σ)), for the bitwise lowering and the bitwise-free one.
+//! max(1, σ)), for the bitwise lowering, the portable one and a float16 table.
 
 use nerf_core::Rng;
 use nerf_core::field::ngp::hash_grid::{GridBound, HashGrid, HashGridConfig};
 use nerf_core::field::ngp::spherical_harmonics::sh4_all;
 use nerf_core::field::DenseLayer;
 use nerf_core::field::ngp::{NgpSpec, PlainNgp};
+use nerf_export::field::ngp::hash_grid::table::{TablePrecision, f16_bytes, f16_values};
 use nerf_export::field::ngp::hash_grid::{HashOps, compile_encodings};
 use nerf_export::field::ngp::compile_ngp;
 use prost::Message;
@@ -57,8 +58,8 @@ fn inputs(bound: &GridBound, n: usize) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
     (points, dirs)
 }
 
-fn check_encodings(grid: &HashGrid, bound: &GridBound, ops: HashOps, opset: i64, n: usize, dir: &Path) {
-    let model = compile_encodings(grid, bound, ops, opset).unwrap();
+fn check_encodings(grid: &HashGrid, bound: &GridBound, ops: HashOps, precision: TablePrecision, opset: i64, n: usize, dir: &Path) {
+    let model = compile_encodings(grid, bound, ops, precision, opset).unwrap();
     let (points, dirs) = inputs(bound, n);
     let unit: Vec<[f32; 3]> = points.iter().map(|&p| bound.to_unit(p)).collect();
     let reference = serde_json::json!({
@@ -70,7 +71,7 @@ fn check_encodings(grid: &HashGrid, bound: &GridBound, ops: HashOps, opset: i64,
         "tolerance": 1e-5,
         "bitwise": ops == HashOps::Bitwise,
     });
-    python_check(&model, reference, &format!("encodings-{ops:?}"), dir);
+    python_check(&model, reference, &format!("encodings-{ops:?}-{precision:?}"), dir);
 }
 
 #[test]
@@ -81,10 +82,16 @@ fn encodings_graph_matches_the_rust_encodings() {
     let g = grid(config);
     assert!(g.levels().iter().any(|l| l.dense) && g.levels().iter().any(|l| !l.dense));
     let bound = GridBound { min: [-1.5, -1.5, -1.0], max: [1.5, 1.5, 2.0] };
-    check_encodings(&g, &bound, HashOps::Bitwise, 18, 12_000, dir.path());
-    // The bitwise-free lowering (opset 17) on fewer points: its index tensors are k× larger.
+    check_encodings(&g, &bound, HashOps::Bitwise, TablePrecision::F32, 18, 12_000, dir.path());
+    // The bitwise-free lowering, on the same grid and on one with 4 features and 2 chunks of bits.
+    check_encodings(&g, &bound, HashOps::Portable, TablePrecision::F32, 17, 12_000, dir.path());
     let small = grid(HashGridConfig { levels: 8, features_per_level: 4, log2_table_size: 12, base_resolution: 8, max_resolution: 512 });
-    check_encodings(&small, &bound, HashOps::Arithmetic, 17, 3_000, dir.path());
+    check_encodings(&small, &bound, HashOps::Portable, TablePrecision::F32, 17, 3_000, dir.path());
+    // A float16 table computes the Rust encoding of the table rounded to float16.
+    let mut rounded = g.clone();
+    let values = f16_values(&f16_bytes(rounded.params())).unwrap();
+    rounded.params_mut().copy_from_slice(&values);
+    check_encodings(&rounded, &bound, HashOps::Bitwise, TablePrecision::F16, 18, 12_000, dir.path());
 }
 
 #[test]
@@ -110,12 +117,12 @@ fn field_graph_matches_the_plain_field() {
         })
         .collect();
     let field = PlainNgp { spec, table: grid(spec.grid).params().to_vec(), layers };
-    let model = compile_ngp(&field, "field", 18, HashOps::Bitwise, &[]).unwrap();
+    let model = compile_ngp(&field, "field", 18, HashOps::Bitwise, TablePrecision::F32, &[]).unwrap();
     nerf_bundle::check_contract(&model).unwrap();
     assert!(model.metadata_props.iter().any(|p| p.key == nerf_export::field::ngp::FIELD_KEY && p.value == "ngp"));
     let mut short = field.clone();
     short.table.pop();
-    let err = compile_ngp(&short, "field", 18, HashOps::Bitwise, &[]).unwrap_err().to_string();
+    let err = compile_ngp(&short, "field", 18, HashOps::Bitwise, TablePrecision::F32, &[]).unwrap_err().to_string();
     assert!(err.contains("table has"), "{err}");
     let (points, dirs) = inputs(&spec.bound, 12_000);
     let (rgb, sigma) = field.forward(&points, &dirs).unwrap();

@@ -234,7 +234,7 @@ fn bench_frames(data: Option<&Path>, sizes: &[u32], chunk: usize, progress: bool
     let dir = tempfile::tempdir()?;
     let bundle = dir.path().join("bundle");
     write_bundle(&bundle, &field_bundle(&model, &config, &camera, None), None)?;
-    let options = OpenOptions { threads: None, chunk, skip_empty_space: false };
+    let options = OpenOptions { chunk, skip_empty_space: false, ..OpenOptions::default() };
     let mut scene = OrtScene::open(&bundle, &options)?;
     let samples = format!("{} + {}", config.sampling.n_coarse, config.sampling.n_fine);
     let mut out = Vec::new();
@@ -282,7 +282,7 @@ fn bench_skipping(bundle: &Path, data: &Path, downscale: u32, views: usize, samp
     let mut val = load_split(data, Split::Val, downscale, true)?;
     val.views.truncate(views.max(1));
     let measure = |skip: bool| -> Result<(f64, f32, f64)> {
-        let options = OpenOptions { threads: None, chunk: nerf_runtime::scene::DEFAULT_CHUNK, skip_empty_space: skip };
+        let options = OpenOptions { skip_empty_space: skip, ..OpenOptions::default() };
         let mut scene = OrtScene::open(bundle, &options)?;
         if skip && scene.occupancy.is_none() {
             bail!("{}: the bundle has no occupancy grid to skip with", bundle.display());

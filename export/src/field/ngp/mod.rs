@@ -15,6 +15,7 @@ use nerf_bundle::scene::SceneDescription;
 use crate::field::CompileField;
 use nerf_core::field::{FieldKind, Role};
 use nerf_bundle::graph::{float_initializer, metadata};
+use hash_grid::table::{TABLE_KEY, TableFormat, TablePrecision, trained_table};
 use hash_grid::{HashOps, check_opset, lower_hash_grid, lower_sh4, model, slice};
 use crate::proto::*;
 use nerf_core::field::ngp::hash_grid::HashGrid;
@@ -26,13 +27,13 @@ pub const FIELD_KEY: &str = "nerf.field";
 pub const NGP_KEY: &str = "nerf.ngp";
 
 /// Compile `field` into a model named `name`; `metadata` is added to the contract entries.
-pub fn compile_ngp(field: &PlainNgp, name: &str, opset: i64, ops: HashOps, metadata: &[(String, String)]) -> Result<ModelProto, ExportError> {
+pub fn compile_ngp(field: &PlainNgp, name: &str, opset: i64, ops: HashOps, precision: TablePrecision, metadata: &[(String, String)]) -> Result<ModelProto, ExportError> {
     check_opset(opset, ops)?;
     field.validate().map_err(|e| ExportError::Network(e.to_string()))?;
     let spec = &field.spec;
     let grid = HashGrid::from_params(spec.grid, field.table.clone()).map_err(|e| ExportError::Network(e.to_string()))?;
     let mut g = Builder::default();
-    let features = lower_hash_grid(&mut g, "points", &grid, &spec.bound, ops);
+    let features = lower_hash_grid(&mut g, "points", &grid, &spec.bound, ops, precision)?;
     let [d0, d1, c0, c1, c2] = [0, 1, 2, 3, 4].map(|i| &field.layers[i]);
     let h = g.dense(d0, &features, Some("Relu"));
     let out = g.dense(d1, &h, None);
@@ -66,7 +67,7 @@ pub fn compile_ngp(field: &PlainNgp, name: &str, opset: i64, ops: HashOps, metad
         output: contract_outputs("Volume density (exp applied, ≥ 0), float32 [N, 1]."),
         value_info: vec![],
     };
-    let mut model = model(graph, opset, &grid, &spec.bound);
+    let mut model = model(graph, opset, &grid, &spec.bound, ops, precision);
     let mut props = vec![
         ("nerf.contract".to_string(), "inputs points [N,3] float32 world positions, viewdirs [N,3] float32 unit view directions; outputs rgb [N,3] float32 in [0,1] (sigmoid applied), sigma [N,1] float32 (exp applied); N is dynamic".to_string()),
         (FIELD_KEY.to_string(), "ngp".to_string()),
@@ -98,8 +99,8 @@ impl CompileField for PlainNgp {
 
     fn compile(&self, scene: &mut SceneDescription, opset: i64) -> Result<Vec<(Role, ModelProto)>, ExportError> {
         scene.sampling.n_fine = 0;
-        let ops = if opset >= HashOps::Bitwise.min_opset() { HashOps::Bitwise } else { HashOps::Arithmetic };
-        Ok(vec![(Role::Field, compile_ngp(self, "field", opset, ops, &scene_metadata(scene, Role::Field))?)])
+        let ops = if opset >= HashOps::Bitwise.min_opset() { HashOps::Bitwise } else { HashOps::Portable };
+        Ok(vec![(Role::Field, compile_ngp(self, "field", opset, ops, TablePrecision::F32, &scene_metadata(scene, Role::Field))?)])
     }
 }
 
@@ -112,8 +113,17 @@ pub fn read_ngp(model: &ModelProto) -> Result<PlainNgp, String> {
     spec.validate().map_err(|e| format!("{NGP_KEY}: {e}"))?;
     let graph = model.graph.as_ref().ok_or("the model has no graph")?;
     let f = spec.grid.features_per_level;
-    let entries = spec.grid.total_entries().map_err(|e| e.to_string())?;
-    let table = float_initializer(graph, "grid.table", &[entries, f]).map_err(|e| format!("hash table: {e}"))?;
+    // Graphs written before the table format was recorded hold the trained layout in float32.
+    let table = match metadata(model, TABLE_KEY) {
+        None => float_initializer(graph, "grid.table", &[spec.grid.total_entries().map_err(|e| e.to_string())?, f]),
+        Some(json) => {
+            let format: TableFormat = serde_json::from_str(json).map_err(|e| format!("{TABLE_KEY}: {e}"))?;
+            let levels = spec.grid.layout().map_err(|e| e.to_string())?;
+            let rows = hash_grid::table::graph_levels(&levels).1 as usize;
+            float_initializer(graph, "grid.table", &[rows, f]).and_then(|t| trained_table(&spec.grid, format, &t))
+        }
+    }
+    .map_err(|e| format!("hash table: {e}"))?;
     let layers = read_dense_layers(graph, spec.layer_shapes())?;
     let plain = PlainNgp { spec, table, layers };
     plain.validate().map_err(|e| e.to_string())?;
