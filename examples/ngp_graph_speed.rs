@@ -26,7 +26,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let camera = PinholeCamera::from(Intrinsics { width: 4, height: 4, focal: 4.0 });
     let sampling = SamplingConfig { near: 2.0, far: 6.0, n_coarse: 64, n_fine: 0, lindisp: false, ndc: None };
     let mut scene = SceneDescription::new(&camera, &sampling, true, 256);
-    let graphs = field.to_plain().compile(&mut scene, opset)?;
+    let graphs = field.to_plain().compile(&mut scene, &nerf_export::CompileOptions { opset: Some(opset), ..Default::default() })?;
     let dir = tempfile::tempdir()?;
     let path = dir.path().join("field.onnx");
     std::fs::write(&path, prost::Message::encode_to_vec(&graphs[0].1))?;

@@ -12,7 +12,7 @@ use nerf_core::camera::{ORBIT_FRAMES, Pose};
 use nerf_core::dataset::{CaptureFormat, CaptureSplit};
 use nerf_core::io::views::{Images, SplitChoice};
 use nerf_core::sample::occupancy::OccupancyGrid;
-use nerf_export::{Bundle, CompileField, write_bundle};
+use nerf_export::{Bundle, CompileField, CompileOptions, write_bundle};
 use std::path::Path;
 
 /// The test poses of the run's dataset, in the field's frame, when it is recorded and still there.
@@ -33,14 +33,13 @@ pub fn field_bundle<'a>(field: &'a dyn TrainedField, config: &TrainConfig, camer
     Bundle { field: field.lowering(), scene, occupancy: field.marching_grid(occupancy) }
 }
 
-/// Compile the latest checkpoint of `run` into a bundle at `out` (`opset` `None`:
-/// the field's default, [`CompileField::default_opset`]).
-pub fn export_run(run: &Path, out: &Path, opset: Option<i64>) -> Result<Vec<WrittenFile>> {
+/// Compile the latest checkpoint of `run` into a bundle at `out` as `options` ask.
+pub fn export_run(run: &Path, out: &Path, options: &CompileOptions) -> Result<Vec<WrittenFile>> {
     let loaded = LoadedRun::open(run)?;
     let mut bundle = field_bundle(loaded.model.as_ref(), &loaded.config, &loaded.camera, loaded.occupancy.clone());
     bundle.scene.poses.test = test_poses(&loaded);
     bundle.scene.poses.orbit = loaded.orbit(ORBIT_FRAMES).iter().map(pose_matrix).collect();
     // A capture's placement; Blender scenes are used as they are.
     bundle.scene.placement = loaded.placement().filter(|p| p.format != CaptureFormat::Blender).cloned();
-    Ok(write_bundle(out, &bundle, opset)?)
+    Ok(write_bundle(out, &bundle, options)?)
 }

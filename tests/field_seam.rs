@@ -62,7 +62,7 @@ impl CompileField for &Ball {
     fn bounded(&self) -> Option<f32> {
         None
     }
-    fn compile(&self, scene: &mut SceneDescription, opset: i64) -> Result<Vec<(Role, ModelProto)>, ExportError> {
+    fn compile(&self, scene: &mut SceneDescription, options: &nerf_export::CompileOptions) -> Result<Vec<(Role, ModelProto)>, ExportError> {
         scene.sampling.n_fine = 0;
         let mut g = Builder::default();
         let axes = g.i64_constant("axes", &[1]);
@@ -87,7 +87,7 @@ impl CompileField for &Ball {
             output: contract_outputs("Density, float32 [N, 1]."),
             value_info: vec![],
         };
-        Ok(vec![(Role::Field, model_proto(graph, opset, "A test-only analytic field.", scene_metadata(scene, Role::Field)))])
+        Ok(vec![(Role::Field, model_proto(graph, options.opset_or(nerf_export::DEFAULT_OPSET), "A test-only analytic field.", scene_metadata(scene, Role::Field)))])
     }
 }
 
@@ -103,7 +103,7 @@ fn an_analytic_field_renders_the_same_through_burn_onnxruntime_and_numpy() {
 
     let dir = tempfile::tempdir().unwrap();
     let bundle = dir.path().join("bundle");
-    write_bundle(&bundle, &nerf::export::field_bundle(field, &config, &camera, None), None).unwrap();
+    write_bundle(&bundle, &nerf::export::field_bundle(field, &config, &camera, None), &Default::default()).unwrap();
     let scene: serde_json::Value = serde_json::from_slice(&std::fs::read(bundle.join("scene.json")).unwrap()).unwrap();
     assert_eq!((scene["field"].as_str(), scene["bounded"].as_bool()), (Some("ball"), Some(false)));
     assert_eq!(scene["graphs"], serde_json::json!({ "field": "field.onnx" }));

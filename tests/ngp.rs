@@ -83,6 +83,32 @@ fn ngp_trains_exports_and_renders_the_same_everywhere() {
         assert!(out.status.success(), "{text}");
     }
 
+    // Graphs written before the table format was recorded (trained layout, no metadata) read
+    // back the same.
+    let mut old = model.clone();
+    old.metadata_props.retain(|p| p.key != nerf_export::field::ngp::hash_grid::table::TABLE_KEY);
+    let table = old.graph.as_mut().unwrap().initializer.iter_mut().find(|t| t.name == "grid.table").unwrap();
+    let f = field.to_plain().spec.grid.features_per_level as i64;
+    table.raw_data = field.to_plain().table.iter().flat_map(|v| v.to_le_bytes()).collect();
+    table.dims = vec![table.raw_data.len() as i64 / 4 / f, f];
+    assert_eq!(nerf_export::field::ngp::read_ngp(&old).unwrap(), field.to_plain());
+
+    // The portable lowering with a float16 table: the trained table rounded to float16, and
+    // the same frame as burn's within float16's rounding.
+    let compact = dir.path().join("compact");
+    let (ok, text) = nerf(&["export", "--run", s(&run), "--out", s(&compact), "--portable", "--tables", "f16"]);
+    assert!(ok, "{text}");
+    let small = ModelProto::decode(std::fs::read(compact.join("field.onnx")).unwrap().as_slice()).unwrap();
+    assert!(!small.graph.as_ref().unwrap().node.iter().any(|n| n.op_type.starts_with("Bitwise")));
+    let back = nerf_export::field::ngp::read_ngp(&small).unwrap();
+    let rounded: Vec<f32> = field.to_plain().table.iter().map(|&v| half::f16::from_f32(v).to_f32()).collect();
+    assert_eq!(back.table, rounded);
+    let table_bytes = |m: &ModelProto| m.graph.as_ref().unwrap().initializer.iter().find(|t| t.name == "grid.table").unwrap().raw_data.len();
+    assert_eq!(table_bytes(&small) * 2, table_bytes(&model));
+    let (db, _, _) = render_both(&run, &scene, &compact, &dir.path().join("compact-render"));
+    println!("nerf render vs nerf-render (portable, float16 table): {db:.1} dB");
+    assert!(db >= 45.0, "burn vs the compact bundle: {db:.1} dB");
+
     // A table cut short is refused before onnxruntime indexes into it.
     let mut bad = model.clone();
     let table = bad.graph.as_mut().unwrap().initializer.iter_mut().find(|t| t.name == "grid.table").unwrap();

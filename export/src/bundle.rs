@@ -2,7 +2,7 @@
 //! with `scene.json` and the occupancy grid by [`nerf_bundle::write_bundle`] (whole or not at
 //! all).
 
-use crate::ExportError;
+use crate::{CompileOptions, ExportError};
 use crate::field::CompileField;
 use nerf_bundle::scene::SceneDescription;
 use nerf_bundle::WrittenFile;
@@ -24,8 +24,8 @@ pub struct Bundle<F = PlainField> {
 }
 
 /// Compile the field and write the bundle to `dir` (replacing an existing bundle only once the
-/// new one is complete); `opset` `None`: the field's default. A bounded field needs a grid.
-pub fn write_bundle<F: CompileField>(dir: &Path, bundle: &Bundle<F>, opset: Option<i64>) -> Result<Vec<WrittenFile>, ExportError> {
+/// new one is complete), compiled as `options` ask. A bounded field needs a grid.
+pub fn write_bundle<F: CompileField>(dir: &Path, bundle: &Bundle<F>, options: &CompileOptions) -> Result<Vec<WrittenFile>, ExportError> {
     let field = &bundle.field;
     let mut scene = bundle.scene.clone();
     scene.field = field.kind().to_string();
@@ -33,7 +33,7 @@ pub fn write_bundle<F: CompileField>(dir: &Path, bundle: &Bundle<F>, opset: Opti
     if scene.bounded && bundle.occupancy.is_none() {
         return Err(ExportError::Network(format!("a {} field is defined inside its box only: the bundle needs its occupancy grid", scene.field)));
     }
-    let graphs = field.compile(&mut scene, opset.unwrap_or(field.default_opset()))?;
+    let graphs = field.compile(&mut scene, options)?;
     let graphs = graphs.into_iter().map(|(role, model)| (role, model.encode_to_vec())).collect();
     Ok(nerf_bundle::write_bundle(dir, &scene, graphs, bundle.occupancy.as_ref())?)
 }

@@ -10,6 +10,7 @@
 pub mod builder;
 pub mod bundle;
 pub mod field;
+pub mod options;
 
 /// The ONNX messages, shared with the bundle reader.
 pub use nerf_bundle::proto;
@@ -17,6 +18,7 @@ pub use nerf_bundle::proto;
 pub use builder::DEFAULT_OPSET;
 pub use bundle::{Bundle, write_bundle};
 pub use field::CompileField;
+pub use options::{CompileOptions, TablePrecision};
 
 /// Why a network could not be compiled or a bundle written.
 #[derive(Debug, thiserror::Error)]

@@ -3,7 +3,7 @@
 //! own folder (named as in [`nerf_core::field_kinds!`], which also expands the choice of
 //! lowering for a [`PlainField`] here).
 
-use crate::ExportError;
+use crate::{CompileOptions, ExportError};
 use crate::proto::ModelProto;
 use nerf_bundle::scene::SceneDescription;
 use nerf_core::field::{PlainField, Role};
@@ -21,10 +21,11 @@ pub trait CompileField {
     fn default_opset(&self) -> i64 {
         crate::DEFAULT_OPSET
     }
-    /// Its graphs by role at `opset`, each carrying the contract metadata of `scene`
+    /// Its graphs by role as `options` ask (opset, portable operators, table precision; what
+    /// does not concern the kind is ignored), each carrying the contract metadata of `scene`
     /// ([`crate::builder::scene_metadata`]); `scene` learns what only the field knows (the
     /// MLPs' encodings, no fine stage for a one-graph field).
-    fn compile(&self, scene: &mut SceneDescription, opset: i64) -> Result<Vec<(Role, ModelProto)>, ExportError>;
+    fn compile(&self, scene: &mut SceneDescription, options: &CompileOptions) -> Result<Vec<(Role, ModelProto)>, ExportError>;
 }
 
 impl<T: CompileField + ?Sized> CompileField for Box<T> {
@@ -37,8 +38,8 @@ impl<T: CompileField + ?Sized> CompileField for Box<T> {
     fn default_opset(&self) -> i64 {
         (**self).default_opset()
     }
-    fn compile(&self, scene: &mut SceneDescription, opset: i64) -> Result<Vec<(Role, ModelProto)>, ExportError> {
-        (**self).compile(scene, opset)
+    fn compile(&self, scene: &mut SceneDescription, options: &CompileOptions) -> Result<Vec<(Role, ModelProto)>, ExportError> {
+        (**self).compile(scene, options)
     }
 }
 
@@ -64,9 +65,9 @@ macro_rules! lowerings {
                 }
             }
 
-            fn compile(&self, scene: &mut SceneDescription, opset: i64) -> Result<Vec<(Role, ModelProto)>, ExportError> {
+            fn compile(&self, scene: &mut SceneDescription, options: &CompileOptions) -> Result<Vec<(Role, ModelProto)>, ExportError> {
                 match self {
-                    $(PlainField::$kind(plain) => plain.compile(scene, opset),)*
+                    $(PlainField::$kind(plain) => plain.compile(scene, options),)*
                 }
             }
         }

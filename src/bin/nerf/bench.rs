@@ -233,7 +233,7 @@ fn bench_frames(data: Option<&Path>, sizes: &[u32], chunk: usize, progress: bool
     let (config, _, _, model) = paper_model(chunk)?;
     let dir = tempfile::tempdir()?;
     let bundle = dir.path().join("bundle");
-    write_bundle(&bundle, &field_bundle(&model, &config, &camera, None), None)?;
+    write_bundle(&bundle, &field_bundle(&model, &config, &camera, None), &Default::default())?;
     let options = OpenOptions { chunk, skip_empty_space: false, ..OpenOptions::default() };
     let mut scene = OrtScene::open(&bundle, &options)?;
     let samples = format!("{} + {}", config.sampling.n_coarse, config.sampling.n_fine);
@@ -360,7 +360,7 @@ fn bench_ngp_render(bundle: Option<&Path>, steps: usize, data: &Path, progress: 
             let options = nerf::train::TrainOptions { format: None, data: data.to_path_buf(), run: run.clone(), config, ndc: None, downscale: 1, time_budget_min: None, iters: Some(steps), progress };
             let summary = nerf::train::train(&options)?;
             let out = temporary.path().join("bundle");
-            nerf::export::export_run(&run, &out, None)?;
+            nerf::export::export_run(&run, &out, &Default::default())?;
             (out, format!("ngp preset, {} steps here ({:.1} min)", summary.steps, summary.minutes))
         }
     };

@@ -149,8 +149,9 @@ impl CompileField for PlainMlp {
         None
     }
 
-    fn compile(&self, scene: &mut SceneDescription, opset: i64) -> Result<Vec<(Role, ModelProto)>, ExportError> {
+    fn compile(&self, scene: &mut SceneDescription, options: &crate::CompileOptions) -> Result<Vec<(Role, ModelProto)>, ExportError> {
         let PlainMlp { coarse, fine } = self;
+        let opset = options.opset_or(self.default_opset());
         if (scene.sampling.n_fine > 0) != fine.is_some() {
             return Err(ExportError::Network("sampling.n_fine and the networks disagree about a fine network".into()));
         }

@@ -82,8 +82,8 @@ pub fn compile_ngp(field: &PlainNgp, name: &str, opset: i64, ops: HashOps, preci
 /// without bitwise operators).
 pub const DEFAULT_OPSET: i64 = HashOps::Bitwise.min_opset();
 
-/// The field as a bundle's one graph (`field.onnx`): BitwiseXor/And at opset ≥ 18, the
-/// bitwise-free lowering at 17; `scene` learns it has no fine stage.
+/// The field as a bundle's one graph (`field.onnx`): the bitwise lowering at opset ≥ 18, the
+/// portable one when asked for or at 17; `scene` learns it has no fine stage.
 impl CompileField for PlainNgp {
     fn kind(&self) -> &str {
         FieldKind::Ngp.name()
@@ -97,10 +97,11 @@ impl CompileField for PlainNgp {
         DEFAULT_OPSET
     }
 
-    fn compile(&self, scene: &mut SceneDescription, opset: i64) -> Result<Vec<(Role, ModelProto)>, ExportError> {
+    fn compile(&self, scene: &mut SceneDescription, options: &crate::CompileOptions) -> Result<Vec<(Role, ModelProto)>, ExportError> {
         scene.sampling.n_fine = 0;
-        let ops = if opset >= HashOps::Bitwise.min_opset() { HashOps::Bitwise } else { HashOps::Portable };
-        Ok(vec![(Role::Field, compile_ngp(self, "field", opset, ops, TablePrecision::F32, &scene_metadata(scene, Role::Field))?)])
+        let opset = options.opset_or(DEFAULT_OPSET);
+        let ops = if options.portable || opset < HashOps::Bitwise.min_opset() { HashOps::Portable } else { HashOps::Bitwise };
+        Ok(vec![(Role::Field, compile_ngp(self, "field", opset, ops, options.tables, &scene_metadata(scene, Role::Field))?)])
     }
 }
 

@@ -15,22 +15,11 @@
 
 use half::f16;
 use nerf_core::field::ngp::hash_grid::{HashGrid, HashGridConfig, LevelLayout};
+pub use crate::options::TablePrecision;
 use serde::{Deserialize, Serialize};
 
 /// Metadata key holding the [`TableFormat`] (JSON).
 pub const TABLE_KEY: &str = "nerf.grid_table";
-
-/// How the table's values are stored.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum TablePrecision {
-    /// float32: the trained values exactly.
-    #[default]
-    F32,
-    /// float16: half the size; values rounded to 11 significant bits (trained tables hold
-    /// values of order 1e-4–1, well inside float16's range).
-    F16,
-}
 
 /// The table's format, as [`TABLE_KEY`] records it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
