@@ -190,14 +190,19 @@ pub fn run(options: &BenchOptions, progress: bool) -> Result<()> {
     if wanted(BenchPart::NgpRender) {
         match &data {
             Some(d) => {
-                let b = bench_ngp_render(ngp_bundle.as_deref(), ngp_steps, d, progress)?;
-                println!("\nhash-grid field through onnxruntime: {} ({}), val {} at {}×{}", b.bundle, b.trained, b.view, b.width, b.height);
-                println!("{:>10} {:>14} {:>13} {:>12} {:>9} {:>8} {:>8} {:>12} {:>16}", "s / frame", "onnxruntime s", "points / ray", "PSNR", "bundle MB", "burn s", "ort/burn", "burn PSNR", "graph points/s");
-                println!(
-                    "{:>10.2} {:>14.2} {:>13.1} {:>9.2} dB {:>9.1} {:>8.2} {:>8.2} {:>9.2} dB {:>16.0}",
-                    b.seconds, b.onnxruntime_s, b.points_per_ray, b.psnr_db, b.bundle_mb, b.burn_s, b.seconds / b.burn_s, b.burn_psnr_db, b.graph_points_per_s
-                );
-                report.insert("ngp_frame_s".into(), b.seconds.into());
+                let b = super::ngp_bench::bench_ngp_render(ngp_bundle.as_deref(), ngp_steps, d, progress)?;
+                println!("\nhash-grid field: {} ({}), val {} at {}×{}, {:.1} points per ray", b.bundle, b.trained, b.view, b.width, b.height, b.points_per_ray);
+                println!("{:<20} {:>10} {:>14} {:>9} {:>11} {:>11} {:>9} {:>15}", "", "s / frame", "onnxruntime s", "ort/burn", "PSNR", "vs burn", "graph MB", "graph points/s");
+                println!("{:<20} {:>10.2} {:>14} {:>9} {:>8.2} dB {:>11} {:>9} {:>15}", "burn", b.burn_s, "", "", b.burn_psnr_db, "", "", "");
+                for l in &b.lowerings {
+                    let vs = if l.psnr_vs_burn_db.is_finite() { format!("{:.1} dB", l.psnr_vs_burn_db) } else { "identical".into() };
+                    println!(
+                        "{:<20} {:>10.2} {:>14.2} {:>9.2} {:>8.2} dB {:>11} {:>9.1} {:>15.0}",
+                        l.lowering, l.seconds, l.onnxruntime_s, l.ratio_to_burn, l.psnr_db, vs, l.graph_mb, l.graph_points_per_s
+                    );
+                }
+                println!("{:<20} {:>10} {:>14} {:>9} {:>11} {:>11} {:>9} {:>15.0}", "floor (gather + sum)", "", "", "", "", "", "", b.floor_points_per_s);
+                report.insert("ngp_frame_s".into(), b.lowerings[0].seconds.into());
                 report.insert("ngp".into(), serde_json::to_value(b)?);
             }
             None => println!("\nngp-render: needs the lego data (--data); not measured"),
@@ -312,95 +317,3 @@ fn bench_skipping(bundle: &Path, data: &Path, downscale: u32, views: usize, samp
     Ok(SkipBench { views: val.views.len(), width: k.width, height: k.height, samples, dense_s, skip_s, dense_psnr_db, skip_psnr_db, dense_points_per_ray, skip_points_per_ray })
 }
 
-
-/// One full-resolution frame of a hash-grid bundle through onnxruntime.
-#[derive(Debug, Clone, serde::Serialize)]
-pub struct NgpRenderBench {
-    /// The bundle rendered.
-    pub bundle: String,
-    /// Where the field came from.
-    pub trained: String,
-    /// The val view rendered.
-    pub view: String,
-    /// Frame size.
-    pub width: u32,
-    /// Frame size.
-    pub height: u32,
-    /// Seconds for the frame.
-    pub seconds: f64,
-    /// Of which in onnxruntime's session runs (the rest: rays, marching through the grid,
-    /// compositing).
-    pub onnxruntime_s: f64,
-    /// Field evaluations per pixel.
-    pub points_per_ray: f64,
-    /// PSNR against the ground truth.
-    pub psnr_db: f32,
-    /// Size of the bundle directory.
-    pub bundle_mb: f64,
-    /// Seconds for the same frame through burn (the bundle's field read back into burn and the
-    /// Rust encoding, as `nerf eval` renders the `ngp` preset: 4,096 rays per call).
-    pub burn_s: f64,
-    /// PSNR of the burn frame against the ground truth.
-    pub burn_psnr_db: f32,
-    /// The field graph alone in onnxruntime: points/s at 65,536 random points in the box.
-    pub graph_points_per_s: f64,
-}
-
-/// Render lego val view 0 at full resolution through the hash-grid bundle `bundle`, or through
-/// one trained here for `steps` steps of the ngp preset and exported (into a temporary
-/// directory).
-fn bench_ngp_render(bundle: Option<&Path>, steps: usize, data: &Path, progress: bool) -> Result<NgpRenderBench> {
-    let temporary = tempfile::tempdir()?;
-    let (bundle, trained) = match bundle {
-        Some(b) => (b.to_path_buf(), "given".to_string()),
-        None => {
-            let run = temporary.path().join("run");
-            let mut config = Preset::Ngp.config();
-            config.eval_every_min = 0.0;
-            let options = nerf::train::TrainOptions { format: None, data: data.to_path_buf(), run: run.clone(), config, ndc: None, downscale: 1, time_budget_min: None, iters: Some(steps), progress };
-            let summary = nerf::train::train(&options)?;
-            let out = temporary.path().join("bundle");
-            nerf::export::export_run(&run, &out, &Default::default())?;
-            (out, format!("ngp preset, {} steps here ({:.1} min)", summary.steps, summary.minutes))
-        }
-    };
-    let mut scene = OrtScene::open(&bundle, &OpenOptions::default())?;
-    if scene.description.field != nerf_core::field::FieldKind::Ngp.name() {
-        bail!("{}: not a hash-grid bundle (scene.json field {:?})", bundle.display(), scene.description.field);
-    }
-    let val = load_split(data, Split::Val, 1, true)?;
-    let view = &val.views[0];
-    let k = view.camera;
-    let (image, seconds) = timed_frame(progress, "ngp frame", k.num_pixels(), |p| scene.render(&k, &view.pose, p));
-    let image = image?;
-    let (onnxruntime_s, evaluated) = (scene.field.graphs[0].1.seconds, scene.field.graphs[0].1.evaluated);
-    let truth = view.image.as_ref().expect("loaded with images");
-    // The same field in burn: read back from the bundle's graph.
-    let graph = scene.description.graph_files()[0].file.to_string();
-    let path = nerf_bundle::bundle_file(&bundle, &graph, "graphs")?;
-    let plain = nerf_export::field::ngp::read_ngp(&nerf_bundle::read_model(&path)?).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    let device = nerf::backend::cpu();
-    let field = nerf::field::ngp::NgpField::from_plain(&plain, &device).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    let field: &dyn nerf::field::TrainedField = &field;
-    let options = nerf_core::render::RenderOptions { chunk: 4096, ..scene.options.clone() };
-    let (burn_image, burn_s) = timed_frame(progress, "ngp frame (burn)", k.num_pixels(), |p| field.render(&device, scene.occupancy.as_ref(), &k, &view.pose, &options, p));
-    let (points, dirs) = random_points(1 << 16, 2);
-    let net = &mut scene.field.graphs[0].1;
-    let graph_s = best_of(3, || net.run(&points, &dirs).map(|_| ()))?;
-    let bundle_bytes: u64 = std::fs::read_dir(&bundle)?.filter_map(|e| e.ok()?.metadata().ok()).map(|m| m.len()).sum();
-    Ok(NgpRenderBench {
-        bundle: bundle.display().to_string(),
-        trained,
-        view: view.name.clone(),
-        width: k.width,
-        height: k.height,
-        seconds,
-        onnxruntime_s,
-        points_per_ray: evaluated as f64 / k.num_pixels() as f64,
-        psnr_db: psnr(&image.rays.rgb, truth),
-        bundle_mb: bundle_bytes as f64 / 1e6,
-        burn_s,
-        burn_psnr_db: psnr(&burn_image.rays.rgb, truth),
-        graph_points_per_s: (1 << 16) as f64 / graph_s,
-    })
-}

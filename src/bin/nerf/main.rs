@@ -1,6 +1,7 @@
 //! `nerf`: train, evaluate and render neural radiance fields on the CPU.
 
 mod bench;
+mod ngp_bench;
 
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
