@@ -12,6 +12,7 @@ pub mod error;
 pub mod field;
 pub mod network;
 pub mod scene;
+pub mod serve;
 
 pub use error::{Result, RuntimeError};
 pub use field::OrtField;

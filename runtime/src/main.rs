@@ -30,6 +30,20 @@ struct Cli {
     /// Render the bundle's 360° orbit (scene.json poses.orbit) and orbit.gif.
     #[arg(long, conflicts_with = "split")]
     orbit: bool,
+    /// Serve the browser viewer and the bundle over HTTP (onnxruntime-web in the page) and
+    /// print the URL to open; runs until interrupted.
+    #[arg(long, conflicts_with_all = ["orbit", "split"])]
+    serve: bool,
+    /// Address to serve on (default 127.0.0.1: this machine only).
+    #[arg(long, requires = "serve", default_value = "127.0.0.1")]
+    host: std::net::IpAddr,
+    /// Port to serve on (0: any free port).
+    #[arg(long, requires = "serve", default_value_t = 8000)]
+    port: u16,
+    /// The built viewer's directory (default: $NERF_VIEWER, else ~/.cache/nerf-rs/viewer, where
+    /// scripts/setup.sh installs it).
+    #[arg(long, requires = "serve")]
+    viewer: Option<PathBuf>,
     /// Orbit frames (default: the bundle's orbit; another count renders the same path with
     /// that many frames: around a capture's cameras, else the reference orbit, radius 4,
     /// elevation −30°).
@@ -54,8 +68,8 @@ struct Cli {
     #[arg(long)]
     limit: Option<usize>,
     /// Output directory.
-    #[arg(long)]
-    out: PathBuf,
+    #[arg(long, required_unless_present = "serve")]
+    out: Option<PathBuf>,
     /// Threads (onnxruntime sessions side by side, and the compositing; default: one per core).
     #[arg(long)]
     threads: Option<usize>,
@@ -96,6 +110,16 @@ fn resize(k: PinholeCamera, width: Option<u32>, height: Option<u32>) -> Result<P
 }
 
 fn run(cli: Cli) -> Result<()> {
+    if cli.serve {
+        let viewer = cli.viewer.clone().or_else(nerf_runtime::serve::viewer_dir).ok_or_else(|| anyhow::anyhow!("no viewer directory: set --viewer or $NERF_VIEWER"))?;
+        // A bundle that does not load is still served: the page shows why.
+        if let Err(e) = nerf_bundle::read_scene(&cli.bundle) {
+            eprintln!("warning: {e} (the viewer will show it)");
+        }
+        let site = nerf_runtime::serve::Site::new(&viewer, &cli.bundle)?;
+        return Ok(nerf_runtime::serve::serve(site, cli.host, cli.port)?);
+    }
+    let out = cli.out.clone().expect("clap requires --out without --serve");
     if let Some(n) = cli.threads {
         limits::check_count(n, limits::MAX_THREADS, "threads", Origin::Option("--threads"))?;
         rayon::ThreadPoolBuilder::new().num_threads(n).build_global()?;
@@ -142,7 +166,7 @@ fn run(cli: Cli) -> Result<()> {
         bail!("nothing to render: no poses");
     }
     let s = &scene.options.sampling;
-    let output = FrameOutput { dir: cli.out.clone(), depth_range: (s.near, s.far), gif: cli.orbit, raw: cli.npy, progress: std::io::stderr().is_terminal() };
+    let output = FrameOutput { dir: out.clone(), depth_range: (s.near, s.far), gif: cli.orbit, raw: cli.npy, progress: std::io::stderr().is_terminal() };
     let (first, n) = (frames[0].camera, frames.len());
     let start = Instant::now();
     let report = render_frames(frames, &output, |f, progress| scene.render(&f.camera, &f.pose, progress))?;
@@ -153,10 +177,10 @@ fn run(cli: Cli) -> Result<()> {
         first.height,
         seconds / n as f64,
         if scene.occupancy.is_some() { "empty space skipped" } else { "dense sampling" },
-        cli.out.display()
+        out.display()
     );
     if let Some(m) = &report.metrics {
-        println!("PSNR {:.2} dB, SSIM {:.4} over {} views: {}", m.psnr_mean, m.ssim_mean, m.per_image.len(), cli.out.join(nerf_core::io::frames::METRICS_FILE).display());
+        println!("PSNR {:.2} dB, SSIM {:.4} over {} views: {}", m.psnr_mean, m.ssim_mean, m.per_image.len(), out.join(nerf_core::io::frames::METRICS_FILE).display());
     }
     if let Some(gif) = &report.gif {
         println!("orbit: {}", gif.display());
