@@ -14,3 +14,24 @@ if [ ! -f "$STAMP" ] || [ "$(cat "$STAMP")" != "$REQUIREMENTS" ]; then
   "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check $REQUIREMENTS
   echo "$REQUIREMENTS" > "$STAMP"
 fi
+
+# The browser viewer (`nerf-render --serve`): TypeScript built with npm from viewer/'s lockfile,
+# installed into $NERF_HOME/viewer (where nerf-render looks for it). Needs Node.js ≥ 18.
+REPO="$(cd "$(dirname "$0")/.." && pwd)"
+if command -v npm >/dev/null 2>&1; then
+  (
+    cd "$REPO/viewer"
+    LOCK_STAMP="node_modules/.nerf-rs-lock"
+    if [ ! -f "$LOCK_STAMP" ] || ! cmp -s package-lock.json "$LOCK_STAMP"; then
+      npm ci --no-audit --no-fund --loglevel=error
+      cp package-lock.json "$LOCK_STAMP"
+    fi
+    npm run --silent build >/dev/null
+  )
+  rm -rf "$NERF_HOME/viewer.new"
+  cp -r "$REPO/viewer/dist" "$NERF_HOME/viewer.new"
+  rm -rf "$NERF_HOME/viewer"
+  mv "$NERF_HOME/viewer.new" "$NERF_HOME/viewer"
+else
+  echo "note: npm not found, so the browser viewer (nerf-render --serve) is not built: install Node.js ≥ 18 and run this again" >&2
+fi

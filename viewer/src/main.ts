@@ -1,0 +1,173 @@
+// The page: starts the render worker, loads bundle/ (relative to the page), and either renders
+// one test pose at full quality (the test hook, ?pose=test:K&width=W&height=H) or runs the
+// interactive viewer (orbit/pan/zoom, progressive refinement).
+
+import type { FromWorker, FrameMsg, Loaded, ToWorker } from "./protocol";
+import { type Orbit, orbitFromPose, orbitPose, toBytes } from "./view";
+
+declare global {
+  interface Window { nerfStats?: Record<string, unknown>; nerfFrame?: Float32Array; nerfTimeline?: { width: number; height: number; at: number }[] }
+}
+
+const $ = <T extends HTMLElement>(id: string) => document.getElementById(id) as T;
+const canvas = $<HTMLCanvasElement>("view");
+const params = new URLSearchParams(location.search);
+
+function fail(message: string): void {
+  const el = $("error");
+  el.textContent = message;
+  el.hidden = false;
+  document.body.dataset.state = "error";
+}
+
+const worker = new Worker(new URL("./worker.ts", import.meta.url), { type: "module" });
+const send = (m: ToWorker) => worker.postMessage(m);
+let onLoaded: (m: Loaded) => void = () => {};
+let onFrame: (m: FrameMsg) => void = () => {};
+worker.onmessage = (ev: MessageEvent<FromWorker>) => {
+  const m = ev.data;
+  if (m.type === "loaded") onLoaded(m);
+  else if (m.type === "frame") onFrame(m);
+  else if (m.type === "error") fail(m.message);
+};
+worker.onerror = (ev) => fail(`worker: ${ev.message || "failed to start"}`);
+
+/** Draws rgb (or a depth map) 1:1 into the canvas, resizing it to the frame. */
+function draw(m: FrameMsg, depthView: boolean, near: number, far: number): void {
+  canvas.width = m.width; canvas.height = m.height;
+  const ctx = canvas.getContext("2d")!;
+  ctx.putImageData(new ImageData(toBytes(m, depthView, near, far), m.width, m.height), 0, 0);
+}
+
+function statsOf(m: FrameMsg, loaded: Loaded) {
+  return { width: m.width, height: m.height, ms: m.ms, fieldMs: m.fieldMs, points: m.points, pointsPerSecond: m.points / (m.ms / 1000),
+    threads: loaded.threads, backend: loaded.backend };
+}
+
+function statsLine(s: ReturnType<typeof statsOf>, loaded: Loaded): string {
+  return `${s.width}×${s.height} in ${s.ms.toFixed(0)} ms (${s.fieldMs.toFixed(0)} in onnxruntime) · ${(s.points / 1e6).toFixed(2)} M points · ` +
+    `${(s.pointsPerSecond / 1e6).toFixed(2)} M points/s · ${s.threads} thread${s.threads > 1 ? "s" : ""} (${s.backend})` +
+    (loaded.marched ? " · marched" : " · coarse+fine");
+}
+
+/** ?pose=test:K: one full-quality frame, then data-state="done" for a test to read window.nerfFrame. */
+function testHook(loaded: Loaded, spec: string): void {
+  const k = Number(spec.slice("test:".length));
+  const poses = loaded.scene.poses?.test ?? [];
+  if (!Number.isInteger(k) || k < 0 || k >= poses.length) { fail(`pose ${spec}: the bundle has ${poses.length} test poses`); return; }
+  const width = Number(params.get("width") ?? 0), height = Number(params.get("height") ?? 0);
+  onFrame = (m) => {
+    draw(m, false, 0, 1);
+    window.nerfFrame = m.rgb;
+    window.nerfStats = statsOf(m, loaded);
+    $("stats").textContent = statsLine(window.nerfStats as any, loaded);
+    document.body.dataset.state = "done";
+  };
+  send({ type: "render", id: 1, width, height, c2w: poses[k].transform_matrix });
+}
+
+/** The interactive viewer: each camera move starts 1/8 → 1/4 → 1/2 → full, cancelling older work. */
+function interactive(loaded: Loaded): void {
+  document.body.classList.add("interactive");
+  const scene = loaded.scene, cam = scene.camera, s = scene.sampling;
+  const tests: { name?: string; transform_matrix: number[][] }[] = scene.poses?.test ?? [];
+  const orbits: number[][][] = scene.poses?.orbit ?? [];
+  const select = $<HTMLSelectElement>("pose");
+  const choices = tests.length ? tests.map((p, i) => ({ label: p.name ?? `test ${i}`, m: p.transform_matrix }))
+    : orbits.map((m, i) => ({ label: `orbit ${i}`, m }));
+  for (const [i, c] of choices.entries()) select.add(new Option(c.label, String(i)));
+  const width = Number(params.get("width") ?? 0) || Math.min(cam.width, 400);
+  const height = Math.round((width * cam.height) / cam.width);
+  let orbit: Orbit = orbitFromPose(choices[0]?.m ?? orbits[0], s.near);
+  let exact: number[][] | null = choices[0]?.m ?? null; // a chosen pose renders exactly, until moved
+  let depthView = false, last: FrameMsg | null = null, next = 1;
+  const levels = [8, 4, 2, 1];
+  const pending = new Map<number, number>(); // request id → level index
+  let current = 0;
+
+  const request = (level: number) => {
+    const id = next++;
+    current = id;
+    pending.set(id, level);
+    const f = levels[level];
+    send({ type: "render", id, width: Math.max(1, Math.round(width / f)), height: Math.max(1, Math.round(height / f)),
+      c2w: exact ?? orbitPose(orbit) });
+  };
+  const restart = () => {
+    if (current) send({ type: "cancel", id: current });
+    document.body.dataset.state = "rendering";
+    request(0);
+  };
+  onFrame = (m) => {
+    const level = pending.get(m.id);
+    pending.delete(m.id);
+    if (m.id !== current || level === undefined) return; // stale
+    last = m;
+    draw(m, depthView, s.near, s.far);
+    // When each pass was drawn (ms since the page started loading): time to a first preview.
+    (window.nerfTimeline ??= []).push({ width: m.width, height: m.height, at: performance.now() });
+    canvas.style.aspectRatio = `${width} / ${height}`;
+    window.nerfStats = statsOf(m, loaded);
+    $("stats").textContent = statsLine(window.nerfStats as any, loaded) + (level < levels.length - 1 ? " · refining" : "");
+    if (level < levels.length - 1) request(level + 1);
+    document.body.dataset.state = level < levels.length - 1 ? "rendering" : "done";
+  };
+  select.onchange = () => { exact = choices[Number(select.value)].m; orbit = orbitFromPose(exact, s.near); restart(); };
+  $("mode").onclick = () => {
+    depthView = !depthView;
+    $("mode").textContent = depthView ? "rgb" : "depth";
+    if (last) draw(last, depthView, s.near, s.far);
+  };
+  $("shot").onclick = () => canvas.toBlob((b) => {
+    if (!b) return;
+    const a = document.createElement("a");
+    a.href = URL.createObjectURL(b); a.download = `nerf-${Date.now()}.png`; a.click();
+    setTimeout(() => URL.revokeObjectURL(a.href), 1000);
+  });
+
+  // Pointers: one drags to orbit (shift or right button: pan), two pinch to zoom; the wheel zooms.
+  const pointers = new Map<number, { x: number; y: number }>();
+  const move = (fn: () => void) => { fn(); exact = null; restart(); };
+  canvas.addEventListener("contextmenu", (e) => e.preventDefault());
+  canvas.addEventListener("pointerdown", (e) => { canvas.setPointerCapture(e.pointerId); pointers.set(e.pointerId, { x: e.clientX, y: e.clientY }); });
+  const up = (e: PointerEvent) => pointers.delete(e.pointerId);
+  canvas.addEventListener("pointerup", up);
+  canvas.addEventListener("pointercancel", up);
+  canvas.addEventListener("pointermove", (e) => {
+    const p = pointers.get(e.pointerId);
+    if (!p) return;
+    const dx = e.clientX - p.x, dy = e.clientY - p.y;
+    if (pointers.size === 2) {
+      const [a, b] = [...pointers.values()];
+      const other = a === p ? b : a;
+      const before = Math.hypot(p.x - other.x, p.y - other.y), after = Math.hypot(e.clientX - other.x, e.clientY - other.y);
+      if (before > 0 && after > 0) move(() => { orbit.radius *= before / after; });
+    } else if (e.shiftKey || e.buttons === 2) {
+      move(() => panBy(orbit, dx, dy));
+    } else {
+      move(() => { orbit.theta -= dx * 0.01; orbit.phi = Math.min(Math.max(orbit.phi - dy * 0.01, 0.05), Math.PI - 0.05); });
+    }
+    p.x = e.clientX; p.y = e.clientY;
+  });
+  canvas.addEventListener("wheel", (e) => { e.preventDefault(); move(() => { orbit.radius *= Math.exp(e.deltaY * 0.001); }); }, { passive: false });
+  const panBy = (o: Orbit, dx: number, dy: number) => {
+    const m = orbitPose(o), k = (o.radius * 0.002);
+    for (let a = 0; a < 3; a++) o.target[a] += (-dx * m[a][0] + dy * m[a][1]) * k;
+  };
+  request(0);
+}
+
+function start(): void {
+  const bundleUrl = new URL(params.get("bundle") ?? "bundle/", document.baseURI).href;
+  const ortUrl = new URL("ort/", document.baseURI).href;
+  $("isolation").hidden = crossOriginIsolated;
+  onLoaded = (loaded) => {
+    const pose = params.get("pose");
+    if (pose && pose.startsWith("test:")) testHook(loaded, pose);
+    else if (pose) fail(`pose ${pose}: expected test:K`);
+    else interactive(loaded);
+  };
+  send({ type: "load", bundleUrl, ortUrl, dense: params.get("dense") === "1" });
+}
+
+start();

@@ -1,0 +1,219 @@
+// The viewer in a real browser (Debian's chromium through playwright-core) against the native
+// renderer: each bundle's test pose 0 rendered by the page (?pose=test:0) and by
+// `nerf-render --npy` must agree to max |Δrgb| <= 1e-3 and PSNR >= 40 dB.
+//
+// The pages are served by `nerf-render --bundle B --serve --port P --viewer dist/` on a free
+// loopback port. Environment: NERF_SERVE_CMD swaps the server: a shell command with {root},
+// {bundle} and {port} filled in; `node` uses the in-process Node server (tests/serve.mjs)
+// instead. The test without COOP/COEP always uses the Node server (nerf-render always sends
+// them). CHROMIUM (default
+// /usr/bin/chromium), NERF_RENDER (default $CARGO_TARGET_DIR/release/nerf-render after
+// scripts/env.sh). Run `npm run build` first.
+import { after, before, test } from "node:test";
+import assert from "node:assert/strict";
+import { spawn, execFileSync } from "node:child_process";
+import { cpSync, existsSync, mkdtempSync, readFileSync, rmSync, writeFileSync } from "node:fs";
+import { createServer } from "node:net";
+import { tmpdir } from "node:os";
+import { join, resolve } from "node:path";
+import { chromium } from "playwright-core";
+import { serve } from "./serve.mjs";
+
+const VIEWER = resolve(import.meta.dirname, "..");
+const REPO = resolve(VIEWER, "..");
+const DIST = join(VIEWER, "dist");
+
+/** float32 [H, W, C] from a .npy file (format versions 1–3, little-endian f4, C order). */
+export function readNpy(path) {
+  const buf = readFileSync(path);
+  assert.equal(buf.subarray(0, 6).toString("latin1"), "\x93NUMPY");
+  const v = buf[6], len = v === 1 ? buf.readUInt16LE(8) : buf.readUInt32LE(8), start = v === 1 ? 10 : 12;
+  const header = buf.subarray(start, start + len).toString("latin1");
+  assert.match(header, /'descr': '<f4'/);
+  assert.match(header, /'fortran_order': False/);
+  const shape = header.match(/'shape': \(([^)]*)\)/)[1].split(",").filter((s) => s.trim()).map(Number);
+  const data = new Float32Array(buf.buffer.slice(buf.byteOffset + start + len, buf.byteOffset + buf.length));
+  return { shape, data };
+}
+
+/** nerf-render's exact output for test pose 0 at width (height keeps the aspect): [H, W, 5]. */
+function nativeFrame(bundle, width, dense) {
+  const out = mkdtempSync(join(tmpdir(), "nerf-native-"));
+  try {
+    const args = ["--bundle", bundle, "--split", "test", "--limit", "1", "--width", String(width), "--out", out, "--npy", ...(dense ? ["--dense"] : [])];
+    const bin = process.env.NERF_RENDER;
+    if (bin) execFileSync(bin, args, { stdio: "pipe" });
+    else execFileSync("bash", ["-c", '. scripts/env.sh && exec "$CARGO_TARGET_DIR/release/nerf-render" "$@"', "nerf-render", ...args], { cwd: REPO, stdio: "pipe" });
+    return readNpy(join(out, "r_0.npy"));
+  } finally { rmSync(out, { recursive: true, force: true }); }
+}
+
+async function freePort() {
+  const s = createServer();
+  await new Promise((ok) => s.listen(0, "127.0.0.1", ok));
+  const port = s.address().port;
+  await new Promise((ok) => s.close(ok));
+  return port;
+}
+
+/** Start a server for `bundle`; returns { url, stop }. NERF_SERVE_CMD swaps in another server. */
+export async function startServer(bundle) {
+  const cmd = process.env.NERF_SERVE_CMD ??
+    (process.env.NERF_RENDER ? `'${process.env.NERF_RENDER}'` : '. scripts/env.sh && exec "$CARGO_TARGET_DIR/release/nerf-render"') +
+      " --bundle {bundle} --serve --port {port} --viewer {root}";
+  if (cmd === "node") {
+    const server = await serve({ root: DIST, bundle });
+    return { url: `http://127.0.0.1:${server.address().port}/`, stop: () => new Promise((ok) => server.close(ok)) };
+  }
+  const port = await freePort();
+  const line = cmd.replaceAll("{root}", DIST).replaceAll("{bundle}", bundle).replaceAll("{port}", String(port));
+  const child = spawn("bash", ["-c", line], { cwd: REPO, stdio: ["ignore", "inherit", "inherit"], detached: true });
+  const url = `http://127.0.0.1:${port}/`;
+  for (let i = 0; ; i++) {
+    try { if ((await fetch(url)).ok) break; } catch { /* not up yet */ }
+    if (i > 300 || child.exitCode !== null) { try { process.kill(-child.pid); } catch {} throw new Error(`server did not come up: ${line}`); }
+    await new Promise((ok) => setTimeout(ok, 100));
+  }
+  return { url, stop: async () => { try { process.kill(-child.pid); } catch {} } };
+}
+
+let browser;
+before(async () => {
+  assert.ok(existsSync(join(DIST, "index.html")), "run `npm run build` first");
+  browser = await chromium.launch({
+    executablePath: process.env.CHROMIUM ?? "/usr/bin/chromium",
+    args: ["--no-sandbox", "--disable-dev-shm-usage", "--disable-gpu"],
+  });
+});
+after(async () => { await browser?.close(); });
+
+/** Render test pose 0 in the page; returns { frame, stats, isolated }. */
+async function pageFrame(bundle, width, height, extra = "") {
+  const server = await startServer(bundle);
+  const page = await browser.newPage();
+  try {
+    await page.goto(`${server.url}?pose=test:0&width=${width}&height=${height}${extra}`);
+    await page.waitForFunction(() => document.body.dataset.state, null, { timeout: 300_000 });
+    const r = await page.evaluate(() => ({
+      state: document.body.dataset.state, error: document.getElementById("error")?.textContent,
+      stats: window.nerfStats, isolated: crossOriginIsolated, frame: window.nerfFrame && Array.from(window.nerfFrame),
+      canvas: [document.getElementById("view").width, document.getElementById("view").height],
+    }));
+    assert.equal(r.state, "done", `page error: ${r.error}`);
+    return r;
+  } finally { await page.close(); await server.stop(); }
+}
+
+function compare(name, bundle, width, dense = false) {
+  test(`${name}${dense ? " (dense)" : ""}: browser matches nerf-render at width ${width}`, { timeout: 600_000 }, async (t) => {
+    const native = nativeFrame(bundle, width, dense);
+    const [h, w, c] = native.shape;
+    const r = await pageFrame(bundle, w, h, dense ? "&dense=1" : "");
+    assert.deepEqual(r.canvas, [w, h]);
+    assert.equal(r.frame.length, h * w * 3);
+    let maxDiff = 0, se = 0;
+    for (let p = 0; p < h * w; p++) for (let k = 0; k < 3; k++) {
+      const e = r.frame[3 * p + k] - native.data[c * p + k];
+      maxDiff = Math.max(maxDiff, Math.abs(e)); se += e * e;
+    }
+    const psnr = 10 * Math.log10(1 / Math.max(se / (h * w * 3), 1e-30));
+    t.diagnostic(`${name}: ${w}×${h}, max |Δrgb| ${maxDiff.toExponential(2)}, PSNR ${psnr.toFixed(1)} dB, ` +
+      `${r.stats.ms.toFixed(0)} ms, ${r.stats.points} points, ${r.stats.threads} threads, isolated ${r.isolated}`);
+    assert.ok(maxDiff <= 1e-3, `max |Δrgb| ${maxDiff} > 1e-3`);
+    assert.ok(psnr >= 40, `PSNR ${psnr} < 40 dB`);
+    // Under COOP/COEP the page is isolated and onnxruntime gets more than one thread.
+    assert.equal(r.isolated, true);
+    assert.ok(r.stats.threads > 1, `threads ${r.stats.threads}`);
+    assert.equal(r.stats.backend, "wasm");
+  });
+}
+
+compare("spheres", join(REPO, "models/spheres"), 64);
+compare("spheres", join(REPO, "models/spheres"), 64, true);
+compare("lego", join(REPO, "models/lego"), 50);
+compare("lego", join(REPO, "models/lego"), 50, true);
+compare("lego-ngp", join(REPO, "models/lego-ngp"), 100);
+
+test("interactive page: refines to full size, re-renders after a drag, depth toggle", { timeout: 300_000 }, async () => {
+  const server = await startServer(join(REPO, "models/spheres"));
+  const page = await browser.newPage();
+  try {
+    await page.goto(server.url);
+    const done = () => page.waitForFunction(() => document.body.dataset.state === "done" || document.body.dataset.state === "error", null, { timeout: 120_000 });
+    await done();
+    assert.equal(await page.evaluate(() => document.body.dataset.state), "done");
+    assert.deepEqual(await page.evaluate(() => [window.nerfStats.width, window.nerfStats.height]), [64, 64]);
+    assert.ok((await page.locator("#pose option").count()) > 1);
+    assert.equal(await page.locator("#isolation").isHidden(), true);
+    const before = await page.evaluate(() => document.getElementById("view").toDataURL());
+    const box = await page.locator("#view").boundingBox();
+    await page.mouse.move(box.x + box.width / 2, box.y + box.height / 2);
+    await page.mouse.down();
+    await page.mouse.move(box.x + box.width / 2 + 40, box.y + box.height / 2, { steps: 4 });
+    await page.mouse.up();
+    await page.waitForFunction(() => document.body.dataset.state === "rendering", null, { timeout: 10_000 }).catch(() => {});
+    await done();
+    assert.equal(await page.evaluate(() => document.body.dataset.state), "done");
+    const afterDrag = await page.evaluate(() => document.getElementById("view").toDataURL());
+    assert.notEqual(afterDrag, before, "the view did not change after a drag");
+    await page.click("#mode");
+    assert.notEqual(await page.evaluate(() => document.getElementById("view").toDataURL()), afterDrag, "depth view looks like rgb");
+  } finally { await page.close(); await server.stop(); }
+});
+
+test("a missing bundle shows its error on the page", { timeout: 120_000 }, async () => {
+  // ?bundle= points the page at a directory the server does not have (any server: 404).
+  const server = await startServer(join(REPO, "models/spheres"));
+  const page = await browser.newPage();
+  try {
+    await page.goto(`${server.url}?pose=test:0&bundle=missing/`);
+    await page.waitForFunction(() => document.body.dataset.state, null, { timeout: 60_000 });
+    assert.equal(await page.evaluate(() => document.body.dataset.state), "error");
+    assert.match(await page.locator("#error").textContent(), /scene\.json.*404/);
+  } finally { await page.close(); await server.stop(); }
+});
+
+/** A copy of models/spheres changed by `edit(dir)`. */
+function brokenBundle(edit) {
+  const dir = mkdtempSync(join(tmpdir(), "nerf-broken-"));
+  cpSync(join(REPO, "models/spheres"), dir, { recursive: true });
+  edit(dir);
+  return dir;
+}
+
+for (const [what, edit, message] of [
+  ["a missing graph", (dir) => rmSync(join(dir, "fine.onnx")), /fine\.onnx.*404/],
+  ["a scene.json that is not JSON", (dir) => writeFileSync(join(dir, "scene.json"), "{ not json"), /scene\.json/],
+  ["a scene.json without a camera", (dir) => {
+    const scene = JSON.parse(readFileSync(join(dir, "scene.json"), "utf8"));
+    delete scene.camera;
+    writeFileSync(join(dir, "scene.json"), JSON.stringify(scene));
+  }, /camera/],
+]) {
+  test(`a bundle with ${what} shows its error on the page`, { timeout: 120_000 }, async () => {
+    const bundle = brokenBundle(edit);
+    const server = await startServer(bundle);
+    const page = await browser.newPage();
+    try {
+      await page.goto(`${server.url}?pose=test:0&width=32&height=32`);
+      await page.waitForFunction(() => document.body.dataset.state, null, { timeout: 60_000 });
+      assert.equal(await page.evaluate(() => document.body.dataset.state), "error");
+      const text = await page.locator("#error").textContent();
+      assert.match(text, message);
+      assert.equal(await page.locator("#error").isVisible(), true, "the reason is on the page");
+    } finally { await page.close(); await server.stop(); rmSync(bundle, { recursive: true, force: true }); }
+  });
+}
+
+test("without COOP/COEP: a visible note, one thread", { timeout: 120_000, }, async () => {
+  const server = await serve({ root: DIST, bundle: join(REPO, "models/spheres"), isolation: false });
+  const page = await browser.newPage();
+  try {
+    await page.goto(`http://127.0.0.1:${server.address().port}/?pose=test:0&width=32&height=32`);
+    await page.waitForFunction(() => document.body.dataset.state, null, { timeout: 60_000 });
+    assert.equal(await page.evaluate(() => document.body.dataset.state), "done");
+    assert.equal(await page.evaluate(() => crossOriginIsolated), false);
+    assert.equal(await page.evaluate(() => window.nerfStats.threads), 1);
+    assert.equal(await page.locator("#isolation").isVisible(), true);
+  } finally { await page.close(); await new Promise((ok) => server.close(ok)); }
+});
