@@ -130,9 +130,10 @@ function compare(name, bundle, width, dense = false) {
 
 compare("spheres", join(REPO, "models/spheres"), 64);
 compare("spheres", join(REPO, "models/spheres"), 64, true);
-compare("lego", join(REPO, "models/lego"), 50);
+// Each bundle at its full training size (lego 100×100, lego-ngp 400×400); the dense paths smaller.
+compare("lego", join(REPO, "models/lego"), 100);
 compare("lego", join(REPO, "models/lego"), 50, true);
-compare("lego-ngp", join(REPO, "models/lego-ngp"), 100);
+compare("lego-ngp", join(REPO, "models/lego-ngp"), 400);
 
 test("interactive page: refines to full size, re-renders after a drag, depth toggle", { timeout: 300_000 }, async () => {
   const server = await startServer(join(REPO, "models/spheres"));
