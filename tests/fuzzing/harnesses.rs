@@ -20,10 +20,12 @@ use nerf_bundle::{check_contract, read_occupancy};
 use std::path::{Path, PathBuf};
 
 /// Every harness, in the order they run.
-pub const ALL: [HarnessDef; 13] = [
+pub const ALL: [HarnessDef; 15] = [
     HarnessDef { name: "transforms", file: "transforms_train.json", setup: transforms },
     HarnessDef { name: "ngp-transforms", file: "capture/transforms.json (instant-ngp, nerfstudio)", setup: ngp_transforms },
     HarnessDef { name: "llff", file: "llff/poses_bounds.npy", setup: llff },
+    HarnessDef { name: "colmap-cameras", file: "sparse/0/cameras.bin (COLMAP)", setup: colmap_cameras },
+    HarnessDef { name: "colmap-images", file: "sparse/0/images.bin (COLMAP)", setup: colmap_images },
     HarnessDef { name: "source", file: "run/source.json", setup: source },
     HarnessDef { name: "image", file: "train/r_0.png (PNG/GIF)", setup: image },
     HarnessDef { name: "config", file: "run/config.toml", setup: config },
@@ -202,6 +204,54 @@ fn llff(work: &Path) -> Result<Box<dyn Harness>, String> {
         .collect();
     let seeds = vec![npy_f8(&rows)];
     Ok(boxed(dir.join("poses_bounds.npy"), seeds, Format::Binary, move || load_as_commands_do(&dir)))
+}
+
+/// A COLMAP binary model in `work/colmap`: one OPENCV camera, three images with 2-D points
+/// (COLMAP's layout: counts as u64, ids as i32, names NUL-terminated).
+fn colmap_model(work: &Path) -> Result<PathBuf, String> {
+    let dir = work.join("colmap");
+    std::fs::create_dir_all(&dir).map_err(|e| e.to_string())?;
+    let mut cameras = 1u64.to_le_bytes().to_vec();
+    cameras.extend(1i32.to_le_bytes());
+    cameras.extend(4i32.to_le_bytes());
+    cameras.extend(64u64.to_le_bytes());
+    cameras.extend(48u64.to_le_bytes());
+    [60.0f64, 61.0, 32.0, 24.0, 0.01, -0.02, 0.001, 0.0].iter().for_each(|v| cameras.extend(v.to_le_bytes()));
+    let mut images = 3u64.to_le_bytes().to_vec();
+    for k in 0..3 {
+        images.extend((k + 1i32).to_le_bytes());
+        [0.9f64, 0.1 * k as f64, -0.2, 0.3, k as f64, 0.5, -2.0].iter().for_each(|v| images.extend(v.to_le_bytes()));
+        images.extend(1i32.to_le_bytes());
+        images.extend(format!("img_{k}.png\0").as_bytes());
+        images.extend(2u64.to_le_bytes());
+        for p in 0..2 {
+            images.extend((p as f64).to_le_bytes());
+            images.extend(1.5f64.to_le_bytes());
+            images.extend((p as i64 - 1).to_le_bytes());
+        }
+    }
+    std::fs::write(dir.join("cameras.bin"), cameras).map_err(|e| e.to_string())?;
+    std::fs::write(dir.join("images.bin"), images).map_err(|e| e.to_string())?;
+    Ok(dir)
+}
+
+/// Read the model and convert it, as `nerf process-data --colmap-model` does.
+fn colmap_harness(work: &Path, file: &str) -> Result<Box<dyn Harness>, String> {
+    let dir = colmap_model(work)?;
+    let target = dir.join(file);
+    let seeds = vec![read(&target)?];
+    Ok(boxed(target, seeds, Format::Binary, move || {
+        let model = nerf_core::dataset::colmap::read_model(&dir).map_err(|e| e.to_string())?;
+        nerf_core::dataset::colmap::transforms_json(&dir, &model, "images").map(drop).map_err(|e| e.to_string())
+    }))
+}
+
+fn colmap_cameras(work: &Path) -> Result<Box<dyn Harness>, String> {
+    colmap_harness(work, "cameras.bin")
+}
+
+fn colmap_images(work: &Path) -> Result<Box<dyn Harness>, String> {
+    colmap_harness(work, "images.bin")
 }
 
 fn source(work: &Path) -> Result<Box<dyn Harness>, String> {

@@ -7,6 +7,7 @@
 //! already composited on the configured background (white unless told otherwise).
 
 mod blender;
+pub mod colmap;
 mod capture;
 mod images;
 mod instant_ngp;

@@ -116,6 +116,20 @@ enum Command {
         #[arg(long)]
         npy: bool,
     },
+    /// Turn photos with a COLMAP sparse model into a capture `nerf train` reads: transforms.json
+    /// (OpenGL camera-to-world poses, the camera's intrinsics and distortion) and images/.
+    ProcessData {
+        /// An existing COLMAP model: a sparse model folder (cameras.bin/images.bin or .txt) or a
+        /// project holding sparse/0, sparse/1, … (the largest model is used).
+        #[arg(long)]
+        colmap_model: PathBuf,
+        /// The image folder COLMAP read.
+        #[arg(long)]
+        images: PathBuf,
+        /// Output capture directory (written whole or not at all).
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Compile a trained run into an ONNX scene bundle: coarse.onnx, fine.onnx, scene.json.
     Export {
         /// Run directory written by `nerf train`.
@@ -245,6 +259,14 @@ fn main() -> Result<()> {
             (false, Some(_), None) => bail!("--split needs --data <scene dir>"),
             _ => bail!("say what to render: --orbit, or --split <val|test> --data <scene dir>"),
         },
+        Command::ProcessData { colmap_model, images, out } => {
+            let p = nerf::process_data::convert_colmap(&colmap_model, &images, &out)?;
+            println!("{} of {} images registered (model {}): {}", p.registered, p.images, p.model.display(), out.join("transforms.json").display());
+            if (p.registered as f64) < nerf::process_data::WARN_REGISTERED * p.images as f64 {
+                eprintln!("warning: {} images were not registered: {}", p.dropped.len(), p.dropped.join(", "));
+            }
+            println!("train with: nerf train --data {} --out <run-dir>", out.display());
+        }
         Command::Export { run, out, opset, portable, tables } => {
             let tables = match tables {
                 Tables::F32 => nerf_export::TablePrecision::F32,
