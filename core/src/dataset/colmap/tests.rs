@@ -101,9 +101,10 @@ fn bad_models_are_refused_by_name() {
     let ierr = |bytes: &[u8]| parse_images_bin(&ipath, bytes).unwrap_err().to_string();
     let image = images_bin(&[(1, [1.0, 0.0, 0.0, 0.0], [0.0; 3], 1, "a.png", 2)]);
     assert!(ierr(&image[..image.len() - 1]).contains("truncated"));
-    // Cut inside the name: count, id, pose, camera id, then "a.p".
+    // Cut inside a long name (past the smallest size an image can have): its NUL is missing.
+    let long = images_bin(&[(1, [1.0, 0.0, 0.0, 0.0], [0.0; 3], 1, "a_rather_long_name.png", 0)]);
     let header = 8 + 4 + 56 + 4;
-    assert!(ierr(&image[..header + 3]).contains("no end"));
+    assert!(ierr(&long[..header + 15]).contains("no end"), "{}", ierr(&long[..header + 15]));
     assert!(ierr(&images_bin(&[(1, [0.0; 4], [0.0; 3], 1, "a.png", 0)])).contains("quaternion is zero"));
     assert!(ierr(&images_bin(&[(1, [1.0, 0.0, 0.0, 0.0], [0.0; 3], 1, "../../etc/passwd", 0)])).contains("not a path inside"));
 
