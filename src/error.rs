@@ -34,7 +34,7 @@ pub enum Error {
         /// The loss of the last step.
         loss: f32,
     },
-    /// An external program (the PyTorch comparison of `nerf bench`) failed.
+    /// An external program (COLMAP, ffmpeg, the PyTorch comparison of `nerf bench`) failed.
     #[error("{program}: {problem}")]
     External {
         /// The program.

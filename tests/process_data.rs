@@ -107,3 +107,150 @@ fn a_colmap_model_of_the_fox_converts_back_to_its_poses_and_loads() {
     assert!(!ok && text.contains("not a COLMAP sparse model"), "{text}");
     assert!(!nothing.exists(), "nothing half-written");
 }
+
+/// Horn's closed-form similarity (scale, rotation, translation) taking points `a` onto `b`
+/// (least squares), via the largest eigenvector of his 4 × 4 matrix (power iteration).
+fn similarity(a: &[[f64; 3]], b: &[[f64; 3]]) -> (f64, [[f64; 3]; 3], [f64; 3], [f64; 3]) {
+    let n = a.len() as f64;
+    let mean = |p: &[[f64; 3]]| [0, 1, 2].map(|d| p.iter().map(|v| v[d]).sum::<f64>() / n);
+    let (ma, mb) = (mean(a), mean(b));
+    let mut s = [[0.0; 3]; 3];
+    for (p, q) in a.iter().zip(b) {
+        for i in 0..3 {
+            for j in 0..3 {
+                s[i][j] += (p[i] - ma[i]) * (q[j] - mb[j]);
+            }
+        }
+    }
+    let [[sxx, sxy, sxz], [syx, syy, syz], [szx, szy, szz]] = s;
+    let m = [
+        [sxx + syy + szz, syz - szy, szx - sxz, sxy - syx],
+        [syz - szy, sxx - syy - szz, sxy + syx, szx + sxz],
+        [szx - sxz, sxy + syx, -sxx + syy - szz, syz + szy],
+        [sxy - syx, szx + sxz, syz + szy, -sxx - syy + szz],
+    ];
+    // Shift so that the largest eigenvalue is the largest in magnitude, then iterate.
+    let shift: f64 = m.iter().flatten().map(|v| v.abs()).sum();
+    let mut q = [1.0, 0.1, 0.1, 0.1];
+    for _ in 0..2000 {
+        let next = [0, 1, 2, 3].map(|i| (0..4).map(|j| m[i][j] * q[j]).sum::<f64>() + shift * q[i]);
+        let norm = next.iter().map(|v| v * v).sum::<f64>().sqrt();
+        q = next.map(|v| v / norm);
+    }
+    let [w, x, y, z] = q;
+    let r = [
+        [w * w + x * x - y * y - z * z, 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
+        [2.0 * (x * y + w * z), w * w - x * x + y * y - z * z, 2.0 * (y * z - w * x)],
+        [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), w * w - x * x - y * y + z * z],
+    ];
+    let spread = |p: &[[f64; 3]], m: [f64; 3]| p.iter().map(|v| (0..3).map(|d| (v[d] - m[d]).powi(2)).sum::<f64>()).sum::<f64>();
+    ((spread(b, mb) / spread(a, ma)).sqrt(), r, ma, mb)
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(|a, b| a.partial_cmp(b).unwrap());
+    v[v.len() / 2]
+}
+
+/// COLMAP run here on the fox photos alone: ≥ 95% registered, and after a similarity alignment
+/// the poses agree with the shipped transforms.json (median rotation error ≤ 1°, median camera
+/// centre error ≤ 1% of the cameras' extent).
+#[test]
+fn colmap_on_the_fox_photos_recovers_the_shipped_poses() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("fox");
+    let (ok, text) = nerf(&["process-data", "--images", s(&fox().join("images")), "--out", s(&out)]);
+    assert!(ok, "{text}");
+    for log in ["1-features.log", "2-matching.log", "3-mapping.log"] {
+        assert!(out.join("colmap").join(log).is_file(), "{log} kept");
+    }
+    let read = |p: &Path| -> Vec<(String, Vec<Vec<f64>>)> {
+        let t: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap();
+        let name = |f: &serde_json::Value| Path::new(f["file_path"].as_str().unwrap()).file_name().unwrap().to_string_lossy().into_owned();
+        t["frames"].as_array().unwrap().iter().map(|f| (name(f), serde_json::from_value(f["transform_matrix"].clone()).unwrap())).collect()
+    };
+    let ours = read(&out.join("transforms.json"));
+    let shipped: Vec<_> = read(&fox().join("transforms.json")).into_iter().filter(|(n, _)| fox().join("images").join(n).is_file()).collect();
+    let registered = ours.len() as f64 / shipped.len() as f64;
+    assert!(registered >= 0.95, "{} of {} registered", ours.len(), shipped.len());
+    let pairs: Vec<_> = ours.iter().filter_map(|(n, m)| shipped.iter().find(|(s, _)| s == n).map(|(_, t)| (m, t))).collect();
+    let centre = |m: &Vec<Vec<f64>>| [m[0][3], m[1][3], m[2][3]];
+    let a: Vec<[f64; 3]> = pairs.iter().map(|(m, _)| centre(m)).collect();
+    let b: Vec<[f64; 3]> = pairs.iter().map(|(_, t)| centre(t)).collect();
+    let (scale, r, ma, mb) = similarity(&a, &b);
+    let extent = b.iter().flat_map(|p| b.iter().map(move |q| (0..3).map(|d| (p[d] - q[d]).powi(2)).sum::<f64>().sqrt())).fold(0.0, f64::max);
+    let centre_errors: Vec<f64> = a
+        .iter()
+        .zip(&b)
+        .map(|(p, q)| {
+            let moved = [0, 1, 2].map(|i| scale * (0..3).map(|j| r[i][j] * (p[j] - ma[j])).sum::<f64>() + mb[i]);
+            (0..3).map(|d| (moved[d] - q[d]).powi(2)).sum::<f64>().sqrt() / extent
+        })
+        .collect();
+    let rotation_errors: Vec<f64> = pairs
+        .iter()
+        .map(|(m, t)| {
+            // angle of t_Rᵀ · r · m_R, from its trace.
+            let rm = [0, 1, 2].map(|i| [0, 1, 2].map(|j| (0..3).map(|k| r[i][k] * m[k][j]).sum::<f64>()));
+            let trace: f64 = (0..3).map(|i| (0..3).map(|k| t[k][i] * rm[k][i]).sum::<f64>()).sum();
+            ((trace - 1.0) / 2.0).clamp(-1.0, 1.0).acos().to_degrees()
+        })
+        .collect();
+    let (centre_med, rot_med) = (median(centre_errors), median(rotation_errors));
+    println!("fox: {} of {} registered; median centre error {:.3}% of the extent, median rotation error {:.3}°", ours.len(), shipped.len(), 100.0 * centre_med, rot_med);
+    assert!(centre_med <= 0.01 && rot_med <= 1.0, "centre {centre_med}, rotation {rot_med}°");
+}
+
+/// A video made from the fox photos (ffmpeg, 10 frames/s) through `--video`: frames picked
+/// evenly, COLMAP with the sequential matcher, and a short training run on the result.
+#[test]
+fn a_video_of_the_fox_goes_to_a_trained_scene() {
+    let dir = tempfile::tempdir().unwrap();
+    let video = dir.path().join("fox.mp4");
+    let glob = fox().join("images/*.jpg");
+    let made = std::process::Command::new("ffmpeg")
+        .args(["-nostdin", "-loglevel", "error", "-framerate", "10", "-pattern_type", "glob", "-i", s(&glob), "-c:v", "libx264", "-pix_fmt", "yuv420p", "-crf", "18", s(&video)])
+        .status()
+        .expect("ffmpeg (.ci/run installs it)");
+    assert!(made.success());
+    let out = dir.path().join("capture");
+    let (ok, text) = nerf(&["process-data", "--video", s(&video), "--frames", "40", "--out", s(&out)]);
+    assert!(ok, "{text}");
+    let t: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("transforms.json")).unwrap()).unwrap();
+    let n = t["frames"].as_array().unwrap().len();
+    println!("{text}");
+    assert!(n >= 36, "{n} of about 40 frames registered");
+    assert!(out.join("colmap/0-frames.log").is_file());
+    let run = dir.path().join("run");
+    let (ok, text) = nerf(&["train", "--data", s(&out), "--iters", "40", "--out", s(&run)]);
+    assert!(ok, "{text}");
+    let curve = std::fs::read_to_string(run.join("curve.csv")).unwrap();
+    assert!(curve.lines().count() >= 2, "a trained run records its curve: {curve}");
+
+    // A file that is not a video, and a missing one: clear errors, nothing written.
+    let bad = dir.path().join("notes.mp4");
+    std::fs::write(&bad, "not a video").unwrap();
+    let nothing = dir.path().join("nothing");
+    let (ok, text) = nerf(&["process-data", "--video", s(&bad), "--out", s(&nothing)]);
+    assert!(!ok && text.contains("notes.mp4") && text.contains("ffprobe"), "{text}");
+    let (ok, text) = nerf(&["process-data", "--video", s(&dir.path().join("missing.mp4")), "--out", s(&nothing)]);
+    assert!(!ok && text.contains("no such video"), "{text}");
+    assert!(!nothing.exists());
+}
+
+/// Without COLMAP or ffmpeg on the PATH, the error says how to install them.
+#[test]
+fn missing_tools_say_how_to_install_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |args: &[&str]| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_nerf")).args(args).env("PATH", dir.path()).output().unwrap();
+        (out.status.success(), String::from_utf8_lossy(&out.stderr).into_owned())
+    };
+    let (ok, text) = run(&["process-data", "--images", s(&fox().join("images")), "--out", s(&dir.path().join("a"))]);
+    assert!(!ok && text.contains("colmap") && text.contains("apt-get install colmap"), "{text}");
+    let video = dir.path().join("v.mp4");
+    std::fs::write(&video, "x").unwrap();
+    let (ok, text) = run(&["process-data", "--video", s(&video), "--out", s(&dir.path().join("b"))]);
+    assert!(!ok && text.contains("apt-get install ffmpeg"), "{text}");
+    assert!(!dir.path().join("a").exists() && !dir.path().join("b").exists());
+}

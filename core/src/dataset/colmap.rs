@@ -366,16 +366,20 @@ pub fn transforms_json(dir: &Path, model: &ColmapModel, image_prefix: &str) -> R
     Ok(serde_json::Value::Object(out))
 }
 
-/// The paths COLMAP's models live at under a project (`sparse/0`, `sparse/1`, …) or `dir`
-/// itself when it is a model.
+/// The models at `dir`: `dir` itself when it is a model, else its subfolders that are (COLMAP's
+/// `sparse/` folder holds `0`, `1`, …), else those of `dir/sparse` (a COLMAP project).
 pub fn model_dirs(dir: &Path) -> Vec<PathBuf> {
     let is_model = |d: &Path| d.join("cameras.bin").is_file() || d.join("cameras.txt").is_file();
     if is_model(dir) {
         return vec![dir.to_path_buf()];
     }
-    let mut found: Vec<PathBuf> = std::fs::read_dir(dir.join("sparse")).into_iter().flatten().flatten().map(|e| e.path()).filter(|p| is_model(p)).collect();
-    found.sort();
-    found
+    let models_in = |d: &Path| {
+        let mut found: Vec<PathBuf> = std::fs::read_dir(d).into_iter().flatten().flatten().map(|e| e.path()).filter(|p| is_model(p)).collect();
+        found.sort();
+        found
+    };
+    let found = models_in(dir);
+    if found.is_empty() { models_in(&dir.join("sparse")) } else { found }
 }
 
 #[cfg(test)]

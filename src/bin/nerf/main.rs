@@ -116,16 +116,31 @@ enum Command {
         #[arg(long)]
         npy: bool,
     },
-    /// Turn photos with a COLMAP sparse model into a capture `nerf train` reads: transforms.json
-    /// (OpenGL camera-to-world poses, the camera's intrinsics and distortion) and images/.
+    /// Turn photos, a video or a COLMAP model into a capture `nerf train` reads: transforms.json
+    /// (OpenGL camera-to-world poses, the camera's intrinsics and distortion), images/, and
+    /// colmap/ (COLMAP's logs and model). Runs COLMAP (headless, CPU) and ffmpeg when needed.
+    #[command(group(clap::ArgGroup::new("input").required(true).args(["images", "video"])))]
     ProcessData {
-        /// An existing COLMAP model: a sparse model folder (cameras.bin/images.bin or .txt) or a
-        /// project holding sparse/0, sparse/1, … (the largest model is used).
+        /// A folder of photos (.jpg/.png); with --colmap-model, the folder COLMAP read.
         #[arg(long)]
-        colmap_model: PathBuf,
-        /// The image folder COLMAP read.
-        #[arg(long)]
-        images: PathBuf,
+        images: Option<PathBuf>,
+        /// A video: about --frames frames are taken evenly over it (ffmpeg).
+        #[arg(long, conflicts_with = "colmap_model")]
+        video: Option<PathBuf>,
+        /// Frames to take from --video.
+        #[arg(long, default_value_t = 120, requires = "video")]
+        frames: usize,
+        /// An existing COLMAP model of --images, converted without running COLMAP: a sparse
+        /// model folder (cameras.bin/images.bin or .txt) or a project holding sparse/0, … (the
+        /// largest model is used).
+        #[arg(long, requires = "images")]
+        colmap_model: Option<PathBuf>,
+        /// The camera model COLMAP estimates (one camera shared by all images).
+        #[arg(long, value_enum, default_value = "opencv")]
+        camera_model: nerf::process_data::tools::ColmapCamera,
+        /// COLMAP's matcher (default: exhaustive for photos, sequential for a video).
+        #[arg(long, value_enum)]
+        matcher: Option<nerf::process_data::tools::Matcher>,
         /// Output capture directory (written whole or not at all).
         #[arg(long)]
         out: PathBuf,
@@ -219,6 +234,15 @@ enum BenchPart {
     NgpRender,
 }
 
+/// `--frames` for a video: at least 3, at most the frame limit.
+fn limits_frames(frames: usize) -> Result<()> {
+    nerf_core::io::limits::check_count(frames, nerf_core::io::limits::MAX_FRAMES, "frames", nerf_core::io::limits::Origin::Option("--frames"))?;
+    if frames < 3 {
+        bail!("--frames {frames}: a reconstruction needs at least 3");
+    }
+    Ok(())
+}
+
 fn main() -> Result<()> {
     nerf::backend::tune_allocator();
     let cli = Cli::parse();
@@ -259,8 +283,15 @@ fn main() -> Result<()> {
             (false, Some(_), None) => bail!("--split needs --data <scene dir>"),
             _ => bail!("say what to render: --orbit, or --split <val|test> --data <scene dir>"),
         },
-        Command::ProcessData { colmap_model, images, out } => {
-            let p = nerf::process_data::convert_colmap(&colmap_model, &images, &out)?;
+        Command::ProcessData { images, video, frames, colmap_model, camera_model, matcher, out } => {
+            use nerf::process_data::{convert_colmap, process_images, process_video, tools::Matcher};
+            limits_frames(frames)?;
+            let p = match (images, video, colmap_model) {
+                (Some(images), _, Some(model)) => convert_colmap(&model, &images, &out)?,
+                (Some(images), _, None) => process_images(&images, &out, camera_model, matcher.unwrap_or(Matcher::Exhaustive), progress)?,
+                (None, Some(video), _) => process_video(&video, frames, &out, camera_model, matcher.unwrap_or(Matcher::Sequential), progress)?,
+                (None, None, _) => bail!("say what to process: --images DIR or --video FILE"),
+            };
             println!("{} of {} images registered (model {}): {}", p.registered, p.images, p.model.display(), out.join("transforms.json").display());
             if (p.registered as f64) < nerf::process_data::WARN_REGISTERED * p.images as f64 {
                 eprintln!("warning: {} images were not registered: {}", p.dropped.len(), p.dropped.join(", "));
