@@ -1,18 +1,24 @@
 #!/usr/bin/env bash
-# Python side of the set-up, idempotent: a virtual environment with numpy, onnx (graph checks)
-# and onnxruntime, whose wheel also carries libonnxruntime.so for the Rust renderer (ort,
-# load-dynamic). Everything lives under ~/.cache/nerf-rs (override with NERF_HOME).
+# Python side of the set-up, idempotent: a virtual environment with numpy, onnx (graph checks),
+# onnxruntime (whose wheel also carries libonnxruntime.so for the Rust renderer: ort,
+# load-dynamic), Pillow and pytest, and the project's Python package (python/, nerf_bundle,
+# editable). Everything lives under ~/.cache/nerf-rs (override with NERF_HOME).
 set -euo pipefail
 NERF_HOME="${NERF_HOME:-$HOME/.cache/nerf-rs}"
 VENV="$NERF_HOME/venv"
 STAMP="$VENV/.nerf-rs-requirements"
-REQUIREMENTS="numpy onnx onnxruntime==1.31.1"
+REQUIREMENTS="numpy onnx onnxruntime==1.31.1 Pillow pytest wheel"
 if [ ! -f "$STAMP" ] || [ "$(cat "$STAMP")" != "$REQUIREMENTS" ]; then
   PYTHON="${PYTHON:-python3}"
   command -v "$PYTHON" >/dev/null || { echo "python3 not found: install Python ≥ 3.9 first" >&2; exit 1; }
   "$PYTHON" -m venv "$VENV"
   "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check $REQUIREMENTS
   echo "$REQUIREMENTS" > "$STAMP"
+fi
+
+# The Python package, editable: python/ is used as it is.
+if ! "$VENV/bin/python" -c "import nerf_bundle" >/dev/null 2>&1; then
+  "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check --no-deps -e "$(cd "$(dirname "$0")/.." && pwd)/python"
 fi
 
 # The browser viewer (`nerf-render --serve`): TypeScript built with npm from viewer/'s lockfile,

@@ -1,0 +1,83 @@
+"""One bundle graph as onnxruntime sessions (``runtime/src/network.rs``): a call is split
+across ``workers`` sessions with one intra-op thread each, every session evaluating pieces of
+at most ``points_per_run`` points, run side by side from a thread pool (onnxruntime releases
+the GIL)."""
+from __future__ import annotations
+
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from typing import Optional, Sequence, Tuple
+
+import numpy as np
+
+from ._validate import BundleError
+
+F32 = np.float32
+POINTS_PER_RUN = 2048
+MIN_POINTS_PER_WORKER = 256
+
+
+class Graph:
+    """A graph of the contract: ``points``, ``viewdirs`` [N, 3] in; ``rgb`` [N, 3], ``sigma``
+    [N, 1] out."""
+
+    def __init__(self, path: str, workers: int, providers: Optional[Sequence] = None,
+                 points_per_run: int = POINTS_PER_RUN) -> None:
+        import onnxruntime as ort
+
+        self.path = path
+        self.points_per_run = max(1, points_per_run)
+        self.seconds = 0.0  # wall time inside evaluate (onnxruntime and the split/join)
+        self.evaluated = 0
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads = 1
+        opts.inter_op_num_threads = 1
+        opts.log_severity_level = 3
+        providers = list(providers) if providers else ["CPUExecutionProvider"]
+        try:
+            with open(path, "rb") as f:
+                model = f.read()
+            first = ort.InferenceSession(model, opts, providers=providers)
+        except Exception as e:  # onnxruntime raises its own exception types
+            raise BundleError(f"{path}: cannot load the graph (truncated, not an ONNX model, or not following the graph "
+                              f"contract: inputs points, viewdirs [N, 3]; outputs rgb [N, 3], sigma [N, 1]): {e}") from None
+        inputs = sorted(i.name for i in first.get_inputs())
+        outputs = sorted(o.name for o in first.get_outputs())
+        if inputs != ["points", "viewdirs"] or not {"rgb", "sigma"} <= set(outputs):
+            raise BundleError(f"{path}: inputs {inputs} and outputs {outputs} break the graph contract "
+                              "(inputs points, viewdirs [N, 3]; outputs rgb [N, 3], sigma [N, 1])")
+        self.sessions = [first] + [ort.InferenceSession(model, opts, providers=providers) for _ in range(workers - 1)]
+        self.pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="nerf-bundle") if workers > 1 else None
+        self._lock = threading.Lock()
+
+    def _run_part(self, k: int, points: np.ndarray, viewdirs: np.ndarray, rgb: np.ndarray, sigma: np.ndarray) -> None:
+        session, piece = self.sessions[k], self.points_per_run
+        for s in range(0, len(points), piece):
+            e = min(s + piece, len(points))
+            out_rgb, out_sigma = session.run(["rgb", "sigma"], {"points": points[s:e], "viewdirs": viewdirs[s:e]})
+            rgb[s:e] = out_rgb
+            sigma[s:e] = np.asarray(out_sigma).reshape(-1)
+
+    def __call__(self, points: np.ndarray, viewdirs: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+        """rgb [N, 3] and sigma [N] (float32) at ``points`` seen along unit ``viewdirs``."""
+        start = time.perf_counter()
+        n = len(points)
+        points = np.ascontiguousarray(points, F32)
+        viewdirs = np.ascontiguousarray(viewdirs, F32)
+        rgb = np.empty((n, 3), F32)
+        sigma = np.empty(n, F32)
+        workers = min(len(self.sessions), max(1, n // MIN_POINTS_PER_WORKER))
+        if n == 0:
+            pass
+        elif workers == 1 or self.pool is None:
+            self._run_part(0, points, viewdirs, rgb, sigma)
+        else:
+            bounds = [n * k // workers for k in range(workers + 1)]
+            futures = [self.pool.submit(self._run_part, k, points[a:b], viewdirs[a:b], rgb[a:b], sigma[a:b])
+                       for k, (a, b) in enumerate(zip(bounds[:-1], bounds[1:]))]
+            for f in futures:
+                f.result()
+        self.seconds += time.perf_counter() - start
+        self.evaluated += n
+        return rgb, sigma

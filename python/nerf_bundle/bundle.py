@@ -1,0 +1,256 @@
+"""``Bundle``: open a scene bundle, render frames, rays and raw field values."""
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass
+from typing import Any, Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from . import _render as R
+from ._field import POINTS_PER_RUN, Graph
+from ._validate import (MAX_CHUNK_SAMPLES, MAX_FRAMES, MAX_GRAPH_BYTES, MAX_IMAGE_SIDE, MAX_FRAME_PIXELS, MAX_THREADS,
+                        bounded_file, bundle_file, check_count, check_pose, graph_files, is_bounded,
+                        read_grid, read_scene)
+from .camera import Camera, ndc_rays, reference_orbit
+
+F32 = np.float32
+#: Rays per batch (nerf-render's ``--chunk`` default): memory is bounded by it.
+DEFAULT_CHUNK = 4096
+
+
+@dataclass
+class Frame:
+    """A rendered view: ``rgb`` [H, W, 3], ``depth`` [H, W], ``acc`` [H, W], float32."""
+
+    rgb: np.ndarray
+    depth: np.ndarray
+    acc: np.ndarray
+    seconds: float = 0.0
+    field_seconds: float = 0.0
+
+    @property
+    def raw(self) -> np.ndarray:
+        """float32 [H, W, 5] = r, g, b, depth, acc (what ``nerf-render --npy`` writes)."""
+        return np.concatenate([self.rgb, self.depth[..., None], self.acc[..., None]], axis=2).astype(F32)
+
+    def to_uint8(self) -> np.ndarray:
+        """rgb quantised as nerf-render's PNGs: clamp to [0, 1], ×255, round."""
+        return np.round(np.clip(self.rgb, 0, 1) * F32(255)).astype(np.uint8)
+
+    def to_pil(self) -> Any:
+        """The colour image as a ``PIL.Image`` (needs Pillow: ``pip install nerf_bundle[images]``)."""
+        try:
+            from PIL import Image
+        except ImportError:
+            raise ImportError("Frame.to_pil needs Pillow: pip install 'nerf_bundle[images]' (or pip install Pillow)") from None
+        return Image.fromarray(self.to_uint8(), "RGB")
+
+    def _repr_png_(self) -> Optional[bytes]:
+        try:
+            img = self.to_pil()
+        except ImportError:
+            return None
+        import io
+
+        buf = io.BytesIO()
+        img.save(buf, format="PNG")
+        return buf.getvalue()
+
+
+@dataclass
+class Rays:
+    """Per-ray results: ``rgb`` [N, 3], ``depth`` [N], ``acc`` [N] float32."""
+
+    rgb: np.ndarray
+    depth: np.ndarray
+    acc: np.ndarray
+
+
+class Bundle:
+    """A scene bundle opened for rendering. Use :meth:`Bundle.open`."""
+
+    def __init__(self, path: str, scene: Dict[str, Any], graphs: Dict[str, Graph], grid: Optional[R.Grid],
+                 skip_empty_space: bool) -> None:
+        self.path = path
+        self.scene = scene
+        self.graphs = graphs
+        self.grid = grid
+        self.skip_empty_space = skip_empty_space
+        self.camera = Camera.from_scene(scene["camera"])
+        s = scene["sampling"]
+        self.near, self.far = F32(s["near"]), F32(s["far"])
+        self.n_coarse, self.n_fine, self.lindisp = int(s["n_coarse"]), int(s["n_fine"]), bool(s.get("lindisp", False))
+        self.ndc = s.get("ndc")
+        self.march_steps = int(scene.get("march_steps", 256))
+        self.white_background = bool(scene["white_background"])
+
+    @classmethod
+    def open(cls, path: "str | os.PathLike[str]", *, providers: Optional[Sequence[Any]] = None, threads: Optional[int] = None,
+             skip_empty_space: bool = True, points_per_run: int = POINTS_PER_RUN) -> "Bundle":
+        """Open and check the bundle at ``path`` as nerf-render does (limits of untrusted bundles,
+        file names inside the bundle, the graph contract); raises :class:`BundleError` naming
+        the file and the problem.
+
+        ``threads``: onnxruntime sessions per graph run side by side (default ``os.cpu_count()``),
+        each with one intra-op thread on pieces of ``points_per_run`` points. ``providers``:
+        onnxruntime execution providers (default CPU). ``skip_empty_space=False`` ignores
+        occupancy.bin (nerf-render ``--dense``)."""
+        path = os.fspath(path)
+        workers = check_count(threads if threads is not None else (os.cpu_count() or 1), MAX_THREADS, "threads", "threads")
+        scene = read_scene(path)
+        graphs: Dict[str, Graph] = {}
+        for role, (key, name) in graph_files(scene).items():
+            file = bounded_file(bundle_file(path, name, key), MAX_GRAPH_BYTES, key)
+            graphs[role] = Graph(file, workers, providers, points_per_run)
+        occ = scene.get("occupancy")
+        grid = None
+        if occ and skip_empty_space:
+            density, bound, threshold = read_grid(bounded_file(bundle_file(path, occ["file"], "occupancy.file"), MAX_GRAPH_BYTES, "occupancy.file"))
+            grid = R.Grid((density > threshold).reshape(-1), density.shape[0], bound)
+        elif is_bounded(scene):
+            grid = R.Grid(np.ones(1, bool), 1, F32(occ["bound"]))
+        bundle = cls(path, scene, graphs, grid, skip_empty_space)
+        for split in ("test", "orbit"):
+            bundle.poses(split)  # non-finite or malformed poses are refused now
+        return bundle
+
+    # -- description ---------------------------------------------------------------------------
+
+    @property
+    def field_kind(self) -> str:
+        """"ngp" for a hash-grid field (one ``field`` graph), "mlp" for NeRF MLPs."""
+        return str(self.scene.get("field", "ngp" if "field" in self.graphs else "mlp"))
+
+    def poses(self, split: str = "test") -> List[np.ndarray]:
+        """The bundle's camera-to-world poses, [4, 4] float32 each: ``"test"`` or ``"orbit"``."""
+        where = os.path.join(self.path, "scene.json")
+        if split == "test":
+            return [check_pose(p["transform_matrix"], where, f"poses.test[{k}]") for k, p in enumerate(self.scene["poses"]["test"])]
+        if split == "orbit":
+            return [check_pose(p, where, f"poses.orbit[{k}]") for k, p in enumerate(self.scene["poses"]["orbit"])]
+        raise ValueError(f"split must be 'test' or 'orbit', not {split!r}")
+
+    def pose_names(self, split: str = "test") -> List[str]:
+        """File names nerf-render gives the views: test poses by their ``name`` (r_0, ...),
+        orbit frames frame_000, ..."""
+        if split == "test":
+            return [p["name"] for p in self.scene["poses"]["test"]]
+        return [f"frame_{k:03}" for k in range(len(self.scene["poses"]["orbit"]))]
+
+    def orbit(self, frames: Optional[int] = None) -> List[np.ndarray]:
+        """The orbit: the bundle's own, or ``frames`` poses of the reference orbit (radius 4,
+        elevation −30°) when another count is asked for."""
+        own = self.poses("orbit")
+        if frames is None or frames == len(own):
+            return own
+        check_count(frames, MAX_FRAMES, "frames", "frames")
+        if self.scene.get("placement") and self.scene["placement"].get("orbit"):
+            raise NotImplementedError("another frame count along a capture's recorded camera path is not supported; use nerf-render")
+        return reference_orbit(frames)
+
+    def camera_at(self, width: Optional[int] = None, height: Optional[int] = None) -> Camera:
+        """The bundle's camera, resized as nerf-render's ``--width``/``--height``."""
+        if width is None:
+            if height is not None:
+                raise ValueError("height needs width")
+            return self.camera
+        h = height if height is not None else (int(width) * self.camera.height + self.camera.width // 2) // self.camera.width
+        if not (0 < width <= MAX_IMAGE_SIDE and 0 < h <= MAX_IMAGE_SIDE and width * h <= MAX_FRAME_PIXELS):
+            raise ValueError(f"width/height: {width}×{h} pixels is outside the limits ({MAX_IMAGE_SIDE} per side, {MAX_FRAME_PIXELS} per frame)")
+        return self.camera.resized(width, h)
+
+    # -- evaluation ----------------------------------------------------------------------------
+
+    def _graph(self, stage: str) -> Graph:
+        if "field" in self.graphs:
+            return self.graphs["field"]
+        if stage == "fine" and "fine" in self.graphs:
+            return self.graphs["fine"]
+        return self.graphs["coarse"]
+
+    def field(self, points: np.ndarray, viewdirs: np.ndarray, *, stage: str = "fine") -> Tuple[np.ndarray, np.ndarray]:
+        """Raw network outputs at ``points`` [N, 3] seen along unit ``viewdirs`` [N, 3]:
+        (rgb [N, 3], sigma [N]) float32. ``stage`` picks "coarse" or "fine" for MLP bundles."""
+        points = np.asarray(points, F32).reshape(-1, 3)
+        viewdirs = np.asarray(viewdirs, F32).reshape(-1, 3)
+        if len(points) != len(viewdirs):
+            raise ValueError(f"{len(points)} points but {len(viewdirs)} viewdirs")
+        return self._graph(stage)(points, viewdirs)
+
+    @property
+    def field_seconds(self) -> float:
+        """Wall time spent in onnxruntime calls so far (all graphs)."""
+        return sum(g.seconds for g in self.graphs.values())
+
+    def _check_chunk(self, chunk: int) -> int:
+        per_ray = max(self.n_coarse + self.n_fine, self.march_steps)
+        chunk = check_count(chunk, MAX_CHUNK_SAMPLES, "chunk", "rays")
+        if chunk * per_ray > MAX_CHUNK_SAMPLES:
+            raise ValueError(f"chunk: {chunk} rays × {per_ray} samples is more than the limit of {MAX_CHUNK_SAMPLES} samples")
+        return chunk
+
+    def _render_batch(self, o: np.ndarray, d: np.ndarray, view: np.ndarray) -> R.Marched:
+        """nerf-render's ``render_rays`` for one batch of (already NDC-warped) rays."""
+        min_t = float(R.MIN_TRANSMITTANCE) if self.skip_empty_space else None
+        viewdirs = R.unit(view)
+        if self.grid is not None:
+            samples = R.occupied_samples(self.grid, o, d, self.near, self.far, max(self.march_steps, 1))
+            stage = "fine" if self.n_fine > 0 else "coarse"
+            return R.march_front_to_back(self._graph(stage), o, d, viewdirs, samples, min_t, self.white_background)
+        n = self.n_coarse
+        t = np.broadcast_to(R.stratified(self.near, self.far, n, self.lindisp), (len(o), n))
+        seg = R.MARCH_SEGMENT if min_t is not None else n
+        out = R.march_front_to_back(self._graph("coarse"), o, d, viewdirs, R.dense_packed(np.ascontiguousarray(t), d), min_t,
+                                    self.white_background, seg)
+        if self.n_fine == 0:
+            return out
+        extra = R.importance(t, out.weights.reshape(len(o), n), self.n_fine)
+        t_all = np.sort(np.concatenate([t, extra], axis=1), axis=1)
+        seg = R.MARCH_SEGMENT if min_t is not None else t_all.shape[1]
+        return R.march_front_to_back(self._graph("fine"), o, d, viewdirs, R.dense_packed(t_all, d), min_t,
+                                     self.white_background, seg)
+
+    def render_rays(self, origins: np.ndarray, directions: np.ndarray, *, chunk: int = DEFAULT_CHUNK) -> Rays:
+        """Render world rays ``origins``, ``directions`` [N, 3] (directions not normalised: t is
+        along them; NDC-warped first for a forward-facing bundle, as nerf-render does)."""
+        chunk = self._check_chunk(chunk)
+        o = np.asarray(origins, F32).reshape(-1, 3)
+        d = np.asarray(directions, F32).reshape(-1, 3)
+        parts = [self._render_chunk(o[s:s + chunk], d[s:s + chunk]) for s in range(0, len(o), chunk)]
+        if not parts:
+            return Rays(np.zeros((0, 3), F32), np.zeros(0, F32), np.zeros(0, F32))
+        return Rays(np.concatenate([p.rgb for p in parts]), np.concatenate([p.depth for p in parts]),
+                    np.concatenate([p.acc for p in parts]))
+
+    def _render_chunk(self, o: np.ndarray, d: np.ndarray) -> R.Marched:
+        view = d
+        if self.ndc is not None:
+            o, d = ndc_rays(self.ndc, o, d)
+        return self._render_batch(o, d, view)
+
+    def render(self, c2w: np.ndarray, width: Optional[int] = None, height: Optional[int] = None, *,
+               chunk: int = DEFAULT_CHUNK) -> Frame:
+        """Render the view from camera-to-world ``c2w`` [4, 4] (or 3×4) at the bundle's
+        resolution, or at ``width`` (× ``height``, default keeping the aspect) with the camera
+        rescaled as nerf-render's ``--width``/``--height``. ``chunk`` rays per batch."""
+        chunk = self._check_chunk(chunk)
+        c2w = check_pose(c2w, "c2w", "pose")
+        cam = self.camera_at(width, height)
+        start, field_start = time.perf_counter(), self.field_seconds
+        n = cam.width * cam.height
+        raw = np.empty((n, 5), F32)
+        for s in range(0, n, chunk):
+            e = min(s + chunk, n)
+            idx = np.arange(s, e)
+            o, d = cam.rays(c2w, idx % cam.width, idx // cam.width)
+            out = self._render_chunk(o, d)
+            raw[s:e, :3], raw[s:e, 3], raw[s:e, 4] = out.rgb, out.depth, out.acc
+        raw = raw.reshape(cam.height, cam.width, 5)
+        return Frame(raw[..., :3].copy(), raw[..., 3].copy(), raw[..., 4].copy(),
+                     time.perf_counter() - start, self.field_seconds - field_start)
+
+    def __repr__(self) -> str:
+        return (f"Bundle({self.path!r}, field_kind={self.field_kind!r}, camera={self.camera.width}×{self.camera.height}, "
+                f"graphs={sorted(self.graphs)}, occupancy={'yes' if self.grid is not None else 'no'})")
