@@ -323,13 +323,13 @@ fn python_consumer_refuses_untrusted_bundles() {
     }
 }
 
-/// render_rays.py states the limits of nerf_core::io::limits; they must not drift apart.
+/// The Python package states the limits of nerf_core::io::limits; they must not drift apart.
 #[test]
 fn python_limits_match_the_core() {
     use nerf_core::io::limits::*;
-    let script = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/python/render_rays.py")).unwrap();
+    let script = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../python/nerf_bundle/_validate.py")).unwrap();
     let value = |name: &str| -> u64 {
-        let line = script.lines().find(|l| l.starts_with(&format!("{name} = "))).unwrap_or_else(|| panic!("render_rays.py has no {name}"));
+        let line = script.lines().find(|l| l.starts_with(&format!("{name} = "))).unwrap_or_else(|| panic!("_validate.py has no {name}"));
         line[name.len() + 3..].replace('_', "").trim().parse().unwrap_or_else(|e| panic!("{line}: {e}"))
     };
     assert_eq!(value("MAX_IMAGE_SIDE"), MAX_IMAGE_SIDE as u64);
