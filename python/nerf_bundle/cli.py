@@ -1,9 +1,11 @@
-"""``python -m nerf_bundle render BUNDLE (--split test | --orbit [--frames N]) --out DIR
+"""``python -m nerf_bundle render BUNDLE (--split test | --orbit [--frames N] | --pose FILE) --out DIR
 [--width W [--height H]] [--npy] [--limit K] [--threads N] [--chunk N] [--dense]``
 
 Writes ``<name>.png`` per view (needs Pillow) and, with ``--npy``, ``<name>.npy`` float32
 [H, W, 5] = r, g, b, depth, acc, named as nerf-render names them: a bundle's test views by
-their pose names (``r_0``, ...), orbit frames ``frame_000``, ...."""
+their pose names (``r_0``, ...), orbit frames ``frame_000``, ...; ``--pose FILE`` (JSON: a 4×4
+or 3×4 OpenGL camera-to-world matrix, or an object with ``transform_matrix``) writes ``pose``.
+A line per frame (``k/N``) reports progress."""
 from __future__ import annotations
 
 import argparse
@@ -26,6 +28,7 @@ def _parser() -> argparse.ArgumentParser:
     which = r.add_mutually_exclusive_group(required=True)
     which.add_argument("--split", choices=["test"], help="the bundle's test poses")
     which.add_argument("--orbit", action="store_true", help="the bundle's orbit")
+    which.add_argument("--pose", help="a JSON file: a camera-to-world matrix (OpenGL, the bundle's frame)")
     r.add_argument("--frames", type=int, help="orbit frames (another count than the bundle's: the reference orbit)")
     r.add_argument("--limit", type=int, help="only the first K views")
     r.add_argument("--out", required=True, help="output directory")
@@ -36,6 +39,25 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--chunk", type=int, default=DEFAULT_CHUNK, help="rays per batch")
     r.add_argument("--dense", action="store_true", help="ignore occupancy.bin (as nerf-render --dense)")
     return p
+
+
+def _read_pose(path: str) -> np.ndarray:
+    """A camera-to-world matrix from a JSON file, checked (BundleError names the file)."""
+    import json
+
+    try:
+        with open(path) as f:
+            value = json.load(f)
+    except (OSError, ValueError) as e:
+        raise BundleError(f"{path}: cannot read a pose: {e}") from None
+    if isinstance(value, dict):
+        value = value.get("transform_matrix")
+    m = np.asarray(value, dtype=np.float64) if isinstance(value, list) else None
+    if m is None or m.shape not in ((4, 4), (3, 4)) or not np.isfinite(m).all():
+        raise BundleError(f"{path}: expected a finite 4×4 or 3×4 camera-to-world matrix (or {{\"transform_matrix\": ...}})")
+    full = np.eye(4, dtype=np.float32)
+    full[:3] = m[:3]
+    return full
 
 
 def main(argv: Optional[List[str]] = None) -> int:
@@ -57,10 +79,12 @@ def main(argv: Optional[List[str]] = None) -> int:
         return 2
     try:
         bundle = Bundle.open(a.bundle, threads=a.threads, skip_empty_space=not a.dense)
-        if a.orbit:
+        if a.pose:
+            poses, names = [_read_pose(a.pose)], ["pose"]
+        elif a.orbit:
             poses = bundle.orbit(a.frames)
             names = [f"frame_{k:03}" for k in range(len(poses))]
-        else:
+        if not a.pose and not a.orbit:
             poses, names = bundle.poses("test"), bundle.pose_names("test")
         poses, names = poses[:a.limit], names[:a.limit]
         if not poses:
@@ -77,13 +101,13 @@ def main(argv: Optional[List[str]] = None) -> int:
         print("note: Pillow is not installed: writing .npy only (pip install 'nerf_bundle[images]' for PNGs)", file=sys.stderr)
     os.makedirs(a.out, exist_ok=True)
     start = time.perf_counter()
-    for pose, name in zip(poses, names):
+    for k, (pose, name) in enumerate(zip(poses, names)):
         frame = bundle.render(pose, a.width, a.height, chunk=a.chunk)
         if have_pil:
             frame.to_pil().save(os.path.join(a.out, f"{name}.png"))
         if a.npy:
             np.save(os.path.join(a.out, f"{name}.npy"), frame.raw)
-        print(f"{name}: {frame.seconds:.2f} s ({frame.field_seconds:.2f} s in onnxruntime)", file=sys.stderr)
+        print(f"{k + 1}/{len(poses)} {name}: {frame.seconds:.2f} s ({frame.field_seconds:.2f} s in onnxruntime)", file=sys.stderr)
     seconds = time.perf_counter() - start
     print(f"{len(poses)} frames at {cam.width}×{cam.height} in {seconds:.1f} s ({seconds / len(poses):.2f} s per frame, "
           f"{'dense sampling' if bundle.grid is None else 'empty space skipped' if not a.dense else 'marched through the box'}) into {a.out}")

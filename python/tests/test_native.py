@@ -1,6 +1,7 @@
 """Whole frames against nerf-render --npy: max |Δ| ≤ 1e-4 on rgb, depth and acc."""
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 
@@ -86,3 +87,19 @@ def test_another_orbit_frame_count_is_the_reference_orbit(nerf_render):
     poses = bundle.orbit(3)
     assert len(poses) == 3
     check(bundle.render(poses[0], width=32), native)
+
+
+def test_cli_renders_a_pose_from_a_file_and_refuses_a_bad_one(tmp_path):
+    bundle = nerf_bundle.Bundle.open(MODELS / "spheres")
+    pose = bundle.poses("test")[1]
+    (tmp_path / "pose.json").write_text(json.dumps({"transform_matrix": pose.tolist()}))
+    out = tmp_path / "out"
+    done = subprocess.run([sys.executable, "-m", "nerf_bundle", "render", str(MODELS / "spheres"), "--pose", str(tmp_path / "pose.json"),
+                           "--width", "16", "--out", str(out), "--npy"], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert "1/1 pose" in done.stderr
+    assert np.array_equal(np.load(out / "pose.npy"), bundle.render(pose, width=16).raw)
+    (tmp_path / "bad.json").write_text("[[1, 2], [3, 4]]")
+    done = subprocess.run([sys.executable, "-m", "nerf_bundle", "render", str(MODELS / "spheres"), "--pose", str(tmp_path / "bad.json"),
+                           "--out", str(out)], capture_output=True, text=True)
+    assert done.returncode != 0 and "bad.json" in done.stderr and "4×4" in done.stderr, done.stderr
