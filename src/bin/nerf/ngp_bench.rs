@@ -184,13 +184,7 @@ fn floor(plain: &PlainNgp, points: &[[f32; 3]], dir: &Path) -> Result<f64> {
     let values = g.node("Gather", &[&table, &cast], "values", vec![int_attribute("axis", 0)]);
     let shape = g.i64_constant("shape", &[0, levels.len() as i64, 8 * f as i64]);
     let flat = g.node("Reshape", &[&values, &shape], "flat", vec![]);
-    let mut sum = vec![0.0f32; 8 * f * f];
-    for k in 0..8 {
-        for j in 0..f {
-            sum[(k * f + j) * f + j] = 1.0;
-        }
-    }
-    let sum = g.f32_tensor("corner_sum", &[8 * f, f], &sum);
+    let sum = g.f32_tensor("corner_sum", &[8 * f, f], &nerf_export::field::ngp::hash_grid::corner_sum(f));
     let summed = g.node("MatMul", &[&flat, &sum], "summed", vec![]);
     let shape = g.i64_constant("out_shape", &[0, (levels.len() * f) as i64]);
     g.node("Reshape", &[&summed, &shape], "features", vec![]);

@@ -143,6 +143,17 @@ pub(crate) fn slice(g: &mut Builder, input: &str, (start, end): (i64, i64), axis
     g.node("Slice", &[input, &s, &e, &a], output, vec![])
 }
 
+/// The 0/1 matrix `[8·F, F]` that sums corner-major rows `[8·F]` over the 8 corners per feature.
+pub fn corner_sum(f: usize) -> Vec<f32> {
+    let mut sum = vec![0.0f32; 8 * f * f];
+    for k in 0..8 {
+        for j in 0..f {
+            sum[(k * f + j) * f + j] = 1.0;
+        }
+    }
+    sum
+}
+
 /// The hash-grid encoding of world points `input [N, 3]` → `[N, L·F]` (module doc).
 pub(crate) fn lower_hash_grid(g: &mut Builder, input: &str, grid: &HashGrid, bound: &GridBound, ops: HashOps, precision: TablePrecision) -> Result<String, ExportError> {
     let levels = grid.levels();
@@ -238,13 +249,7 @@ pub(crate) fn lower_hash_grid(g: &mut Builder, input: &str, grid: &HashGrid, bou
     let flat_shape = g.i64_constant("grid.values_flat_shape", &[l, -1, 8 * f]);
     let flat = g.node("Reshape", &[&values, &flat_shape], "grid.values_flat", vec![]);
     let weighted = g.node("Mul", &[&flat, &weight], "grid.weighted", vec![]);
-    let mut sum = vec![0.0f32; 8 * fu * fu];
-    for k in 0..8 {
-        for j in 0..fu {
-            sum[(k * fu + j) * fu + j] = 1.0;
-        }
-    }
-    let sum = g.f32_tensor("grid.corner_sum", &[8 * fu, fu], &sum);
+    let sum = g.f32_tensor("grid.corner_sum", &[8 * fu, fu], &corner_sum(fu));
     let summed = g.node("MatMul", &[&weighted, &sum], "grid.summed", vec![]);
     // [L, N, F] → [N, L, F] → [N, L·F], level-major per point as the Rust encoding.
     let point_major = g.node("Transpose", &[&summed], "grid.point_major", vec![ints_attribute("perm", &[1, 0, 2])]);
