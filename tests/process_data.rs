@@ -164,6 +164,12 @@ fn colmap_on_the_fox_photos_recovers_the_shipped_poses() {
     for log in ["1-features.log", "2-matching.log", "3-mapping.log"] {
         assert!(out.join("colmap").join(log).is_file(), "{log} kept");
     }
+    // Shrunk copies as nerfstudio writes them (216×384 divides by 2, 4 and 8).
+    assert!(text.contains("images_2/, images_4/, images_8/"), "{text}");
+    for (f, size) in [(2, (108, 192)), (4, (54, 96)), (8, (27, 48))] {
+        let copy = out.join(format!("images_{f}/0002.png"));
+        assert_eq!(image::image_dimensions(&copy).unwrap(), size, "{}", copy.display());
+    }
     let read = |p: &Path| -> Vec<(String, Vec<Vec<f64>>)> {
         let t: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap();
         let name = |f: &serde_json::Value| Path::new(f["file_path"].as_str().unwrap()).file_name().unwrap().to_string_lossy().into_owned();
@@ -253,4 +259,55 @@ fn missing_tools_say_how_to_install_them() {
     let (ok, text) = run(&["process-data", "--video", s(&video), "--out", s(&dir.path().join("b"))]);
     assert!(!ok && text.contains("apt-get install ffmpeg"), "{text}");
     assert!(!dir.path().join("a").exists() && !dir.path().join("b").exists());
+}
+
+/// Fewer than three photos: nothing to reconstruct, said before COLMAP runs; nothing written.
+#[test]
+fn too_few_photos_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let photos = dir.path().join("photos");
+    std::fs::create_dir_all(&photos).unwrap();
+    for name in ["0002.jpg", "0003.jpg"] {
+        std::fs::copy(fox().join("images").join(name), photos.join(name)).unwrap();
+    }
+    std::fs::write(photos.join("notes.txt"), "not a photo").unwrap();
+    let out = dir.path().join("out");
+    let (ok, text) = nerf(&["process-data", "--images", s(&photos), "--out", s(&out)]);
+    assert!(!ok && text.contains("photos") && text.contains("2 .png/.jpg images: at least 3"), "{text}");
+    let (ok, text) = nerf(&["process-data", "--images", s(&dir.path().join("missing")), "--out", s(&out)]);
+    assert!(!ok && text.contains("missing"), "{text}");
+    assert!(!out.exists());
+}
+
+/// `--matcher vocab-tree` with a tree COLMAP built from the fox's own features registers the
+/// photos; without a tree, or with a missing file, the error says where trees come from.
+#[test]
+fn the_vocab_tree_matcher_registers_the_fox() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let photos = fox().join("images");
+    let (ok, text) = nerf(&["process-data", "--images", s(&photos), "--matcher", "vocab-tree", "--out", s(&out)]);
+    assert!(!ok && text.contains("--vocab-tree FILE") && text.contains("vocab_tree_builder"), "{text}");
+    let tree = dir.path().join("tree.bin");
+    let (ok, text) = nerf(&["process-data", "--images", s(&photos), "--matcher", "vocab-tree", "--vocab-tree", s(&tree), "--out", s(&out)]);
+    assert!(!ok && text.contains("tree.bin") && text.contains("no such vocabulary tree"), "{text}");
+    assert!(!out.exists());
+
+    // A small tree (1,024 words) from the photos' SIFT features.
+    let db = dir.path().join("features.db");
+    let colmap = |args: &[&str]| {
+        let status = std::process::Command::new("colmap").args(args).env("QT_QPA_PLATFORM", "offscreen").stdout(std::process::Stdio::null()).stderr(std::process::Stdio::null()).status();
+        assert!(status.expect("colmap (.ci/run installs it)").success(), "colmap {args:?}");
+    };
+    colmap(&["feature_extractor", "--database_path", s(&db), "--image_path", s(&photos), "--SiftExtraction.use_gpu", "0"]);
+    colmap(&["vocab_tree_builder", "--database_path", s(&db), "--vocab_tree_path", s(&tree), "--num_visual_words", "1024", "--branching", "32"]);
+    let (ok, text) = nerf(&["process-data", "--images", s(&photos), "--matcher", "vocab-tree", "--vocab-tree", s(&tree), "--downscales", "0", "--out", s(&out)]);
+    assert!(ok, "{text}");
+    let t: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("transforms.json")).unwrap()).unwrap();
+    let n = t["frames"].as_array().unwrap().len();
+    println!("vocab tree: {n} of 45 registered");
+    assert!(n >= 43, "{n} of 45 registered");
+    let matching = std::fs::read_to_string(out.join("colmap/2-matching.log")).unwrap();
+    assert!(matching.contains("vocab") || matching.contains("Vocab"), "the vocab-tree matcher ran: {matching}");
+    assert!(!out.join("images_2").exists(), "--downscales 0 writes no shrunk copies");
 }

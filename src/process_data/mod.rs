@@ -3,18 +3,32 @@
 //! folder holding the registered images, and `colmap/` with COLMAP's logs and model when it ran.
 //! The conventions are in [`nerf_core::dataset::colmap`]; the tools in [`tools`].
 
+pub mod frames;
 pub mod tools;
 
 use crate::error::Result;
 use nerf_core::dataset::colmap::{ColmapModel, model_dirs, read_model, transforms_json};
+use nerf_core::dataset::write_prescaled;
 use nerf_core::io::atomic::write_dir_atomic;
 use nerf_core::Error as CoreError;
+use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 
 /// Fewer registered images than this share of the folder's gets a warning.
 pub const WARN_REGISTERED: f64 = 0.9;
 /// Fewer registered images than this is an error: nothing to train on.
 pub const MIN_REGISTERED: usize = 3;
+
+/// What is written besides `transforms.json` and `images/`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OutputOptions {
+    /// Shrunk copies of the images, as nerfstudio writes them: `images_2/`, `images_4/`, … up
+    /// to `2^downscales` (a factor that does not divide the images' sides is skipped). `nerf
+    /// train --downscale N` reads `images_N/` when it is there.
+    pub downscales: u32,
+    /// Progress on stderr.
+    pub progress: bool,
+}
 
 /// What a conversion did.
 #[derive(Debug, Clone, PartialEq)]
@@ -27,6 +41,8 @@ pub struct Processed {
     pub registered: usize,
     /// Images of the folder the model did not register, by name.
     pub dropped: Vec<String>,
+    /// The factors of the shrunk copies written (`images_2/`, …).
+    pub downscaled: Vec<u32>,
 }
 
 /// Image files in `dir` (by extension), sorted by name.
@@ -43,37 +59,48 @@ fn image_files(dir: &Path) -> Result<Vec<String>> {
 }
 
 /// Run COLMAP on the photos in `images` and convert its model into `out`.
-pub fn process_images(images: &Path, out: &Path, camera: tools::ColmapCamera, matcher: tools::Matcher, progress: bool) -> Result<Processed> {
-    if image_files(images)?.len() < MIN_REGISTERED {
-        return Err(CoreError::invalid(images, format!("fewer than {MIN_REGISTERED} .png/.jpg images: nothing to reconstruct")).into());
+pub fn process_images(images: &Path, out: &Path, colmap: &tools::ColmapOptions, output: &OutputOptions) -> Result<Processed> {
+    let n = image_files(images)?.len();
+    if n < MIN_REGISTERED {
+        return Err(CoreError::invalid(images, format!("{n} .png/.jpg images: at least {MIN_REGISTERED} are needed to reconstruct anything")).into());
     }
     let work = tempfile::tempdir().map_err(|e| CoreError::io(std::env::temp_dir(), e))?;
-    let sparse = tools::run_colmap(images, work.path(), camera, matcher, progress)?;
-    convert(&sparse, images, out, Some(work.path()))
+    let sparse = tools::run_colmap(images, work.path(), colmap, output.progress)?;
+    convert(&sparse, images, out, Some(work.path()), output)
 }
 
-/// Pick about `frames` frames of `video` with ffmpeg, run COLMAP on them (`matcher`: sequential
-/// suits a video) and convert its model into `out`.
-pub fn process_video(video: &Path, frames: usize, out: &Path, camera: tools::ColmapCamera, matcher: tools::Matcher, progress: bool) -> Result<Processed> {
+/// Which frames of a video to take.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FrameOptions {
+    /// About this many frames, evenly over the video.
+    pub count: usize,
+    /// Each frame is the sharpest of this many candidates around its time (1: no choice).
+    pub sharpest_of: usize,
+}
+
+/// Pick frames of `video` with ffmpeg, run COLMAP on them (sequential matching suits a
+/// video) and convert its model into `out`.
+pub fn process_video(video: &Path, frames: FrameOptions, out: &Path, colmap: &tools::ColmapOptions, output: &OutputOptions) -> Result<Processed> {
     let work = tempfile::tempdir().map_err(|e| CoreError::io(std::env::temp_dir(), e))?;
+    let candidates = work.path().join("candidates");
+    tools::extract_frames(video, frames.count * frames.sharpest_of.max(1), &candidates, work.path(), output.progress)?;
     let images = work.path().join("frames");
-    tools::extract_frames(video, frames, &images, work.path(), progress)?;
-    let n = image_files(&images)?.len();
+    let n = frames::keep_sharpest(&candidates, frames.sharpest_of, &images)?;
     if n < MIN_REGISTERED {
         return Err(CoreError::invalid(video, format!("ffmpeg gave {n} frames: too short a video, or ask for more with --frames")).into());
     }
-    let sparse = tools::run_colmap(&images, work.path(), camera, matcher, progress)?;
-    convert(&sparse, &images, out, Some(work.path()))
+    let sparse = tools::run_colmap(&images, work.path(), colmap, output.progress)?;
+    convert(&sparse, &images, out, Some(work.path()), output)
 }
 
 /// Convert the COLMAP model at `model` (a model folder, or a project with `sparse/N`) of the
 /// images in `images` into `out` (written whole or not at all).
-pub fn convert_colmap(model: &Path, images: &Path, out: &Path) -> Result<Processed> {
-    convert(model, images, out, None)
+pub fn convert_colmap(model: &Path, images: &Path, out: &Path, output: &OutputOptions) -> Result<Processed> {
+    convert(model, images, out, None, output)
 }
 
 /// [`convert_colmap`], keeping COLMAP's logs and models from `work` in `out/colmap/`.
-fn convert(model: &Path, images: &Path, out: &Path, work: Option<&Path>) -> Result<Processed> {
+fn convert(model: &Path, images: &Path, out: &Path, work: Option<&Path>, output: &OutputOptions) -> Result<Processed> {
     let candidates = model_dirs(model);
     if candidates.is_empty() {
         return Err(CoreError::invalid(model, "not a COLMAP sparse model or project: no cameras.bin/cameras.txt here or in sparse/*").into());
@@ -100,6 +127,7 @@ fn convert(model: &Path, images: &Path, out: &Path, work: Option<&Path>) -> Resu
         }
     }
     let json = transforms_json(&model_dir, &colmap, "images")?;
+    let downscaled = downscale_factors(images, &colmap, output.downscales)?;
     write_dir_atomic(out, |tmp| {
         let dst = tmp.join("images");
         for image in &colmap.images {
@@ -109,6 +137,7 @@ fn convert(model: &Path, images: &Path, out: &Path, work: Option<&Path>) -> Resu
             }
             std::fs::copy(images.join(&image.name), &to).map_err(|e| CoreError::io(&to, e))?;
         }
+        write_downscaled(&dst, &colmap, &downscaled, output.progress)?;
         if let Some(work) = work {
             copy_logs(work, &tmp.join("colmap"))?;
         }
@@ -122,7 +151,38 @@ fn convert(model: &Path, images: &Path, out: &Path, work: Option<&Path>) -> Resu
         Some(rel) => out.join("colmap").join(rel),
         None => model_dir,
     };
-    Ok(Processed { model, images: in_folder.len(), registered: colmap.images.len(), dropped })
+    Ok(Processed { model, images: in_folder.len(), registered: colmap.images.len(), dropped, downscaled })
+}
+
+/// The factors 2, 4, … 2^`count` that divide the sides of every registered image.
+fn downscale_factors(images: &Path, colmap: &ColmapModel, count: u32) -> Result<Vec<u32>> {
+    let mut sizes = Vec::new();
+    for image in &colmap.images {
+        let path = images.join(&image.name);
+        let size = image::image_dimensions(&path).map_err(|source| CoreError::Image { path: path.clone(), source })?;
+        if !sizes.contains(&size) {
+            sizes.push(size);
+        }
+    }
+    let divides = |f: u32| sizes.iter().all(|&(w, h)| w.is_multiple_of(f) && h.is_multiple_of(f));
+    Ok((1..=count.min(8)).map(|k| 1u32 << k).filter(|&f| divides(f)).collect())
+}
+
+/// Shrunk copies (`images_2/`, …) of the registered images in `images`.
+fn write_downscaled(images: &Path, colmap: &ColmapModel, factors: &[u32], progress: bool) -> nerf_core::Result<()> {
+    if factors.is_empty() {
+        return Ok(());
+    }
+    let bar = if progress { indicatif::ProgressBar::new(colmap.images.len() as u64) } else { indicatif::ProgressBar::hidden() };
+    bar.set_style(indicatif::ProgressStyle::with_template("{msg} {bar:30} {pos}/{len} {elapsed}").expect("a valid template"));
+    bar.set_message(format!("shrunk copies (÷{})", factors.iter().map(u32::to_string).collect::<Vec<_>>().join(", ÷")));
+    colmap.images.par_iter().try_for_each(|image| {
+        write_prescaled(&images.join(&image.name), factors)?;
+        bar.inc(1);
+        Ok(())
+    })?;
+    bar.finish_and_clear();
+    Ok(())
 }
 
 /// COLMAP's stage logs and sparse models from `work` into `to`.

@@ -14,6 +14,40 @@ pub enum Matcher {
     Exhaustive,
     /// Each image with its neighbours in name order: videos.
     Sequential,
+    /// Each image with those a vocabulary tree (`--vocab-tree FILE`) finds most similar:
+    /// hundreds of photos and more, where exhaustive matching is too slow.
+    VocabTree,
+}
+
+/// How COLMAP runs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ColmapOptions {
+    /// The camera model, one camera shared by all images.
+    pub camera: ColmapCamera,
+    /// The matcher.
+    pub matcher: Matcher,
+    /// COLMAP's vocabulary tree file, for [`Matcher::VocabTree`].
+    pub vocab_tree: Option<PathBuf>,
+}
+
+impl ColmapOptions {
+    /// The matcher's arguments to `colmap`, or an error when the vocabulary tree is missing.
+    fn matching_args(&self) -> Result<Vec<std::ffi::OsString>> {
+        let os = std::ffi::OsString::from;
+        Ok(match self.matcher {
+            Matcher::Exhaustive => vec![os("exhaustive_matcher")],
+            Matcher::Sequential => vec![os("sequential_matcher")],
+            Matcher::VocabTree => {
+                let Some(tree) = &self.vocab_tree else {
+                    return Err(Error::Config(format!("--matcher vocab-tree needs --vocab-tree FILE: {GET_VOCAB_TREE}")));
+                };
+                if !tree.is_file() {
+                    return Err(nerf_core::Error::invalid(tree, format!("no such vocabulary tree file: {GET_VOCAB_TREE}")).into());
+                }
+                vec![os("vocab_tree_matcher"), os("--VocabTreeMatching.vocab_tree_path"), tree.as_os_str().to_os_string()]
+            }
+        })
+    }
 }
 
 /// Camera models COLMAP estimates (one shared camera) that `process-data` converts.
@@ -38,28 +72,87 @@ impl ColmapCamera {
 }
 
 const INSTALL_COLMAP: &str = "install COLMAP (Debian/Ubuntu: `apt-get install colmap`; others: https://colmap.github.io/install.html)";
+const GET_VOCAB_TREE: &str = "COLMAP's trees are at https://demuc.de/colmap/#download (vocab_tree_flickr100K_words32K.bin suits up to a few thousand images), or build one from a database of your own photos with `colmap vocab_tree_builder`";
 const INSTALL_FFMPEG: &str = "install ffmpeg (Debian/Ubuntu: `apt-get install ffmpeg`)";
 
-/// Run `program args` with its output in `log`, showing `stage` with a spinner; an error
+/// How far a stage is, read from a line of its log: COLMAP's `Processed file [i/n]`,
+/// `Matching image [i/n]`, `Matching block [i/n, j/m]`, the mapper's `Registering image #id
+/// (k)` (k images registered, of `images`), ffmpeg's `frame= k` (of `images` frames).
+///
+/// Example: `Matching block [2/3, 1/3]` → (4, 9); with 45 images, `Registering image #7 (12)`
+/// → (12, 45).
+pub fn progress_of(line: &str, images: u64) -> Option<(u64, u64)> {
+    let fraction = |s: &str| -> Option<(u64, u64)> {
+        let (a, b) = s.split_once('/')?;
+        Some((a.trim().parse().ok()?, b.trim().parse().ok()?))
+    };
+    let line = line.trim();
+    if let Some(rest) = line.strip_prefix("Matching block [") {
+        let (outer, inner) = rest.split_once(']')?.0.split_once(',')?;
+        let ((i, n), (j, m)) = (fraction(outer)?, fraction(inner)?);
+        return Some(((i.max(1) - 1) * m + j, n * m));
+    }
+    if let Some(rest) = line.strip_prefix("Processed file [").or_else(|| line.strip_prefix("Matching image [")) {
+        return fraction(rest.split_once(']')?.0);
+    }
+    if line.starts_with("Registering image #") {
+        let k = line.rsplit_once('(')?.1.strip_suffix(')')?.parse().ok()?;
+        return Some((k, images));
+    }
+    let k = line.strip_prefix("frame=")?.split_whitespace().next()?.parse().ok()?;
+    Some((k, images))
+}
+
+/// The bytes of `path` from `offset` on (`None` if it cannot be read).
+fn bytes_from(path: &Path, offset: usize) -> Option<Vec<u8>> {
+    use std::io::{Read, Seek};
+    let mut file = std::fs::File::open(path).ok()?;
+    file.seek(std::io::SeekFrom::Start(offset as u64)).ok()?;
+    let mut bytes = Vec::new();
+    file.read_to_end(&mut bytes).ok()?;
+    Some(bytes)
+}
+
+/// Run `program args` with its output in `log`, showing `what` with a progress bar fed by
+/// the log ([`progress_of`]; `images`: the count a stage's own lines do not give); an error
 /// quotes the end of the log.
-fn stage(program: &str, args: &[&std::ffi::OsStr], log: &Path, what: &str, install: &str, progress: bool) -> Result<()> {
+fn stage(program: &str, args: &[&std::ffi::OsStr], log: &Path, what: &str, install: &str, images: u64, progress: bool) -> Result<()> {
     let file = std::fs::File::create(log).map_err(|e| nerf_core::Error::io(log, e))?;
-    let bar = if progress { ProgressBar::new_spinner() } else { ProgressBar::hidden() };
-    bar.set_style(ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("a valid template"));
+    let bar = if progress { ProgressBar::new(images) } else { ProgressBar::hidden() };
+    bar.set_style(ProgressStyle::with_template("{msg} {bar:30} {pos}/{len} {elapsed}").expect("a valid template"));
     bar.set_message(what.to_string());
-    bar.enable_steady_tick(std::time::Duration::from_millis(200));
-    let status = Command::new(program)
+    let started = std::time::Instant::now();
+    let child = Command::new(program)
         .args(args)
         .env("QT_QPA_PLATFORM", "offscreen")
         .stdin(Stdio::null())
         .stdout(file.try_clone().map_err(|e| nerf_core::Error::io(log, e))?)
         .stderr(file)
-        .status();
-    bar.finish_and_clear();
-    let status = status.map_err(|e| Error::External {
+        .spawn();
+    let mut child = child.map_err(|e| Error::External {
         program: program.into(),
         problem: if e.kind() == std::io::ErrorKind::NotFound { format!("not found: {install}") } else { e.to_string() },
     })?;
+    let mut read = 0usize;
+    let status = loop {
+        let done = child.try_wait().map_err(|e| Error::External { program: program.into(), problem: e.to_string() })?;
+        // The log so far, from where the last look stopped (ffmpeg ends its lines with \r).
+        if let Some(text) = bytes_from(log, read) {
+            let fresh = String::from_utf8_lossy(&text).into_owned();
+            if let Some(cut) = fresh.rfind(['\n', '\r']) {
+                read += cut + 1;
+                if let Some((k, n)) = fresh[..cut].split(['\n', '\r']).filter_map(|l| progress_of(l, images)).last() {
+                    bar.set_length(n);
+                    bar.set_position(k.min(n));
+                }
+            }
+        }
+        match done {
+            Some(status) => break status,
+            None => std::thread::sleep(std::time::Duration::from_millis(200)),
+        }
+    };
+    bar.finish_and_clear();
     if !status.success() {
         let text = std::fs::read_to_string(log).unwrap_or_default();
         let tail: Vec<&str> = text.lines().rev().take(8).collect();
@@ -67,33 +160,32 @@ fn stage(program: &str, args: &[&std::ffi::OsStr], log: &Path, what: &str, insta
         return Err(Error::External { program: program.into(), problem: format!("{what} failed ({status}); the end of {}:\n{}", log.display(), tail.join("\n")) });
     }
     if progress {
-        eprintln!("{what}: done");
+        eprintln!("{what}: done in {:.0} s", started.elapsed().as_secs_f64());
     }
     Ok(())
 }
 
 /// Run COLMAP on `images` in `work` (database, logs, `sparse/N`); returns the sparse folder.
-pub fn run_colmap(images: &Path, work: &Path, camera: ColmapCamera, matcher: Matcher, progress: bool) -> Result<PathBuf> {
+pub fn run_colmap(images: &Path, work: &Path, options: &ColmapOptions, progress: bool) -> Result<PathBuf> {
+    let matching = options.matching_args()?;
+    let images_count = std::fs::read_dir(images).map_err(|e| nerf_core::Error::io(images, e))?.count() as u64;
     let db = work.join("database.db");
     let sparse = work.join("sparse");
     std::fs::create_dir_all(&sparse).map_err(|e| nerf_core::Error::io(&sparse, e))?;
     let os = |s: &str| std::ffi::OsString::from(s);
     let path = |p: &Path| p.as_os_str().to_os_string();
-    let extract = [os("feature_extractor"), os("--database_path"), path(&db), os("--image_path"), path(images), os("--ImageReader.single_camera"), os("1"), os("--ImageReader.camera_model"), os(camera.name()), os("--SiftExtraction.use_gpu"), os("0")];
-    let matching = match matcher {
-        Matcher::Exhaustive => os("exhaustive_matcher"),
-        Matcher::Sequential => os("sequential_matcher"),
-    };
-    let matching = [matching, os("--database_path"), path(&db), os("--SiftMatching.use_gpu"), os("0")];
+    let extract = [os("feature_extractor"), os("--database_path"), path(&db), os("--image_path"), path(images), os("--ImageReader.single_camera"), os("1"), os("--ImageReader.camera_model"), os(options.camera.name()), os("--SiftExtraction.use_gpu"), os("0")];
+    let matching = [matching, vec![os("--database_path"), path(&db), os("--SiftMatching.use_gpu"), os("0")]].concat();
     let map = [os("mapper"), os("--database_path"), path(&db), os("--image_path"), path(images), os("--output_path"), path(&sparse)];
     for (args, log, what) in [(&extract[..], "1-features.log", "COLMAP: features"), (&matching[..], "2-matching.log", "COLMAP: matching"), (&map[..], "3-mapping.log", "COLMAP: mapping")] {
         let args: Vec<&std::ffi::OsStr> = args.iter().map(|a| a.as_os_str()).collect();
-        stage("colmap", &args, &work.join(log), what, INSTALL_COLMAP, progress)?;
+        stage("colmap", &args, &work.join(log), what, INSTALL_COLMAP, images_count, progress)?;
     }
     Ok(sparse)
 }
 
-/// About `count` frames picked evenly over `video`, as JPEGs in `out` (ffmpeg).
+/// About `count` frames picked evenly over `video`, as JPEGs named in time order in `out`
+/// (ffmpeg).
 pub fn extract_frames(video: &Path, count: usize, out: &Path, work: &Path, progress: bool) -> Result<()> {
     if !video.is_file() {
         return Err(nerf_core::Error::invalid(video, "no such video file").into());
@@ -110,5 +202,23 @@ pub fn extract_frames(video: &Path, count: usize, out: &Path, work: &Path, progr
     let fps = format!("fps={:.6}", count.max(1) as f64 / duration);
     let pattern = out.join("frame_%05d.jpg");
     let args = [std::ffi::OsStr::new("-nostdin"), "-i".as_ref(), video.as_os_str(), "-vf".as_ref(), fps.as_ref(), "-q:v".as_ref(), "2".as_ref(), pattern.as_os_str()];
-    stage("ffmpeg", &args, &work.join("0-frames.log"), "ffmpeg: frames", INSTALL_FFMPEG, progress)
+    stage("ffmpeg", &args, &work.join("0-frames.log"), "ffmpeg: frames", INSTALL_FFMPEG, count as u64, progress)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn progress_is_read_from_the_tools_logs() {
+        assert_eq!(progress_of("Processed file [12/45]", 45), Some((12, 45)));
+        assert_eq!(progress_of("Matching image [3/40] in 0.688s", 40), Some((3, 40)));
+        assert_eq!(progress_of("Matching block [2/3, 1/3] in 36.4s", 45), Some((4, 9)));
+        assert_eq!(progress_of("Matching block [1/1, 1/1] in 36.425s", 45), Some((1, 1)));
+        assert_eq!(progress_of("Registering image #14 (4)", 45), Some((4, 45)));
+        assert_eq!(progress_of("frame=  120 fps=0.0 q=2.0 Lsize=N/A", 120), Some((120, 120)));
+        for other in ["Elapsed time: 1.117 [minutes]", "  Features:       8192", "Registering image #14", ""] {
+            assert_eq!(progress_of(other, 45), None, "{other}");
+        }
+    }
 }

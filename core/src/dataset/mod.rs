@@ -17,7 +17,7 @@ mod source;
 mod synthetic;
 
 pub use blender::{Frame, Transforms, image_path, load_blender, load_split, transforms_path};
-pub use images::{Background, check_divisible, load_image};
+pub use images::{Background, check_divisible, load_image, prescaled_path, write_prescaled};
 pub use scene_fit::{CameraPath, OrbitPath, SpiralPath, field_near_far, fit_to_field};
 pub use source::{Dataset, LoadOptions, SceneFrame, ScenePlacement, load_dataset};
 pub use capture::{

@@ -130,6 +130,10 @@ enum Command {
         /// Frames to take from --video.
         #[arg(long, default_value_t = 120, requires = "video")]
         frames: usize,
+        /// Each frame of --video is the sharpest (least blurred) of this many candidates around
+        /// its time; 1 takes frames at even times only.
+        #[arg(long, default_value_t = 3, requires = "video")]
+        sharpest_of: usize,
         /// An existing COLMAP model of --images, converted without running COLMAP: a sparse
         /// model folder (cameras.bin/images.bin or .txt) or a project holding sparse/0, … (the
         /// largest model is used).
@@ -141,6 +145,13 @@ enum Command {
         /// COLMAP's matcher (default: exhaustive for photos, sequential for a video).
         #[arg(long, value_enum)]
         matcher: Option<nerf::process_data::tools::Matcher>,
+        /// COLMAP's vocabulary tree file, for --matcher vocab-tree.
+        #[arg(long)]
+        vocab_tree: Option<PathBuf>,
+        /// Also write shrunk copies of the images: images_2/, images_4/, … up to 2^N, as
+        /// nerfstudio does (`nerf train --downscale 4` reads images_4/). 0: none.
+        #[arg(long, default_value_t = 3)]
+        downscales: u32,
         /// Output capture directory (written whole or not at all).
         #[arg(long)]
         out: PathBuf,
@@ -235,10 +246,14 @@ enum BenchPart {
 }
 
 /// `--frames` for a video: at least 3, at most the frame limit.
-fn limits_frames(frames: usize) -> Result<()> {
-    nerf_core::io::limits::check_count(frames, nerf_core::io::limits::MAX_FRAMES, "frames", nerf_core::io::limits::Origin::Option("--frames"))?;
+fn limits_frames(frames: usize, sharpest_of: usize) -> Result<()> {
+    use nerf_core::io::limits::{check_count, Origin, MAX_FRAMES};
+    check_count(frames, MAX_FRAMES, "frames", Origin::Option("--frames"))?;
     if frames < 3 {
         bail!("--frames {frames}: a reconstruction needs at least 3");
+    }
+    if !(1..=10).contains(&sharpest_of) {
+        bail!("--sharpest-of {sharpest_of}: give 1 (no choice) to 10 candidates per frame");
     }
     Ok(())
 }
@@ -283,18 +298,24 @@ fn main() -> Result<()> {
             (false, Some(_), None) => bail!("--split needs --data <scene dir>"),
             _ => bail!("say what to render: --orbit, or --split <val|test> --data <scene dir>"),
         },
-        Command::ProcessData { images, video, frames, colmap_model, camera_model, matcher, out } => {
-            use nerf::process_data::{convert_colmap, process_images, process_video, tools::Matcher};
-            limits_frames(frames)?;
+        Command::ProcessData { images, video, frames, sharpest_of, colmap_model, camera_model, matcher, vocab_tree, downscales, out } => {
+            use nerf::process_data::{convert_colmap, process_images, process_video, tools::{ColmapOptions, Matcher}, FrameOptions, OutputOptions};
+            limits_frames(frames, sharpest_of)?;
+            let output = OutputOptions { downscales, progress };
+            let colmap = |default| ColmapOptions { camera: camera_model, matcher: matcher.unwrap_or(default), vocab_tree: vocab_tree.clone() };
             let p = match (images, video, colmap_model) {
-                (Some(images), _, Some(model)) => convert_colmap(&model, &images, &out)?,
-                (Some(images), _, None) => process_images(&images, &out, camera_model, matcher.unwrap_or(Matcher::Exhaustive), progress)?,
-                (None, Some(video), _) => process_video(&video, frames, &out, camera_model, matcher.unwrap_or(Matcher::Sequential), progress)?,
+                (Some(images), _, Some(model)) => convert_colmap(&model, &images, &out, &output)?,
+                (Some(images), _, None) => process_images(&images, &out, &colmap(Matcher::Exhaustive), &output)?,
+                (None, Some(video), _) => process_video(&video, FrameOptions { count: frames, sharpest_of }, &out, &colmap(Matcher::Sequential), &output)?,
                 (None, None, _) => bail!("say what to process: --images DIR or --video FILE"),
             };
             println!("{} of {} images registered (model {}): {}", p.registered, p.images, p.model.display(), out.join("transforms.json").display());
             if (p.registered as f64) < nerf::process_data::WARN_REGISTERED * p.images as f64 {
                 eprintln!("warning: {} images were not registered: {}", p.dropped.len(), p.dropped.join(", "));
+            }
+            if !p.downscaled.is_empty() {
+                let folders: Vec<String> = p.downscaled.iter().map(|f| format!("images_{f}/")).collect();
+                println!("shrunk copies: {} (read by nerf train --downscale N)", folders.join(", "));
             }
             println!("train with: nerf train --data {} --out <run-dir>", out.display());
         }
