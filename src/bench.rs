@@ -58,14 +58,15 @@ pub fn bench_train_step(preset: Preset, data: Option<&Path>, downscale: u32, war
     let mut config = preset.config();
     config.precrop_iters = 0;
     let batch_rays = config.batch_rays;
-    let mut trainer = crate::field::trainer(config, train)?;
+    let mut trainer = crate::field::trainer(config.clone(), train)?;
+    let lr = |step: usize| config.learning_rate(step, step as f64 / config.iters as f64);
     for _ in 0..warmup {
-        trainer.step();
+        trainer.step(lr(trainer.steps_done()));
     }
     let mut total = StepTiming::default();
     let mut samples = 0;
     for _ in 0..steps {
-        let stats = trainer.step();
+        let stats = trainer.step(lr(trainer.steps_done()));
         let t = stats.timing;
         total.forward_s += t.forward_s;
         total.backward_s += t.backward_s;

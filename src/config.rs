@@ -60,6 +60,7 @@ impl Preset {
                 iters: 200_000,
                 lr: 5e-4,
                 lr_decay_ksteps: 500.0,
+                lr_schedule: crate::train::LrSchedule::Exponential,
                 adam_beta1: 0.9,
                 adam_beta2: 0.999,
                 adam_epsilon: 1e-7,
@@ -157,8 +158,12 @@ pub struct TrainConfig {
     pub iters: usize,
     /// Initial Adam learning rate.
     pub lr: f64,
-    /// The learning rate falls 10× every this many thousand steps.
+    /// The learning rate falls 10× every this many thousand steps (`exponential` schedule).
     pub lr_decay_ksteps: f64,
+    /// How the learning rate moves over the run (absent in runs from before the key:
+    /// `exponential`).
+    #[serde(default)]
+    pub lr_schedule: crate::train::LrSchedule,
     /// Adam β₁.
     pub adam_beta1: f32,
     /// Adam β₂.
@@ -249,6 +254,15 @@ impl TrainConfig {
         let config: TrainConfig = toml::Value::Table(base).try_into().map_err(|e: toml::de::Error| Error::Config(e.to_string()))?;
         config.validate()?;
         Ok(config)
+    }
+
+    /// The learning rate at `step`, `done` (in [0, 1]: the larger of the steps' and the time
+    /// budget's share) of the way through the run.
+    pub fn learning_rate(&self, step: usize, done: f64) -> f64 {
+        match self.lr_schedule {
+            crate::train::LrSchedule::Exponential => crate::train::learning_rate(self.lr, self.lr_decay_ksteps, step),
+            crate::train::LrSchedule::Planned => crate::train::planned_learning_rate(self.lr, step, done),
+        }
     }
 
     /// The configuration as TOML.
@@ -355,5 +369,18 @@ mod tests {
         assert!(err.contains("batch_rayz"), "{err}");
         let err = TrainConfig::from_toml_str("[sampling]\nnear = 7.0", None).unwrap_err().to_string();
         assert!(err.contains("near"), "{err}");
+    }
+
+    #[test]
+    fn the_schedule_key_picks_the_learning_rate() {
+        let exponential = TrainConfig::from_toml_str("lr = 0.01\nlr_decay_ksteps = 10.0", None).unwrap();
+        assert_eq!(exponential.lr_schedule, crate::train::LrSchedule::Exponential);
+        // 10k steps: 10× lower, however far through the run.
+        assert!((exponential.learning_rate(10_000, 0.1) - 1e-3).abs() < 1e-12);
+        let planned = TrainConfig::from_toml_str("lr = 0.01\nlr_schedule = 'planned'", None).unwrap();
+        assert_eq!(planned.learning_rate(10_000, 0.1), 0.01);
+        assert!((planned.learning_rate(10_000, 0.6) - 0.0033).abs() < 1e-12);
+        let err = TrainConfig::from_toml_str("lr_schedule = 'cosine'", None).unwrap_err().to_string();
+        assert!(err.contains("cosine") && err.contains("planned"), "{err}");
     }
 }

@@ -20,9 +20,15 @@ fn model_weights(m: &nerf::field::mlp::NerfModel) -> Vec<f32> {
     all
 }
 
+/// One step at the configured schedule's learning rate.
+fn step(t: &mut Trainer) -> nerf::field::StepStats {
+    let lr = t.config.learning_rate(t.step, t.step as f64 / t.config.iters as f64);
+    t.step(lr)
+}
+
 /// Train `steps` steps; the mean loss of the first and of the last 20.
 fn train_steps(t: &mut Trainer, steps: usize) -> (f32, f32) {
-    let losses: Vec<f32> = (0..steps).map(|_| t.step().loss).collect();
+    let losses: Vec<f32> = (0..steps).map(|_| step(t).loss).collect();
     assert!(losses.iter().all(|l| l.is_finite()), "non-finite loss: {losses:?}");
     let mean = |v: &[f32]| v.iter().sum::<f32>() / v.len() as f32;
     (mean(&losses[..20]), mean(&losses[steps - 20..]))
@@ -86,7 +92,7 @@ fn passes_add_up_to_the_whole_batch() {
         config.concurrent_passes = concurrent_passes;
         let rays = config.batch_rays;
         let mut t = new_trainer(&scene, config, 1);
-        let losses: Vec<f32> = (0..3).map(|_| t.step().loss).collect();
+        let losses: Vec<f32> = (0..3).map(|_| step(&mut t).loss).collect();
         assert_eq!(t.step, 3);
         (rays, losses, model_weights(t.model()))
     };
@@ -149,8 +155,8 @@ fn resume_continues_exactly_and_runs_are_deterministic() {
 
     // A different seed gives different weights.
     let mut other = new_trainer(&scene, nerf::config::TrainConfig { seed: 99, ..config.clone() }, 1);
-    other.step();
+    step(&mut other);
     let mut same = new_trainer(&scene, config, 1);
-    same.step();
+    step(&mut same);
     assert_ne!(model_weights(other.model()), model_weights(same.model()));
 }

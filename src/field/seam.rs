@@ -65,8 +65,9 @@ pub trait FieldTrainer {
     fn config(&self) -> &TrainConfig;
     /// Steps completed.
     fn steps_done(&self) -> usize;
-    /// One optimisation step on a fresh random batch.
-    fn step(&mut self) -> StepStats;
+    /// One optimisation step on a fresh random batch, at learning rate `lr` (the run's
+    /// schedule, [`TrainConfig::learning_rate`]).
+    fn step(&mut self, lr: f64) -> StepStats;
     /// Save a checkpoint of the current state into `run`.
     fn save(&self, run: &RunDir, elapsed_s: f64) -> Result<Checkpoint>;
     /// Restore weights, optimizer, step and RNG from a checkpoint; returns the seconds trained.

@@ -67,7 +67,9 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
     let mut next_eval_s = if config.eval_every_min > 0.0 { clock.seconds() + config.eval_every_min * 60.0 } else { f64::INFINITY };
     let mut val_psnr = None;
     while trainer.steps_done() < config.iters && !budget_s.is_some_and(|b| clock.seconds() >= b) {
-        let stats = trainer.step();
+        let done = budget_s.map_or(0.0, |b| clock.seconds() / b).max(trainer.steps_done() as f64 / config.iters as f64);
+        let lr = config.learning_rate(trainer.steps_done(), done);
+        let stats = trainer.step(lr);
         if !stats.loss.is_finite() {
             trainer.save(&run, clock.seconds())?;
             return Err(Error::Diverged { step: trainer.steps_done(), loss: stats.loss });
@@ -75,7 +77,7 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
         recent.push(stats.psnr);
         bar.set_position(trainer.steps_done() as u64);
         let budget = budget_s.map(|b| format!(" | {:.1}/{:.0} min", clock.seconds() / 60.0, b / 60.0)).unwrap_or_default();
-        bar.set_message(format!("loss {:.4} psnr {:.2}{budget}", stats.loss, recent.mean()));
+        bar.set_message(format!("loss {:.4} psnr {:.2} lr {lr:.1e}{budget}", stats.loss, recent.mean()));
         if trainer.steps_done() % config.checkpoint_every == 0 {
             trainer.save(&run, clock.seconds())?;
         }

@@ -8,7 +8,7 @@ use crate::error::Result;
 use crate::field::seam::{FieldTrainer, StepStats, StepTiming, TrainedField};
 use crate::inference::vec3_tensor;
 use crate::run_dir::{Checkpoint, CheckpointState, RunDir};
-use crate::train::{learning_rate, occupancy};
+use crate::train::occupancy;
 use burn::grad_clipping::GradientClippingConfig;
 use burn::module::{Module, ModuleMapper, Param};
 use burn::optim::{AdamConfig, GradientsAccumulator, GradientsParams, ModuleOptimizer};
@@ -105,7 +105,7 @@ impl Trainer {
     /// share of the rays, so the summed gradients are those of the whole batch's loss. Passes
     /// run `concurrent_passes` at a time on their own autodiff graphs: burn's elementwise
     /// kernels are single-threaded, so one pass's elementwise work overlaps the other's GEMMs.
-    pub fn step(&mut self) -> StepStats {
+    pub fn step(&mut self, lr: f64) -> StepStats {
         let start = Instant::now();
         if self.occupancy.is_some() && occupancy::due(&self.config.occupancy, self.step) {
             self.update_occupancy();
@@ -167,7 +167,6 @@ impl Trainer {
             timing.backward_s += wall * backward / (forward + backward).max(f64::MIN_POSITIVE);
             mark = now;
         }
-        let lr = learning_rate(self.config.lr, self.config.lr_decay_ksteps, self.step);
         self.model = Some(self.optim.step(lr, model, accumulated.grads()));
         self.step += 1;
         timing.update_s = mark.elapsed().as_secs_f64();
@@ -312,8 +311,8 @@ impl FieldTrainer for Trainer {
         self.step
     }
 
-    fn step(&mut self) -> StepStats {
-        Trainer::step(self)
+    fn step(&mut self, lr: f64) -> StepStats {
+        Trainer::step(self, lr)
     }
 
     fn save(&self, run: &RunDir, elapsed_s: f64) -> Result<Checkpoint> {

@@ -12,7 +12,7 @@ use crate::field::seam::{FieldTrainer, StepStats, StepTiming, TrainedField};
 use crate::inference::tensor_vec3;
 use crate::run_dir::{Checkpoint, CheckpointState, RunDir};
 use crate::train::packed::{composite_packed, composite_packed_backward};
-use crate::train::{learning_rate, occupancy};
+use crate::train::occupancy;
 use burn::module::Module;
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::tensor::{Device, Tensor, TensorData};
@@ -140,7 +140,7 @@ impl FieldTrainer for NgpTrainer {
         self.step
     }
 
-    fn step(&mut self) -> StepStats {
+    fn step(&mut self, lr: f64) -> StepStats {
         let start = Instant::now();
         if occupancy::due(&self.config.occupancy, self.step) {
             self.update_occupancy();
@@ -150,7 +150,6 @@ impl FieldTrainer for NgpTrainer {
         let samples = occupied_samples(&self.occupancy, &rays, s.near, s.far, self.config.march_steps, Some(&mut self.rng));
         let n = samples.t.len();
         self.samples_per_ray = n.max(1) as f32 / rays.len() as f32;
-        let lr = learning_rate(self.config.lr, self.config.lr_decay_ksteps, self.step);
         self.step += 1;
         if n == 0 {
             // Nothing occupied along these rays: they render the background, nothing to learn.
