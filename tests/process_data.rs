@@ -67,7 +67,7 @@ fn a_colmap_model_of_the_fox_converts_back_to_its_poses_and_loads() {
     let model = dir.path().join("project/sparse/0");
     let frames = colmap_from_fox(&model, 2);
     let out = dir.path().join("fox-processed");
-    let (ok, text) = nerf(&["process-data", "--colmap-model", s(&dir.path().join("project")), "--images", s(&fox().join("images")), "--out", s(&out)]);
+    let (ok, text) = nerf(&["process-data", "--colmap-model", s(&dir.path().join("project")), "--images", s(&fox().join("images")), "--keep-colmap-coords", "--out", s(&out)]);
     assert!(ok, "{text}");
     let total = std::fs::read_dir(fox().join("images")).unwrap().count();
     assert!(text.contains(&format!("{} of {total} images registered", frames.len())), "{text}");
@@ -91,6 +91,30 @@ fn a_colmap_model_of_the_fox_converts_back_to_its_poses_and_loads() {
     let options = LoadOptions { format: None, downscale: 1, images: false, background: Background::White, frame: SceneFrame::Fit { bound: 1.5, ndc: None } };
     let all = load_dataset(&out, CaptureSplit::All, &options).unwrap();
     assert_eq!(all.data.views.len(), frames.len(), "{:?}", all.warnings);
+
+    // By default, instant-ngp's placement: mean up +z, mean camera distance 4, aabb_scale 4,
+    // and `applied_transform` maps the model's coordinates to the file's.
+    let placed = dir.path().join("fox-placed");
+    let (ok, text) = nerf(&["process-data", "--colmap-model", s(&dir.path().join("project")), "--images", s(&fox().join("images")), "--downscales", "0", "--out", s(&placed)]);
+    assert!(ok, "{text}");
+    let t: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(placed.join("transforms.json")).unwrap()).unwrap();
+    assert_eq!(t["aabb_scale"], 4);
+    let applied: Vec<Vec<f64>> = serde_json::from_value(t["applied_transform"].clone()).unwrap();
+    let (mut up, mut distance) = ([0.0f64; 3], 0.0);
+    for (name, m) in &frames {
+        let frame = t["frames"].as_array().unwrap().iter().find(|f| f["file_path"] == format!("images/{name}")).unwrap();
+        let p: Vec<Vec<f64>> = serde_json::from_value(frame["transform_matrix"].clone()).unwrap();
+        distance += (0..3).map(|i| p[i][3] * p[i][3]).sum::<f64>().sqrt() / frames.len() as f64;
+        for i in 0..3 {
+            up[i] += p[i][1];
+            let mapped = (0..3).map(|j| applied[i][j] * m[j][3]).sum::<f64>() + applied[i][3];
+            assert!((mapped - p[i][3]).abs() < 1e-4, "{name}: {mapped} vs {}", p[i][3]);
+        }
+    }
+    let norm = up.iter().map(|u| u * u).sum::<f64>().sqrt();
+    assert!((up[2] / norm - 1.0).abs() < 1e-9 && (distance - 4.0).abs() < 1e-9, "up {up:?}, mean distance {distance}");
+    let (ok, text) = nerf(&["process-data", "--colmap-model", s(&dir.path().join("project")), "--images", s(&fox().join("images")), "--aabb-scale", "0", "--out", s(&dir.path().join("zero"))]);
+    assert!(!ok && text.contains("--aabb-scale 0"), "{text}");
 
     // Too few registered images, a folder of no images, and no model: clear errors, nothing written.
     let few = dir.path().join("few");

@@ -7,7 +7,7 @@ pub mod frames;
 pub mod tools;
 
 use crate::error::Result;
-use nerf_core::dataset::colmap::{ColmapModel, model_dirs, read_model, transforms_json};
+use nerf_core::dataset::colmap::{ColmapModel, Coordinates, model_dirs, read_model, transforms_json};
 use nerf_core::dataset::write_prescaled;
 use nerf_core::io::atomic::write_dir_atomic;
 use nerf_core::Error as CoreError;
@@ -22,6 +22,9 @@ pub const MIN_REGISTERED: usize = 3;
 /// What is written besides `transforms.json` and `images/`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct OutputOptions {
+    /// Where the cameras go: instant-ngp's placement with an `aabb_scale` (the default, as
+    /// `colmap2nerf.py` writes it), or COLMAP's own coordinates.
+    pub coordinates: Coordinates,
     /// Shrunk copies of the images, as nerfstudio writes them: `images_2/`, `images_4/`, … up
     /// to `2^downscales` (a factor that does not divide the images' sides is skipped). `nerf
     /// train --downscale N` reads `images_N/` when it is there.
@@ -126,7 +129,7 @@ fn convert(model: &Path, images: &Path, out: &Path, work: Option<&Path>, output:
             return Err(CoreError::invalid(images, format!("the model registers {:?}, which is not in this folder: is it the folder COLMAP read?", image.name)).into());
         }
     }
-    let json = transforms_json(&model_dir, &colmap, "images")?;
+    let json = transforms_json(&model_dir, &colmap, "images", output.coordinates)?;
     let downscaled = downscale_factors(images, &colmap, output.downscales)?;
     write_dir_atomic(out, |tmp| {
         let dst = tmp.join("images");

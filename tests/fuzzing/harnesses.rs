@@ -242,7 +242,7 @@ fn colmap_harness(work: &Path, file: &str) -> Result<Box<dyn Harness>, String> {
     let seeds = vec![read(&target)?];
     Ok(boxed(target, seeds, Format::Binary, move || {
         let model = nerf_core::dataset::colmap::read_model(&dir).map_err(|e| e.to_string())?;
-        nerf_core::dataset::colmap::transforms_json(&dir, &model, "images").map(drop).map_err(|e| e.to_string())
+        nerf_core::dataset::colmap::transforms_json(&dir, &model, "images", nerf_core::dataset::colmap::Coordinates::InstantNgp { aabb_scale: 4 }).map(drop).map_err(|e| e.to_string())
     }))
 }
 

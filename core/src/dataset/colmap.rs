@@ -338,9 +338,23 @@ pub fn camera_fields(path: &Path, camera: &ColmapCamera) -> Result<serde_json::M
     Ok(json.as_object().expect("an object").clone())
 }
 
+/// Where [`transforms_json`] puts the cameras.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Coordinates {
+    /// COLMAP's own (arbitrary position, orientation and scale): the loader fits the cameras
+    /// into the field as it fits any capture without `aabb_scale`.
+    Colmap,
+    /// instant-ngp's placement ([`normalise`]), recorded as `applied_transform`, with this
+    /// `aabb_scale`.
+    InstantNgp {
+        /// The scene box's side in instant-ngp's units.
+        aabb_scale: u32,
+    },
+}
+
 /// `transforms.json` of `model` with image paths `<image_prefix>/<name>`: shared intrinsics
 /// when the model has one camera, per frame otherwise; frames sorted by name.
-pub fn transforms_json(dir: &Path, model: &ColmapModel, image_prefix: &str) -> Result<serde_json::Value> {
+pub fn transforms_json(dir: &Path, model: &ColmapModel, image_prefix: &str, coordinates: Coordinates) -> Result<serde_json::Value> {
     let mut out = serde_json::Map::new();
     let shared = model.cameras.len() == 1;
     if shared {
@@ -348,9 +362,14 @@ pub fn transforms_json(dir: &Path, model: &ColmapModel, image_prefix: &str) -> R
     }
     let mut images: Vec<&ColmapImage> = model.images.iter().collect();
     images.sort_by(|a, b| a.name.cmp(&b.name));
+    let mut c2ws: Vec<[[f64; 4]; 3]> = images.iter().map(|i| camera_to_world(i)).collect();
+    if let Coordinates::InstantNgp { aabb_scale } = coordinates {
+        let applied = normalise(&mut c2ws);
+        out.insert("aabb_scale".into(), aabb_scale.into());
+        out.insert("applied_transform".into(), serde_json::json!(applied.matrix()));
+    }
     let mut frames = Vec::with_capacity(images.len());
-    for image in images {
-        let c2w = camera_to_world(image);
+    for (image, c2w) in images.into_iter().zip(c2ws) {
         let mut frame = serde_json::Map::new();
         frame.insert("file_path".into(), format!("{image_prefix}/{}", image.name).into());
         let rows: Vec<Vec<f64>> = c2w.iter().map(|r| r.to_vec()).chain([vec![0.0, 0.0, 0.0, 1.0]]).collect();
@@ -381,6 +400,9 @@ pub fn model_dirs(dir: &Path) -> Vec<PathBuf> {
     let found = models_in(dir);
     if found.is_empty() { models_in(&dir.join("sparse")) } else { found }
 }
+
+mod normalise;
+pub use normalise::{MEAN_CAMERA_DISTANCE, Normalisation, normalise};
 
 #[cfg(test)]
 mod tests;

@@ -148,6 +148,15 @@ enum Command {
         /// COLMAP's vocabulary tree file, for --matcher vocab-tree.
         #[arg(long)]
         vocab_tree: Option<PathBuf>,
+        /// The scene box's side in instant-ngp's units (the cameras are placed as colmap2nerf.py
+        /// places them: mean up along +z, centred where their axes meet, 4 from the centre on
+        /// average): 4 holds what lies up to 1.5 times the cameras' distance from the centre;
+        /// raise it (8, 16) when the background far behind the object matters.
+        #[arg(long, default_value_t = 4, conflicts_with = "keep_colmap_coords")]
+        aabb_scale: u32,
+        /// Keep COLMAP's coordinates (no aabb_scale: `nerf train` fits the cameras itself).
+        #[arg(long)]
+        keep_colmap_coords: bool,
         /// Also write shrunk copies of the images: images_2/, images_4/, … up to 2^N, as
         /// nerfstudio does (`nerf train --downscale 4` reads images_4/). 0: none.
         #[arg(long, default_value_t = 3)]
@@ -298,10 +307,15 @@ fn main() -> Result<()> {
             (false, Some(_), None) => bail!("--split needs --data <scene dir>"),
             _ => bail!("say what to render: --orbit, or --split <val|test> --data <scene dir>"),
         },
-        Command::ProcessData { images, video, frames, sharpest_of, colmap_model, camera_model, matcher, vocab_tree, downscales, out } => {
+        Command::ProcessData { images, video, frames, sharpest_of, colmap_model, camera_model, matcher, vocab_tree, aabb_scale, keep_colmap_coords, downscales, out } => {
             use nerf::process_data::{convert_colmap, process_images, process_video, tools::{ColmapOptions, Matcher}, FrameOptions, OutputOptions};
+            use nerf_core::dataset::colmap::Coordinates;
             limits_frames(frames, sharpest_of)?;
-            let output = OutputOptions { downscales, progress };
+            if !(1..=128).contains(&aabb_scale) {
+                bail!("--aabb-scale {aabb_scale}: give 1 to 128 (instant-ngp uses powers of two)");
+            }
+            let coordinates = if keep_colmap_coords { Coordinates::Colmap } else { Coordinates::InstantNgp { aabb_scale } };
+            let output = OutputOptions { coordinates, downscales, progress };
             let colmap = |default| ColmapOptions { camera: camera_model, matcher: matcher.unwrap_or(default), vocab_tree: vocab_tree.clone() };
             let p = match (images, video, colmap_model) {
                 (Some(images), _, Some(model)) => convert_colmap(&model, &images, &out, &output)?,

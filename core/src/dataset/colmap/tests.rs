@@ -67,7 +67,7 @@ fn binary_and_text_models_read_the_same_and_convert_to_transforms() {
     let b = read_model(&txt).unwrap();
     assert_eq!(a, b);
     assert_eq!(a.cameras[0].model, CameraModel::OpenCv);
-    let json = transforms_json(&bin, &a, "images").unwrap();
+    let json = transforms_json(&bin, &a, "images", Coordinates::Colmap).unwrap();
     assert_eq!((json["fl_x"].as_f64(), json["cy"].as_f64(), json["k1"].as_f64(), json["p2"].as_f64()), (Some(275.0), Some(108.0), Some(0.05), Some(0.002)));
     assert_eq!((json["w"].as_u64(), json["camera_model"].as_str()), (Some(384), Some("OPENCV")));
     let frames = json["frames"].as_array().unwrap();
