@@ -49,7 +49,7 @@ pub struct Processed {
 }
 
 /// Image files in `dir` (by extension), sorted by name.
-fn image_files(dir: &Path) -> Result<Vec<String>> {
+pub(crate) fn image_files(dir: &Path) -> Result<Vec<String>> {
     let entries = std::fs::read_dir(dir).map_err(|e| CoreError::io(dir, e))?;
     let mut names: Vec<String> = entries
         .flatten()

@@ -168,7 +168,7 @@ fn stage(program: &str, args: &[&std::ffi::OsStr], log: &Path, what: &str, insta
 /// Run COLMAP on `images` in `work` (database, logs, `sparse/N`); returns the sparse folder.
 pub fn run_colmap(images: &Path, work: &Path, options: &ColmapOptions, progress: bool) -> Result<PathBuf> {
     let matching = options.matching_args()?;
-    let images_count = std::fs::read_dir(images).map_err(|e| nerf_core::Error::io(images, e))?.count() as u64;
+    let images_count = super::image_files(images)?.len() as u64;
     let db = work.join("database.db");
     let sparse = work.join("sparse");
     std::fs::create_dir_all(&sparse).map_err(|e| nerf_core::Error::io(&sparse, e))?;
