@@ -8,7 +8,6 @@
 
 use nerf::bench::{best_of, random_points};
 use nerf::field::ngp::NgpField;
-use nerf::inference::tensor_vec3;
 use nerf_bundle::scene::SceneDescription;
 use nerf_core::field::ngp::NgpSpec;
 use nerf_core::{Intrinsics, PinholeCamera, Rng, SamplingConfig};
@@ -37,8 +36,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut net = OrtNetwork::load(&path, Some(2))?;
     let seconds = best_of(3, || net.run(&points, &dirs).map(|_| ()))?;
     let out = net.run(&points, &dirs)?;
-    let (rgb, sigma) = field.forward(&points, &dirs, &device);
-    let (rgb, sigma) = (tensor_vec3(rgb), sigma.into_data().try_to_vec::<f32>().map_err(|e| format!("{e:?}"))?);
+    let (rgb, sigma) = field.forward(&points, &dirs);
     let d_rgb = rgb.iter().flatten().zip(out.rgb.iter().flatten()).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
     let d_sigma = sigma.iter().zip(&out.sigma).map(|(a, b)| (a - b).abs() / a.abs().max(1.0)).fold(0.0f32, f32::max);
     println!("opset {opset}: {n} points in {seconds:.3} s = {:.0} points/s; max |Δrgb| {d_rgb:.1e}, max |Δσ|/max(1, σ) {d_sigma:.1e}", n as f64 / seconds);

@@ -1,9 +1,11 @@
 #!/usr/bin/env bash
 # Quality per minute, one change at a time: trains lego (or --data) once per variant for the
 # same time budget, one after another (never time two at once on a 2-core machine), scores each
-# on the first K val views with `nerf eval`, and prints a markdown table.
+# on the first K val views with `nerf eval`, and prints a markdown table. `--iters N` trains each
+# for N steps instead: what a step learns, independent of the machine's load (so runs may share
+# it), for changes that leave the step's cost alone.
 #
-#   bash scripts/ablate.sh [--minutes 10] [--views 20] [--data DIR] [--downscale N] [--out DIR] \
+#   bash scripts/ablate.sh [--minutes 10 | --iters N] [--views 20] [--data DIR] [--downscale N] [--out DIR] \
 #       baseline= planned='lr_schedule = "planned"' random='train_background = "random"'
 #
 # Each variant is NAME=TOML: keys over the default preset (empty: the preset itself). Runs go to
@@ -12,16 +14,17 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 . scripts/env.sh
 
-minutes=10 views=20 data=../shared/data/nerf_synthetic/lego downscale=1 out=runs/ablate
+minutes=10 iters= views=20 data=../shared/data/nerf_synthetic/lego downscale=1 out=runs/ablate
 variants=()
 while [ $# -gt 0 ]; do
     case "$1" in
         --minutes) minutes=$2; shift 2 ;;
+        --iters) iters=$2; shift 2 ;;
         --views) views=$2; shift 2 ;;
         --data) data=$2; shift 2 ;;
         --downscale) downscale=$2; shift 2 ;;
         --out) out=$2; shift 2 ;;
-        -h|--help) sed -n '2,10p' "$0"; exit 0 ;;
+        -h|--help) sed -n '2,12p' "$0"; exit 0 ;;
         *=*) variants+=("$1"); shift ;;
         *) echo "ablate.sh: '$1' is neither an option nor NAME=TOML" >&2; exit 2 ;;
     esac
@@ -38,9 +41,10 @@ for variant in "${variants[@]}"; do
     run=$out/$name
     if [ ! -f "$run/curve.csv" ]; then
         printf '%s\n' "$toml" > "$out/$name.toml"
-        echo "== $name: training $minutes min ($toml)" >&2
+        if [ -n "$iters" ]; then length=(--iters "$iters"); else length=(--time-budget-min "$minutes"); fi
+        echo "== $name: training ${length[*]} ($toml)" >&2
         "$nerf" train --data "$data" --downscale "$downscale" --config "$out/$name.toml" \
-            --time-budget-min "$minutes" --out "$run" >&2
+            "${length[@]}" --out "$run" >&2
     fi
     "$nerf" eval --run "$run" --data "$data" --downscale "$downscale" --split val --limit "$views" \
         --out "$run/eval-val" >/dev/null

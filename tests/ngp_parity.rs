@@ -4,7 +4,6 @@
 
 use nerf::bench::random_points;
 use nerf::field::ngp::NgpField;
-use nerf::inference::tensor_vec3;
 use nerf_core::Rng;
 use nerf_core::field::ngp::hash_grid::HashGridConfig;
 use nerf_core::field::ngp::NgpSpec;
@@ -51,9 +50,7 @@ fn parity(grid: HashGridConfig, ops: HashOps, opset: i64) {
     let mut ort = OrtNetwork::load(&path, None).unwrap();
     let (points, dirs) = random_points(12_000, 8);
     let ort_out = ort.run(&points, &dirs).unwrap();
-    let (rgb, sigma) = field.forward(&points, &dirs, &device);
-    let burn_rgb = tensor_vec3(rgb);
-    let burn_sigma = sigma.into_data().try_to_vec::<f32>().unwrap();
+    let (burn_rgb, burn_sigma) = field.forward(&points, &dirs);
     let d_rgb = burn_rgb.iter().flatten().zip(ort_out.rgb.iter().flatten()).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
     let d_sigma = burn_sigma.iter().zip(&ort_out.sigma).map(|(a, b)| (a - b).abs() / a.abs().max(1.0)).fold(0.0, f32::max);
     let max_sigma = burn_sigma.iter().copied().fold(0.0, f32::max);

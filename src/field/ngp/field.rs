@@ -1,18 +1,20 @@
-//! The instant-ngp field in burn ([`nerf_core::field::ngp`]): the hash grid runs in nerf-core, outside
-//! the autodiff graph, and its features enter burn as a leaf tensor that requires a gradient;
-//! after `backward`, that leaf's gradient is scattered into the table
-//! ([`NgpField::accumulate_grid_gradient`]) and the table is stepped with
-//! [`nerf_core::field::ngp::hash_grid::SparseAdam`]. Only the two small MLPs are burn parameters.
+//! The instant-ngp field ([`nerf_core::field::ngp`]): the hash grid runs in nerf-core, the two small
+//! MLPs are burn parameters (checkpoints, burn's Adam) that run as [`FusedMlps`]: forward and
+//! backward in plain Rust, no autodiff graph. The features' gradient from
+//! [`FusedMlps::backward`] is scattered into the table, which is stepped with the sparse Adam of
+//! [`super::adam`]. [`NgpMlps::forward`] is the same MLPs in burn, the reference the fused ones
+//! are tested against.
 
-use burn::module::{Module, Param};
+use burn::module::{Module, Param, ParamId};
 use burn::nn::Linear;
 use burn::tensor::activation::{relu, sigmoid};
-use burn::tensor::{Device, Gradients, Tensor, TensorData};
-use nerf_core::field::ngp::hash_grid::{HashGrid, HashGridGradient};
+use super::fused::FusedMlps;
+use burn::tensor::{Device, Tensor, TensorData};
+use nerf_core::field::ngp::hash_grid::HashGrid;
 use nerf_core::field::DenseLayer;
 use nerf_core::Rng;
 use nerf_core::field::ngp::{NgpSpec, PlainNgp};
-use nerf_core::field::ngp::spherical_harmonics::{SH4_DIM, sh4_all};
+use nerf_core::field::ngp::spherical_harmonics::sh4_all;
 
 /// The density and colour MLPs, bias-free as tiny-cuda-nn's, layers in
 /// [`NgpSpec::layer_shapes`] order.
@@ -40,7 +42,8 @@ impl NgpMlps {
         NgpMlps { density: layers, color }
     }
 
-    /// σ and colour from grid features and view harmonics. The colour MLP sees the density
+    /// σ and colour from grid features and view harmonics, in burn (the reference of
+    /// [`FusedMlps`], which training and rendering use). The colour MLP sees the density
     /// MLP's outputs after the first (σ's), then the harmonics.
     ///
     /// # Shapes
@@ -58,14 +61,20 @@ impl NgpMlps {
 }
 
 impl NgpMlps {
-    /// σ alone (the density MLP), for the occupancy grid's updates.
-    ///
-    /// # Shapes
-    /// `features`: `[n, L·F]` → σ `[n]`.
-    pub fn density(&self, features: Tensor<2>) -> Tensor<1> {
-        let n = features.dims()[0];
-        let out = self.density[1].forward(relu(self.density[0].forward(features)));
-        out.narrow(1, 0, 1).reshape([n]).exp()
+    /// The layers in [`NgpSpec::layer_shapes`] order.
+    fn layers(&self) -> impl Iterator<Item = &Linear> {
+        self.density.iter().chain(&self.color)
+    }
+
+    /// The five weight matrices as plain arrays `[in, out]`, in [`NgpSpec::layer_shapes`] order.
+    pub fn weights(&self) -> [Vec<f32>; 5] {
+        let mut layers = self.layers().map(|l| l.weight.val().into_data().try_to_vec::<f32>().expect("f32 weights"));
+        [(); 5].map(|_| layers.next().expect("five layers"))
+    }
+
+    /// Each weight's parameter id and shape `[in, out]`, in the same order.
+    pub fn weight_ids(&self) -> Vec<(ParamId, [usize; 2])> {
+        self.layers().map(|l| (l.weight.id, l.weight.val().dims())).collect()
     }
 }
 
@@ -89,15 +98,6 @@ pub struct NgpField {
     pub mlps: NgpMlps,
 }
 
-/// What one training evaluation keeps for the grid's backward pass.
-#[derive(Debug)]
-pub struct GridInputs {
-    unit: Vec<[f32; 3]>,
-    features: Tensor<2>,
-    /// Seconds the grid's forward pass took (for the step's timing).
-    pub encode_s: f64,
-}
-
 impl NgpField {
     /// A fresh field: table U(±1e-4) from `seed`, MLPs from a generator forked from it.
     pub fn new(spec: NgpSpec, seed: u64, device: &Device) -> Result<Self, String> {
@@ -106,53 +106,34 @@ impl NgpField {
         Ok(NgpField { spec, grid, mlps: NgpMlps::new(&spec, &mut Rng::new(seed).fork(), device) })
     }
 
-    /// World points in the unit cube, and their grid features `[n, L·F]`.
-    fn grid_features(&self, points: &[[f32; 3]], device: &Device) -> (Vec<[f32; 3]>, Tensor<2>) {
+    /// World points in the unit cube, and their grid features `[n, L·F]` (what the grid's
+    /// backward pass and the MLPs take).
+    pub fn encode(&self, points: &[[f32; 3]]) -> (Vec<[f32; 3]>, Vec<f32>) {
         let unit: Vec<[f32; 3]> = points.iter().map(|&p| self.spec.bound.to_unit(p)).collect();
-        let features = Tensor::<2>::from_data(TensorData::new(self.grid.forward(&unit), [points.len(), self.grid.output_dim()]), device);
+        let features = self.grid.forward(&unit);
         (unit, features)
     }
 
-    fn encode(&self, points: &[[f32; 3]], viewdirs: &[[f32; 3]], device: &Device) -> (Vec<[f32; 3]>, Tensor<2>, Tensor<2>) {
-        assert_eq!(points.len(), viewdirs.len(), "one view direction per point");
-        let (unit, features) = self.grid_features(points, device);
-        let sh = Tensor::<2>::from_data(TensorData::new(sh4_all(viewdirs), [points.len(), SH4_DIM]), device);
-        (unit, features, sh)
+    /// The MLPs as [`FusedMlps`] (a copy of their weights).
+    pub fn fused(&self) -> FusedMlps {
+        FusedMlps::from_mlps(&self.spec, &self.mlps)
     }
 
-    /// Evaluate at world points with unit view directions (no gradient for the table).
+    /// rgb and σ at world points with unit view directions (no gradient), through the
+    /// [`FusedMlps`].
     ///
     /// # Shapes
     /// `points`, `viewdirs`: `[n, 3]` → (`rgb` `[n, 3]`, σ `[n]`).
-    pub fn forward(&self, points: &[[f32; 3]], viewdirs: &[[f32; 3]], device: &Device) -> (Tensor<2>, Tensor<1>) {
-        let (_, features, sh) = self.encode(points, viewdirs, device);
-        self.mlps.forward(features, sh)
+    pub fn forward(&self, points: &[[f32; 3]], viewdirs: &[[f32; 3]]) -> (Vec<[f32; 3]>, Vec<f32>) {
+        assert_eq!(points.len(), viewdirs.len(), "one view direction per point");
+        let (_, features) = self.encode(points);
+        self.fused().forward(&features, &sh4_all(viewdirs))
     }
 
     /// σ at world points (the density MLP only; no gradient).
-    pub fn density(&self, points: &[[f32; 3]], device: &Device) -> Vec<f32> {
-        let (_, features) = self.grid_features(points, device);
-        self.mlps.density(features).into_data().try_to_vec::<f32>().expect("f32 densities")
-    }
-
-    /// [`forward`](Self::forward) on an autodiff device, the grid features a leaf that requires a
-    /// gradient; pass the returned [`GridInputs`] to
-    /// [`accumulate_grid_gradient`](Self::accumulate_grid_gradient) after `backward`.
-    pub fn forward_train(&self, points: &[[f32; 3]], viewdirs: &[[f32; 3]], device: &Device) -> (Tensor<2>, Tensor<1>, GridInputs) {
-        let start = std::time::Instant::now();
-        let (unit, features, sh) = self.encode(points, viewdirs, device);
-        let encode_s = start.elapsed().as_secs_f64();
-        let features = features.require_grad();
-        let (rgb, sigma) = self.mlps.forward(features.clone(), sh);
-        (rgb, sigma, GridInputs { unit, features, encode_s })
-    }
-
-    /// Take the features' gradient out of `grads` and add its scatter into the table to `grad`.
-    pub fn accumulate_grid_gradient(&self, inputs: &GridInputs, grads: &mut Gradients, grad: &mut HashGridGradient) -> Result<(), String> {
-        let g = inputs.features.grad_remove(grads).ok_or("the grid features got no gradient (not an autodiff device, or not in the loss)")?;
-        let g = g.into_data().try_to_vec::<f32>().map_err(|e| format!("grid feature gradient: {e:?}"))?;
-        self.grid.backward(&inputs.unit, &g, grad);
-        Ok(())
+    pub fn density(&self, points: &[[f32; 3]]) -> Vec<f32> {
+        let (_, features) = self.encode(points);
+        self.fused().density(&features)
     }
 
     /// The field as plain data for the ONNX compiler.
@@ -194,8 +175,9 @@ impl NgpField {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use burn::optim::{AdamConfig, GradientsParams};
+    use burn::optim::AdamConfig;
     use nerf_core::Rng;
+    use nerf_core::field::ngp::hash_grid::HashGridGradient;
     use crate::field::ngp::adam::{SparseAdam, SparseAdamConfig};
     use nerf_core::field::ngp::hash_grid::{GridBound, HashGridConfig};
 
@@ -229,29 +211,34 @@ mod tests {
     #[test]
     fn training_steps_reduce_the_loss_and_move_the_table() {
         let device = crate::backend::cpu_autodiff();
-        device.seed(4);
         let mut field = NgpField::new(small_spec(), 1, &device).unwrap();
         let mut rng = Rng::new(2);
         let n = 1024;
         let points: Vec<[f32; 3]> = (0..n).map(|_| [0; 3].map(|_: i32| rng.uniform() * 2.0 - 1.0)).collect();
-        let dirs: Vec<[f32; 3]> = (0..n).map(|_| [0.0, 0.6, 0.8]).collect();
+        let sh = sh4_all(&vec![[0.0, 0.6, 0.8]; n]);
         // A colour that only the position can explain.
-        let target: Vec<f32> = points.iter().flat_map(|p| [0.5 + 0.4 * (3.0 * p[0]).sin(), 0.5 + 0.4 * (3.0 * p[1]).cos(), 0.5 + 0.4 * p[2]]).collect();
-        let target = Tensor::<2>::from_data(TensorData::new(target, [n, 3]), &device);
+        let target: Vec<[f32; 3]> = points.iter().map(|p| [0.5 + 0.4 * (3.0 * p[0]).sin(), 0.5 + 0.4 * (3.0 * p[1]).cos(), 0.5 + 0.4 * p[2]]).collect();
         let mut optim = AdamConfig::new().with_beta_2(0.99).with_epsilon(1e-15).init();
         let mut table_adam = SparseAdam::new(SparseAdamConfig::default(), &field.grid);
         let mut grad = HashGridGradient::new(&field.grid);
         let initial_table = field.grid.params().to_vec();
         let mut losses = Vec::new();
         for _ in 0..40 {
-            let (rgb, _, inputs) = field.forward_train(&points, &dirs, &device);
-            let loss = (rgb - target.clone()).square().mean();
-            losses.push(loss.clone().into_scalar::<f32>());
-            let mut grads = loss.backward();
-            field.accumulate_grid_gradient(&inputs, &mut grads, &mut grad).unwrap();
+            let fused = field.fused();
+            let (unit, features) = field.encode(&points);
+            let ((rgb, _), saved) = fused.forward_train(&features, &sh);
+            let count = (3 * n) as f32;
+            let mut loss = 0.0;
+            let grad_rgb: Vec<[f32; 3]> = rgb.iter().zip(&target).map(|(c, t)| [0, 1, 2].map(|k| {
+                loss += (c[k] - t[k]).powi(2) / count;
+                2.0 * (c[k] - t[k]) / count
+            })).collect();
+            losses.push(loss);
+            let (mlp_grads, grad_features) = fused.backward(&features, &sh, &saved, &grad_rgb, &vec![0.0; n]);
+            field.grid.backward(&unit, &grad_features, &mut grad);
             assert!(grad.touched_entries() > 0 && grad.to_dense().iter().any(|&g| g != 0.0), "the table gets gradients");
             table_adam.step(&mut field.grid, &mut grad);
-            let params = GradientsParams::from_grads(grads, &field.mlps);
+            let params = mlp_grads.to_params(&field.mlps, &crate::backend::cpu());
             field.mlps = optim.step(1e-2, field.mlps, params);
         }
         println!("loss {:.5} → {:.5}", losses[0], losses[losses.len() - 1]);

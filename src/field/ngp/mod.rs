@@ -4,18 +4,18 @@
 
 pub mod adam;
 mod field;
+pub mod fused;
 pub mod state;
 pub mod throughput;
 mod trainer;
 
-pub use field::{GridInputs, NgpField, NgpMlps, trunc_exp};
+pub use field::{NgpField, NgpMlps, trunc_exp};
 pub use state::GRID_FILE;
 pub use trainer::NgpTrainer;
 
 use crate::config::TrainConfig;
 use crate::error::{Error, Result};
 use crate::field::seam::{FieldTrainer, TrainedField};
-use crate::inference::tensor_vec3;
 use crate::run_dir::Checkpoint;
 use burn::tensor::Device;
 use nerf_core::dataset::SplitData;
@@ -68,7 +68,7 @@ impl Field for NgpEvaluator<'_> {
         if points.is_empty() {
             return Ok(FieldOutput::default());
         }
-        let (rgb, sigma) = self.field.forward(points, viewdirs, &self.device);
-        Ok(FieldOutput { rgb: tensor_vec3(rgb), sigma: sigma.into_data().try_to_vec::<f32>().expect("f32 tensor") })
+        let (rgb, sigma) = self.field.forward(points, viewdirs);
+        Ok(FieldOutput { rgb, sigma })
     }
 }

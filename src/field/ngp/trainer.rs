@@ -1,25 +1,26 @@
 //! One training step of the hash-grid field (instant-ngp / nerfacc style): rays from several
 //! random training images, samples marched through the occupancy grid's occupied cells (a
 //! jittered fine step), the field on exactly those samples, compositing and its gradient in
-//! plain Rust ([`nerf_core::render::gradient`]), then burn's backward through the MLPs only, the
-//! features' gradient scattered into the table, sparse Adam on the table and Adam on the MLPs.
+//! plain Rust ([`nerf_core::render::gradient`]), then the MLPs' backward pass
+//! ([`super::fused`]), the features' gradient scattered into the table, sparse Adam on the
+//! table and burn's Adam on the MLPs.
 
 use super::field::NgpField;
 use super::state::{GRID_FILE, load_grid, state_to_bytes};
 use crate::config::TrainConfig;
 use crate::error::{Error, Result};
 use crate::field::seam::{FieldTrainer, StepStats, StepTiming, TrainedField};
-use crate::inference::tensor_vec3;
 use crate::run_dir::{Checkpoint, CheckpointState, RunDir};
 use crate::train::packed::{composite_packed, composite_packed_backward};
 use crate::train::occupancy;
 use burn::module::Module;
-use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
-use burn::tensor::{Device, Tensor, TensorData};
+use burn::optim::{AdamConfig, ModuleOptimizer};
+use burn::tensor::Device;
 use nerf_core::camera::point_at;
 use nerf_core::dataset::{Background, RayBatcher, SplitData};
 use super::adam::{SparseAdam, SparseAdamConfig};
 use nerf_core::field::ngp::hash_grid::HashGridGradient;
+use nerf_core::field::ngp::spherical_harmonics::{SH4_DIM, sh4};
 use nerf_core::render::metrics::psnr_from_mse;
 use nerf_core::sample::occupancy::OccupancyGrid;
 use nerf_core::render::grid::occupied_samples;
@@ -42,7 +43,6 @@ pub struct NgpTrainer {
     grad: HashGridGradient,
     rng: Rng,
     step: usize,
-    device: Device,
     batcher: RayBatcher,
     occupancy: OccupancyGrid,
     /// Samples per ray in the last step (sets the next step's ray count).
@@ -69,7 +69,6 @@ impl NgpTrainer {
             table_adam,
             grad,
             step: 0,
-            device,
             config,
             samples_per_ray,
         })
@@ -87,9 +86,8 @@ impl NgpTrainer {
 
     /// Re-measure the grid's densities with the density MLP.
     fn update_occupancy(&mut self) {
-        let snapshot = self.field_snapshot();
-        let device = snapshot.mlps.devices().into_iter().next().unwrap_or_else(crate::backend::cpu);
-        occupancy::update(&mut self.occupancy, &self.config.occupancy, &mut self.rng, |points| snapshot.density(points, &device));
+        let field = self.field.as_ref().expect("field present outside a step");
+        occupancy::update(&mut self.occupancy, &self.config.occupancy, &mut self.rng, |points| field.density(points));
     }
 
     /// This step's rays, their target colours and the backgrounds they are composited on:
@@ -158,30 +156,29 @@ impl FieldTrainer for NgpTrainer {
         }
         let viewdirs = rays.view_directions();
         let mut points = Vec::with_capacity(n);
-        let mut dirs = Vec::with_capacity(n);
+        let mut sh = Vec::with_capacity(n * SH4_DIM);
         for r in 0..rays.len() {
+            let ray_sh = sh4(viewdirs[r]);
             for i in samples.ray(r) {
                 points.push(point_at(rays.origins[r], rays.directions[r], samples.t[i]));
-                dirs.push(viewdirs[r]);
+                sh.extend_from_slice(&ray_sh);
             }
         }
         let mut field = self.field.take().expect("field present");
-        let (rgb_t, sigma_t, inputs) = field.forward_train(&points, &dirs, &self.device);
-        let rgb = tensor_vec3(rgb_t.clone());
-        let sigma = sigma_t.clone().into_data().try_to_vec::<f32>().expect("f32 densities");
+        let mlps = field.fused();
+        let encode = Instant::now();
+        let (unit, features) = field.encode(&points);
+        let mut grid_s = encode.elapsed().as_secs_f64();
+        let ((rgb, sigma), saved) = mlps.forward_train(&features, &sh);
         let (colors, _) = composite_packed(&samples, &sigma, &rgb, &backgrounds);
         let (mse, grad_color) = mean_squared_error(&colors, &targets);
         let (grad_sigma, grad_rgb) = composite_packed_backward(&samples, &sigma, &rgb, &backgrounds, &grad_color);
         let forward_done = Instant::now();
-        // Σ rgb·∂L/∂rgb + Σ σ·∂L/∂σ with the factors constant: its gradient is the loss's.
-        let grad_rgb = Tensor::<2>::from_data(TensorData::new(grad_rgb.as_flattened().to_vec(), [n, 3]), &self.device);
-        let grad_sigma = Tensor::<1>::from_data(TensorData::new(grad_sigma, [n]), &self.device);
-        let surrogate = (rgb_t * grad_rgb).sum() + (sigma_t * grad_sigma).sum();
-        let mut grads = surrogate.backward();
+        let (mlp_grads, grad_features) = mlps.backward(&features, &sh, &saved, &grad_rgb, &grad_sigma);
         let scatter = Instant::now();
-        field.accumulate_grid_gradient(&inputs, &mut grads, &mut self.grad).expect("the features are in the graph");
-        let mut grid_s = inputs.encode_s + scatter.elapsed().as_secs_f64();
-        let params = GradientsParams::from_grads(grads, &field.mlps);
+        field.grid.backward(&unit, &grad_features, &mut self.grad);
+        grid_s += scatter.elapsed().as_secs_f64();
+        let params = mlp_grads.to_params(&field.mlps, &crate::backend::cpu());
         let backward_done = Instant::now();
         self.table_adam.config.learning_rate = lr as f32;
         self.table_adam.step(&mut field.grid, &mut self.grad);

@@ -205,44 +205,104 @@ fn total_entries(levels: &[LevelLayout]) -> usize {
 }
 
 /// One level for `points`, written level-major: `column` is `[points.len(), F]`.
+/// Points looked ahead: their corners are computed and their table rows prefetched this many
+/// points before they are read, so the rows of fine levels (random in a table larger than the
+/// caches) arrive while earlier points are summed.
+const LOOKAHEAD: usize = 8;
+
+/// Ask for the cache line of `slice[i]` (a hint: no effect on results, never faults).
 #[inline(always)]
-fn forward_level<const F: usize>(level: &LevelLayout, table: &[f32], points: &[[f32; 3]], column: &mut [f32]) {
-    for (dst, &x) in column.chunks_exact_mut(F).zip(points) {
-        let c = corners(level, x);
-        let mut acc = [0f32; F];
-        for k in 0..8 {
-            let e = c.index[k] as usize * F;
-            let value: &[f32; F] = table[e..e + F].try_into().expect("F features");
-            for f in 0..F {
-                acc[f] += c.weight[k] * value[f];
-            }
+fn prefetch<T>(slice: &[T], i: usize) {
+    prefetch_in(slice.as_ptr(), slice.len(), i);
+}
+
+/// [`prefetch`] of element `i` of the `len` elements at `base` (for a buffer that is borrowed
+/// mutably elsewhere meanwhile: only its address is read here).
+#[inline(always)]
+fn prefetch_in<T>(base: *const T, len: usize, i: usize) {
+    #[cfg(target_arch = "x86_64")]
+    if i < len {
+        // SAFETY: SSE is part of x86_64; `base + i` is inside the allocation (i < len), and a
+        // prefetch only loads its line into the cache.
+        unsafe { std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(base.add(i).cast()) };
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (base, len, i);
+}
+
+/// Each point's corners on `level`, `LOOKAHEAD` points ahead of `visit`, whose rows
+/// `prefetch_rows` has asked for by then.
+#[inline(always)]
+fn with_corners_ahead(level: &LevelLayout, points: &[[f32; 3]], prefetch_rows: impl Fn(&Corners), mut visit: impl FnMut(usize, &Corners)) {
+    let empty = Corners { index: [0; 8], weight: [0.0; 8] };
+    let mut ring = [empty; LOOKAHEAD];
+    for (i, &x) in points.iter().enumerate().take(LOOKAHEAD) {
+        ring[i] = corners(level, x);
+        prefetch_rows(&ring[i]);
+    }
+    for i in 0..points.len() {
+        let slot = i % LOOKAHEAD;
+        let c = ring[slot];
+        if let Some(&x) = points.get(i + LOOKAHEAD) {
+            ring[slot] = corners(level, x);
+            prefetch_rows(&ring[slot]);
         }
-        dst.copy_from_slice(&acc);
+        visit(i, &c);
     }
 }
 
 #[inline(always)]
-fn backward_level<const F: usize>(level: &LevelLayout, points: &[[f32; 3]], grad_out: &[f32], width: usize, l: usize, buffer: &mut LevelGradient) {
-    for (row, &x) in grad_out.chunks_exact(width).zip(points) {
-        let g: [f32; F] = row[l * F..(l + 1) * F].try_into().expect("F features");
-        let c = corners(level, x);
-        for k in 0..8 {
-            let e = c.index[k] as usize;
-            let w = c.weight[k];
-            let (word, bit) = (&mut buffer.touched[e >> 6], 1u64 << (e & 63));
-            let dst: &mut [f32; F] = (&mut buffer.values[e * F..e * F + F]).try_into().expect("F features");
-            if *word & bit == 0 {
-                *word |= bit;
+fn forward_level<const F: usize>(level: &LevelLayout, table: &[f32], points: &[[f32; 3]], column: &mut [f32]) {
+    with_corners_ahead(
+        level,
+        points,
+        |c| c.index.iter().for_each(|&e| prefetch(table, e as usize * F)),
+        |i, c| {
+            let mut acc = [0f32; F];
+            for k in 0..8 {
+                let e = c.index[k] as usize * F;
+                let value: &[f32; F] = table[e..e + F].try_into().expect("F features");
                 for f in 0..F {
-                    dst[f] = w * g[f];
-                }
-            } else {
-                for f in 0..F {
-                    dst[f] += w * g[f];
+                    acc[f] += c.weight[k] * value[f];
                 }
             }
-        }
-    }
+            column[i * F..(i + 1) * F].copy_from_slice(&acc);
+        },
+    );
+}
+
+#[inline(always)]
+fn backward_level<const F: usize>(level: &LevelLayout, points: &[[f32; 3]], grad_out: &[f32], width: usize, l: usize, buffer: &mut LevelGradient) {
+    let (values, touched) = ((buffer.values.as_ptr(), buffer.values.len()), (buffer.touched.as_ptr(), buffer.touched.len()));
+    with_corners_ahead(
+        level,
+        points,
+        |c| {
+            for &e in &c.index {
+                prefetch_in(values.0, values.1, e as usize * F);
+                prefetch_in(touched.0, touched.1, e as usize >> 6);
+            }
+        },
+        |i, c| {
+            let g: [f32; F] = grad_out[i * width + l * F..i * width + (l + 1) * F].try_into().expect("F features");
+            for k in 0..8 {
+                let e = c.index[k] as usize;
+                let w = c.weight[k];
+                let (word, bit) = (&mut buffer.touched[e >> 6], 1u64 << (e & 63));
+                let dst: &mut [f32; F] = (&mut buffer.values[e * F..e * F + F]).try_into().expect("F features");
+                if *word & bit == 0 {
+                    *word |= bit;
+                    for f in 0..F {
+                        dst[f] = w * g[f];
+                    }
+                } else {
+                    for f in 0..F {
+                        dst[f] += w * g[f];
+                    }
+                }
+            }
+        },
+    );
 }
 
 /// One level's share of a [`HashGridGradient`].

@@ -1,0 +1,174 @@
+use super::*;
+use crate::field::ngp::NgpField;
+use burn::optim::{AdamConfig, GradientsParams};
+use nerf_core::Rng;
+use nerf_core::field::ngp::hash_grid::{GridBound, HashGridConfig};
+
+/// Narrow widths (a fast test) that still differ from each other, so a swapped stride shows.
+fn spec() -> NgpSpec {
+    NgpSpec {
+        grid: HashGridConfig { levels: 6, features_per_level: 2, log2_table_size: 10, base_resolution: 4, max_resolution: 32 },
+        bound: GridBound::cube(1.0),
+        density_hidden: 24,
+        geometry_features: 7,
+        color_hidden: 20,
+    }
+}
+
+/// Grid features, harmonics and output gradients for `rows` rows; features large enough that
+/// the ReLUs are mixed and σ's pre-activations spread.
+fn inputs(spec: &NgpSpec, rows: usize, seed: u64) -> (Vec<f32>, Vec<f32>, Vec<[f32; 3]>, Vec<f32>) {
+    let mut rng = Rng::new(seed);
+    let mut u = |scale: f32| (rng.uniform() * 2.0 - 1.0) * scale;
+    let features = (0..rows * spec.grid.output_dim()).map(|_| u(3.0)).collect();
+    let sh = (0..rows * SH4_DIM).map(|_| u(1.0)).collect();
+    let grad_rgb = (0..rows).map(|_| [u(1.0), u(1.0), u(1.0)]).collect();
+    let grad_sigma = (0..rows).map(|_| u(0.1)).collect();
+    (features, sh, grad_rgb, grad_sigma)
+}
+
+fn field(spec: &NgpSpec, device: &Device) -> NgpField {
+    NgpField::new(*spec, 7, device).unwrap()
+}
+
+fn close(a: f32, b: f32, tol: f32) -> bool {
+    (a - b).abs() <= tol * (1.0 + a.abs().max(b.abs()))
+}
+
+#[test]
+fn forward_matches_burn() {
+    let spec = spec();
+    let device = crate::backend::cpu();
+    let field = field(&spec, &device);
+    let fused = FusedMlps::from_mlps(&spec, &field.mlps);
+    // 300 rows: two full blocks and a partial one.
+    let (features, sh, _, _) = inputs(&spec, 300, 1);
+    let (rgb, sigma) = fused.forward(&features, &sh);
+    let f = Tensor::<2>::from_data(TensorData::new(features.clone(), [300, spec.grid.output_dim()]), &device);
+    let s = Tensor::<2>::from_data(TensorData::new(sh.clone(), [300, SH4_DIM]), &device);
+    let (want_rgb, want_sigma) = field.mlps.forward(f, s);
+    let want_rgb = crate::inference::tensor_vec3(want_rgb);
+    let want_sigma = want_sigma.into_data().try_to_vec::<f32>().unwrap();
+    assert!(sigma.iter().any(|&s| s > 2.0) && sigma.iter().any(|&s| s < 0.5), "σ spread: {:?}", &sigma[..8]);
+    for r in 0..300 {
+        assert!(close(sigma[r], want_sigma[r], 1e-5), "σ row {r}: {} vs {}", sigma[r], want_sigma[r]);
+        for c in 0..3 {
+            assert!(close(rgb[r][c], want_rgb[r][c], 1e-5), "rgb row {r}: {:?} vs {:?}", rgb[r], want_rgb[r]);
+        }
+    }
+    for (r, (d, s)) in fused.density(&features).iter().zip(&sigma).enumerate() {
+        assert!(close(*d, *s, 1e-6), "the density MLP alone, row {r}: {d} vs {s}");
+    }
+    assert_eq!(fused.forward(&[], &[]), (vec![], vec![]));
+}
+
+/// Σ rgb·g_rgb + σ·g_σ in f64: the surrogate whose gradient the backward pass computes.
+fn surrogate(fused: &FusedMlps, features: &[f32], sh: &[f32], grad_rgb: &[[f32; 3]], grad_sigma: &[f32]) -> f64 {
+    let (rgb, sigma) = fused.forward(features, sh);
+    let mut total = 0.0f64;
+    for r in 0..rgb.len() {
+        total += (0..3).map(|c| rgb[r][c] as f64 * grad_rgb[r][c] as f64).sum::<f64>() + sigma[r] as f64 * grad_sigma[r] as f64;
+    }
+    total
+}
+
+#[test]
+fn backward_matches_finite_differences() {
+    let spec = spec();
+    let device = crate::backend::cpu();
+    let fused = FusedMlps::from_mlps(&spec, &field(&spec, &device).mlps);
+    let rows = 5;
+    let (features, sh, grad_rgb, grad_sigma) = inputs(&spec, rows, 2);
+    let (_, saved) = fused.forward_train(&features, &sh);
+    let (grads, grad_features) = fused.backward(&features, &sh, &saved, &grad_rgb, &grad_sigma);
+    let eps = 1e-2f32;
+    let mut rng = Rng::new(3);
+    let mut checked = 0;
+    for layer in 0..5 {
+        for _ in 0..12 {
+            let i = rng.below(fused.weights[layer].len());
+            let at = |delta: f32| {
+                let mut moved = fused.clone();
+                moved.weights[layer][i] += delta;
+                surrogate(&moved, &features, &sh, &grad_rgb, &grad_sigma)
+            };
+            let numeric = ((at(eps) - at(-eps)) / (2.0 * eps as f64)) as f32;
+            assert!(close(grads.0[layer][i], numeric, 2e-2), "layer {layer} weight {i}: {} vs {numeric}", grads.0[layer][i]);
+            checked += (numeric.abs() > 1e-3) as usize;
+        }
+    }
+    for _ in 0..24 {
+        let i = rng.below(features.len());
+        let at = |delta: f32| {
+            let mut moved = features.clone();
+            moved[i] += delta;
+            surrogate(&fused, &moved, &sh, &grad_rgb, &grad_sigma)
+        };
+        let numeric = ((at(eps) - at(-eps)) / (2.0 * eps as f64)) as f32;
+        assert!(close(grad_features[i], numeric, 2e-2), "feature {i}: {} vs {numeric}", grad_features[i]);
+        checked += (numeric.abs() > 1e-3) as usize;
+    }
+    assert!(checked > 40, "only {checked} of the checked gradients are away from zero");
+}
+
+#[test]
+fn backward_and_adam_step_match_burn_autodiff() {
+    let spec = spec();
+    let device = crate::backend::cpu_autodiff();
+    let field = field(&spec, &device);
+    let fused = FusedMlps::from_mlps(&spec, &field.mlps);
+    let rows = 700;
+    let (features, sh, grad_rgb, grad_sigma) = inputs(&spec, rows, 4);
+    let (_, saved) = fused.forward_train(&features, &sh);
+    let (grads, grad_features) = fused.backward(&features, &sh, &saved, &grad_rgb, &grad_sigma);
+
+    let f = Tensor::<2>::from_data(TensorData::new(features.clone(), [rows, spec.grid.output_dim()]), &device).require_grad();
+    let s = Tensor::<2>::from_data(TensorData::new(sh.clone(), [rows, SH4_DIM]), &device);
+    let (rgb, sigma) = field.mlps.forward(f.clone(), s);
+    let g_rgb = Tensor::<2>::from_data(TensorData::new(grad_rgb.as_flattened().to_vec(), [rows, 3]), &device);
+    let g_sigma = Tensor::<1>::from_data(TensorData::new(grad_sigma.clone(), [rows]), &device);
+    let mut burn_grads = ((rgb * g_rgb).sum() + (sigma * g_sigma).sum()).backward();
+    let want_features = f.grad_remove(&mut burn_grads).unwrap().into_data().try_to_vec::<f32>().unwrap();
+    for (i, (g, w)) in grad_features.iter().zip(&want_features).enumerate() {
+        assert!(close(*g, *w, 1e-4), "feature gradient {i}: {g} vs {w}");
+    }
+    let burn_params = GradientsParams::from_grads(burn_grads, &field.mlps);
+    for (layer, (id, _)) in field.mlps.weight_ids().into_iter().enumerate() {
+        let want = burn_params.get::<2>(id).unwrap().into_data().try_to_vec::<f32>().unwrap();
+        let scale = want.iter().fold(0.0f32, |m, w| m.max(w.abs()));
+        for (i, (g, w)) in grads.0[layer].iter().zip(&want).enumerate() {
+            assert!((g - w).abs() <= 1e-4 * scale, "layer {layer} weight {i}: {g} vs {w}");
+        }
+    }
+
+    // One Adam step each way lands on the same weights: the fused gradients are keyed and
+    // placed as burn's optimizer expects.
+    let adam = || AdamConfig::new().with_beta_2(0.99).with_epsilon(1e-15).init();
+    let stepped_burn = adam().step(1e-2, field.mlps.clone(), burn_params);
+    let stepped_fused = adam().step(1e-2, field.mlps.clone(), grads.to_params(&field.mlps, &crate::backend::cpu()));
+    let before = field.mlps.weights();
+    for (layer, (a, b)) in stepped_fused.weights().iter().zip(stepped_burn.weights()).enumerate() {
+        let moved = a.iter().zip(&before[layer]).filter(|(x, y)| x != y).count();
+        assert!(moved > a.len() / 2, "layer {layer}: only {moved} weights moved");
+        for (x, y) in a.iter().zip(&b) {
+            assert!((x - y).abs() < 1e-5, "layer {layer}: {x} vs {y}");
+        }
+    }
+}
+
+#[test]
+fn backward_does_not_depend_on_the_thread_count() {
+    let spec = spec();
+    let fused = FusedMlps::from_mlps(&spec, &field(&spec, &crate::backend::cpu()).mlps);
+    // More rows than GRADIENT_RUNS · BLOCK_ROWS, so runs hold several blocks.
+    let rows = GRADIENT_RUNS * BLOCK_ROWS * 2 + 77;
+    let (features, sh, grad_rgb, grad_sigma) = inputs(&spec, rows, 5);
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| {
+            let ((rgb, sigma), saved) = fused.forward_train(&features, &sh);
+            (rgb, sigma, fused.backward(&features, &sh, &saved, &grad_rgb, &grad_sigma))
+        })
+    };
+    assert_eq!(run(1), run(3));
+}
