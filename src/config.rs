@@ -78,6 +78,7 @@ impl Preset {
                 field: FieldKind::Mlp,
                 target_samples: DEFAULT_TARGET_SAMPLES,
                 march_steps: DEFAULT_MARCH_STEPS,
+                rays_per_image: default_rays_per_image(),
             },
             Preset::CpuFast => TrainConfig {
                 preset: *self,
@@ -213,6 +214,11 @@ pub struct TrainConfig {
     /// [`NDC_MARCH_STEPS`](crate::train::NDC_MARCH_STEPS).
     #[serde(default = "default_march_steps")]
     pub march_steps: usize,
+    /// Rays a hash-grid step draws from each randomly chosen training image (with
+    /// `field = "ngp"`): 1 spreads a step's rays over as many images as it has rays (as nerfacc
+    /// and instant-ngp draw them); runs from before the key drew 256.
+    #[serde(default = "default_rays_per_image")]
+    pub rays_per_image: usize,
 }
 
 /// Default [`TrainConfig::target_samples`].
@@ -224,6 +230,10 @@ fn default_target_samples() -> usize {
 
 fn default_march_steps() -> usize {
     DEFAULT_MARCH_STEPS
+}
+
+fn default_rays_per_image() -> usize {
+    256
 }
 
 impl Default for TrainConfig {
@@ -291,8 +301,8 @@ impl TrainConfig {
         if s.n_coarse < 3 && s.n_fine > 0 {
             return Err("sampling: hierarchical sampling needs n_coarse ≥ 3".into());
         }
-        if self.batch_rays == 0 || self.chunk == 0 || self.pass_points == 0 || self.concurrent_passes == 0 {
-            return Err("batch_rays, chunk, pass_points and concurrent_passes must be positive".into());
+        if self.batch_rays == 0 || self.chunk == 0 || self.pass_points == 0 || self.concurrent_passes == 0 || self.rays_per_image == 0 {
+            return Err("batch_rays, chunk, pass_points, concurrent_passes and rays_per_image must be positive".into());
         }
         if !(self.lr > 0.0 && self.lr_decay_ksteps > 0.0) {
             return Err("lr and lr_decay_ksteps must be positive".into());

@@ -30,8 +30,6 @@ use std::time::Instant;
 /// Fewest and most rays in one step, whatever the samples per ray.
 const MIN_RAYS: usize = 64;
 const MAX_RAYS: usize = 1 << 14;
-/// Rays drawn from one image: a step mixes `rays / RAYS_PER_IMAGE` images (at least one).
-const RAYS_PER_IMAGE: usize = 256;
 
 /// Trains a [`NgpField`].
 pub struct NgpTrainer {
@@ -91,12 +89,12 @@ impl NgpTrainer {
     }
 
     /// This step's rays, their target colours and the backgrounds they are composited on:
-    /// about `target_samples / samples_per_ray` rays, [`RAYS_PER_IMAGE`] from each of several
+    /// about `target_samples / samples_per_ray` rays, `rays_per_image` from each of several
     /// random images. With random backgrounds each ray gets its own colour, and the target is
     /// the (premultiplied) pixel over it.
     fn draw_rays(&mut self) -> (Rays, Vec<[f32; 3]>, Vec<[f32; 3]>) {
         let n_rays = ((self.config.target_samples as f32 / self.samples_per_ray.max(1.0)) as usize).clamp(MIN_RAYS, MAX_RAYS);
-        let images = n_rays.div_ceil(RAYS_PER_IMAGE);
+        let images = n_rays.div_ceil(self.config.rays_per_image.max(1));
         let background = self.config.train_background.unwrap_or(Background::from_white(self.config.white_background));
         let mut rays = Rays::with_capacity(n_rays);
         let mut targets = Vec::with_capacity(n_rays);
