@@ -94,6 +94,31 @@ pub fn composite_packed_backward(
     (grad_sigma, grad_rgb)
 }
 
+/// The samples that light from the camera still reaches: along each ray, those with at least
+/// `min_transmittance` in front of them (nerfacc's `early_stop_eps`, instant-ngp's compaction of
+/// a training batch). The others weigh less than that, together, so a step drops them before
+/// the colour MLP and the backward pass, and its sample budget goes to samples that matter.
+/// Returns the kept samples (packed, ray by ray) and each one's index in `samples`.
+pub fn visible_samples(samples: &PackedSamples, sigma: &[f32], min_transmittance: f32) -> (PackedSamples, Vec<usize>) {
+    assert_eq!(sigma.len(), samples.t.len(), "one density per sample");
+    let mut kept = PackedSamples { offsets: vec![0], ..PackedSamples::default() };
+    let mut index = Vec::with_capacity(samples.t.len());
+    for r in 0..samples.n_rays() {
+        let mut transmittance = 1.0f32;
+        for i in samples.ray(r) {
+            if transmittance < min_transmittance {
+                break;
+            }
+            index.push(i);
+            kept.t.push(samples.t[i]);
+            kept.delta.push(samples.delta[i]);
+            transmittance *= 1.0 - alpha_from_density(sigma[i], samples.delta[i]);
+        }
+        kept.offsets.push(index.len());
+    }
+    (kept, index)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -153,6 +178,34 @@ mod tests {
             }
         }
         assert!(checked > 20, "{checked} densities checked");
+    }
+
+    #[test]
+    fn visible_samples_stop_where_the_light_is_spent() {
+        // Ray 0: α = 1 − e^(−σδ) with σδ = ln 10 (α 0.9): T before its samples 1, 0.1, 0.01,
+        // 1e-3, 1e-4, 1e-5. Ray 1: empty. Ray 2: σ ≤ 0 lets all light through.
+        let samples = PackedSamples { t: (0..9).map(|k| k as f32).collect(), delta: vec![1.0; 9], offsets: vec![0, 6, 6, 9] };
+        let sigma = [10f32.ln(), 10f32.ln(), 10f32.ln(), 10f32.ln(), 10f32.ln(), 10f32.ln(), -1.0, 0.0, -3.0];
+        let (kept, index) = visible_samples(&samples, &sigma, 2e-3);
+        // T = 1, 0.1, 0.01 ≥ 2e-3 and 1e-3 < 2e-3: three samples of ray 0, all of ray 2.
+        assert_eq!(index, vec![0, 1, 2, 6, 7, 8]);
+        assert_eq!(kept.offsets, vec![0, 3, 3, 6]);
+        assert_eq!(kept.t, vec![0.0, 1.0, 2.0, 6.0, 7.0, 8.0]);
+        // Nothing stops at 0; nothing is kept at 1.5 (the light starts at 1).
+        assert_eq!(visible_samples(&samples, &sigma, 0.0).1, (0..9).collect::<Vec<_>>());
+        assert_eq!(visible_samples(&samples, &sigma, 1.5).1, Vec::<usize>::new());
+        // The colour of the kept samples differs from the full ray's by less than the
+        // threshold (the dropped samples' weights sum to below it).
+        let rgb = vec![[0.3, 0.6, 0.9]; 9];
+        let full = composite_packed(&samples, &sigma, &rgb, &[[1.0; 3]; 3]).0;
+        let kept_rgb: Vec<[f32; 3]> = index.iter().map(|&i| rgb[i]).collect();
+        let kept_sigma: Vec<f32> = index.iter().map(|&i| sigma[i]).collect();
+        let part = composite_packed(&kept, &kept_sigma, &kept_rgb, &[[1.0; 3]; 3]).0;
+        for (a, b) in full.iter().zip(&part) {
+            for c in 0..3 {
+                assert!((a[c] - b[c]).abs() < 2e-3, "{a:?} vs {b:?}");
+            }
+        }
     }
 
     #[test]

@@ -11,7 +11,7 @@ use crate::config::TrainConfig;
 use crate::error::{Error, Result};
 use crate::field::seam::{FieldTrainer, StepStats, StepTiming, TrainedField};
 use crate::run_dir::{Checkpoint, CheckpointState, RunDir};
-use crate::train::packed::{composite_packed, composite_packed_backward};
+use crate::train::packed::{composite_packed, composite_packed_backward, visible_samples};
 use crate::train::occupancy;
 use burn::module::Module;
 use burn::optim::{AdamConfig, ModuleOptimizer};
@@ -143,30 +143,40 @@ impl FieldTrainer for NgpTrainer {
         }
         let (rays, targets, backgrounds) = self.draw_rays();
         let s = &self.config.sampling;
-        let samples = occupied_samples(&self.occupancy, &rays, s.near, s.far, self.config.march_steps, Some(&mut self.rng));
-        let n = samples.t.len();
-        self.samples_per_ray = n.max(1) as f32 / rays.len() as f32;
+        let mut samples = occupied_samples(&self.occupancy, &rays, s.near, s.far, self.config.march_steps, Some(&mut self.rng));
         self.step += 1;
-        if n == 0 {
+        if samples.t.is_empty() {
+            self.samples_per_ray = 1.0 / rays.len() as f32;
             // Nothing occupied along these rays: they render the background, nothing to learn.
             let mse = mean_squared_error(&backgrounds, &targets).0;
             return StepStats { loss: mse, psnr: psnr_from_mse(mse), samples: 0, timing: StepTiming { forward_s: start.elapsed().as_secs_f64(), ..StepTiming::default() } };
         }
-        let viewdirs = rays.view_directions();
-        let mut points = Vec::with_capacity(n);
-        let mut sh = Vec::with_capacity(n * SH4_DIM);
+        let mut points = Vec::with_capacity(samples.t.len());
         for r in 0..rays.len() {
-            let ray_sh = sh4(viewdirs[r]);
             for i in samples.ray(r) {
                 points.push(point_at(rays.origins[r], rays.directions[r], samples.t[i]));
-                sh.extend_from_slice(&ray_sh);
             }
         }
         let mut field = self.field.take().expect("field present");
         let mlps = field.fused();
         let encode = Instant::now();
-        let (unit, features) = field.encode(&points);
+        let (mut unit, mut features) = field.encode(&points);
         let mut grid_s = encode.elapsed().as_secs_f64();
+        if self.config.early_stop_transmittance > 0.0 {
+            let (kept, index) = visible_samples(&samples, &mlps.density(&features), self.config.early_stop_transmittance);
+            let width = field.grid.output_dim();
+            features = index.iter().flat_map(|&i| &features[i * width..(i + 1) * width]).copied().collect();
+            unit = index.iter().map(|&i| unit[i]).collect();
+            samples = kept;
+        }
+        let n = samples.t.len();
+        self.samples_per_ray = n.max(1) as f32 / rays.len() as f32;
+        let viewdirs = rays.view_directions();
+        let mut sh = Vec::with_capacity(n * SH4_DIM);
+        for r in 0..rays.len() {
+            let ray_sh = sh4(viewdirs[r]);
+            samples.ray(r).for_each(|_| sh.extend_from_slice(&ray_sh));
+        }
         let ((rgb, sigma), saved) = mlps.forward_train(&features, &sh);
         let (colors, _) = composite_packed(&samples, &sigma, &rgb, &backgrounds);
         let (mse, grad_color) = mean_squared_error(&colors, &targets);
