@@ -140,17 +140,10 @@ impl NgpField {
     pub fn to_plain(&self) -> PlainNgp {
         let layers = self
             .mlps
-            .density
-            .iter()
-            .chain(&self.mlps.color)
+            .weights()
+            .into_iter()
             .zip(self.spec.layer_shapes())
-            .map(|(l, (name, in_dim, out_dim))| DenseLayer {
-                name,
-                in_dim,
-                out_dim,
-                weight: l.weight.val().into_data().try_to_vec::<f32>().expect("f32 weights"),
-                bias: vec![0.0; out_dim],
-            })
+            .map(|(weight, (name, in_dim, out_dim))| DenseLayer { name, in_dim, out_dim, weight, bias: vec![0.0; out_dim] })
             .collect();
         PlainNgp { spec: self.spec, table: self.grid.params().to_vec(), layers }
     }

@@ -89,7 +89,33 @@ impl FusedMlps {
     /// σ and rgb at `rows` points from grid features `[rows, L·F]` and view harmonics
     /// `[rows, 16]` (no gradient).
     pub fn forward(&self, features: &[f32], sh: &[f32]) -> (Vec<[f32; 3]>, Vec<f32>) {
-        self.forward_train(features, sh).0
+        let rows = self.rows(features, sh);
+        let per_row = self.widths.saved_per_row();
+        let mut rgb = vec![[0.0f32; 3]; rows];
+        let mut sigma = vec![0.0f32; rows];
+        // Nothing is kept for a backward pass: each thread reuses one block's activations.
+        rgb.par_chunks_mut(BLOCK_ROWS).zip(sigma.par_chunks_mut(BLOCK_ROWS)).enumerate().for_each_init(
+            || vec![0.0f32; BLOCK_ROWS * per_row],
+            |scratch, (b, (rgb, sigma))| {
+                let (features, sh) = self.block_inputs(features, sh, b, rgb.len());
+                self.forward_block(features, sh, &mut scratch[..rgb.len() * per_row], rgb, sigma);
+            },
+        );
+        (rgb, sigma)
+    }
+
+    /// Rows of `features` `[rows, L·F]`, checked against the harmonics `[rows, 16]`.
+    fn rows(&self, features: &[f32], sh: &[f32]) -> usize {
+        let rows = features.len() / self.widths.features;
+        assert_eq!(features.len(), rows * self.widths.features, "features are not [n, L·F]");
+        assert_eq!(sh.len(), rows * SH4_DIM, "harmonics are not [n, 16]");
+        rows
+    }
+
+    /// Block `b`'s `n` rows of features and harmonics.
+    fn block_inputs<'a>(&self, features: &'a [f32], sh: &'a [f32], b: usize, n: usize) -> (&'a [f32], &'a [f32]) {
+        let (r0, f) = (b * BLOCK_ROWS, self.widths.features);
+        (&features[r0 * f..(r0 + n) * f], &sh[r0 * SH4_DIM..(r0 + n) * SH4_DIM])
     }
 
     /// σ alone (the density MLP's first output) from grid features `[rows, L·F]`.
@@ -116,11 +142,8 @@ impl FusedMlps {
 
     /// [`forward`](Self::forward), keeping the activations for [`backward`](Self::backward).
     pub fn forward_train(&self, features: &[f32], sh: &[f32]) -> ((Vec<[f32; 3]>, Vec<f32>), SavedActivations) {
-        let w = self.widths;
-        let rows = features.len() / w.features;
-        assert_eq!(features.len(), rows * w.features, "features are not [n, L·F]");
-        assert_eq!(sh.len(), rows * SH4_DIM, "harmonics are not [n, 16]");
-        let per_row = w.saved_per_row();
+        let rows = self.rows(features, sh);
+        let per_row = self.widths.saved_per_row();
         let mut saved = vec![0.0f32; rows * per_row];
         let mut rgb = vec![[0.0f32; 3]; rows];
         let mut sigma = vec![0.0f32; rows];
@@ -130,9 +153,8 @@ impl FusedMlps {
             .zip(sigma.par_chunks_mut(BLOCK_ROWS))
             .enumerate()
             .for_each(|(b, ((saved, rgb), sigma))| {
-                let r0 = b * BLOCK_ROWS;
-                let n = rgb.len();
-                self.forward_block(&features[r0 * w.features..(r0 + n) * w.features], &sh[r0 * SH4_DIM..(r0 + n) * SH4_DIM], saved, rgb, sigma);
+                let (features, sh) = self.block_inputs(features, sh, b, rgb.len());
+                self.forward_block(features, sh, saved, rgb, sigma);
             });
         ((rgb, sigma), SavedActivations { saved, rows })
     }

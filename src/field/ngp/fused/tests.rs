@@ -59,6 +59,7 @@ fn forward_matches_burn() {
     for (r, (d, s)) in fused.density(&features).iter().zip(&sigma).enumerate() {
         assert!(close(*d, *s, 1e-6), "the density MLP alone, row {r}: {d} vs {s}");
     }
+    assert_eq!(fused.forward_train(&features, &sh).0, (rgb, sigma), "with or without the activations kept, the same outputs");
     assert_eq!(fused.forward(&[], &[]), (vec![], vec![]));
 }
 
