@@ -61,6 +61,8 @@ impl Preset {
                 lr: 5e-4,
                 lr_decay_ksteps: 500.0,
                 lr_schedule: crate::train::LrSchedule::Exponential,
+                lr_min: 0.0,
+                lr_anneal_fraction: 0.0,
                 adam_beta1: 0.9,
                 adam_beta2: 0.999,
                 adam_epsilon: 1e-7,
@@ -79,6 +81,7 @@ impl Preset {
                 target_samples: DEFAULT_TARGET_SAMPLES,
                 march_steps: DEFAULT_MARCH_STEPS,
                 rays_per_image: default_rays_per_image(),
+                jitter_pixels: None,
                 early_stop_transmittance: 0.0,
             },
             Preset::CpuFast => TrainConfig {
@@ -112,6 +115,9 @@ impl Preset {
                 iters: 100_000,
                 lr: 1e-2,
                 lr_decay_ksteps: 10.0,
+                // nerfacc's last rate (1e-2 · 0.33³), reached at step 14,437; the 10- and
+                // 20-minute runs end above it. Lego, 60 minutes: docs/quality.md.
+                lr_min: 3.6e-4,
                 adam_beta1: 0.9,
                 adam_beta2: 0.99,
                 adam_epsilon: 1e-15,
@@ -168,6 +174,15 @@ pub struct TrainConfig {
     /// `exponential`).
     #[serde(default)]
     pub lr_schedule: crate::train::LrSchedule,
+    /// The learning rate never falls below this: a long run keeps learning instead of
+    /// freezing (the exponential decay is 1e-5 after 30k steps). 0 = no floor.
+    #[serde(default)]
+    pub lr_min: f64,
+    /// Over this last fraction of the run (of its time budget, or of `iters`), the
+    /// `exponential` schedule's rate falls a further 10×, exponentially: the end of a run
+    /// settles at a small step whatever its length. 0 = none.
+    #[serde(default)]
+    pub lr_anneal_fraction: f64,
     /// Adam β₁.
     pub adam_beta1: f32,
     /// Adam β₂.
@@ -222,6 +237,14 @@ pub struct TrainConfig {
     /// and instant-ngp draw them; no better on lego, docs/quality.md).
     #[serde(default = "default_rays_per_image")]
     pub rays_per_image: usize,
+    /// Training rays pass through a uniformly random point of their pixel instead of its
+    /// centre (instant-ngp's training rays), so the field learns the pixel's area, whose mean an
+    /// area-downscaled pixel is. The hash-grid field only. Absent: decided when the run starts
+    /// (on for the hash-grid field on images downscaled by `--downscale`, off at their own
+    /// resolution) and recorded here. Lego, 10 minutes: at 100×100 26.44 → 28.30 dB, at
+    /// 400×400 30.08 → 29.20 dB (docs/quality.md).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub jitter_pixels: Option<bool>,
     /// A hash-grid step keeps, along each ray, only the samples with at least this much light in
     /// front of them (nerfacc's `early_stop_eps`): the density MLP runs on every marched sample,
     /// the colour MLP, the backward pass and `target_samples` count only the kept ones. 0 keeps
@@ -276,11 +299,14 @@ impl TrainConfig {
     }
 
     /// The learning rate at `step`, `done` (in [0, 1]: the larger of the steps' and the time
-    /// budget's share) of the way through the run.
+    /// budget's share) of the way through the run: never below `lr_min` until the final anneal.
     pub fn learning_rate(&self, step: usize, done: f64) -> f64 {
         match self.lr_schedule {
-            crate::train::LrSchedule::Exponential => crate::train::learning_rate(self.lr, self.lr_decay_ksteps, step),
-            crate::train::LrSchedule::Planned => crate::train::planned_learning_rate(self.lr, step, done),
+            crate::train::LrSchedule::Exponential => {
+                let rate = crate::train::learning_rate(self.lr, self.lr_decay_ksteps, step).max(self.lr_min);
+                rate * crate::train::final_anneal(self.lr_anneal_fraction, done)
+            }
+            crate::train::LrSchedule::Planned => crate::train::planned_learning_rate(self.lr, step, done).max(self.lr_min),
         }
     }
 
@@ -316,6 +342,12 @@ impl TrainConfig {
         if !(self.lr > 0.0 && self.lr_decay_ksteps > 0.0) {
             return Err("lr and lr_decay_ksteps must be positive".into());
         }
+        if !(0.0..=self.lr).contains(&self.lr_min) {
+            return Err(format!("lr_min = {}: must be in [0, lr = {}]", self.lr_min, self.lr));
+        }
+        if !(0.0..1.0).contains(&self.lr_anneal_fraction) {
+            return Err(format!("lr_anneal_fraction = {}: must be in [0, 1)", self.lr_anneal_fraction));
+        }
         let o = &self.occupancy;
         if !(o.bound > 0.0) || !(o.threshold >= 0.0) || !(o.decay > 0.0 && o.decay <= 1.0) || o.update_every == 0 {
             return Err("occupancy: need bound > 0, threshold ≥ 0, 0 < decay ≤ 1, update_every ≥ 1".into());
@@ -330,6 +362,9 @@ impl TrainConfig {
         if !self.field.trains_on_random_backgrounds() && self.train_background.is_some_and(|b| b != Background::from_white(self.white_background)) {
             let random: Vec<&str> = FieldKind::ALL.iter().filter(|k| k.trains_on_random_backgrounds()).map(|k| k.name()).collect();
             return Err(format!("train_background: the {} field trains on white_background's colour (random needs field = {random:?})", self.field.name()));
+        }
+        if self.jitter_pixels == Some(true) && self.field != FieldKind::Ngp {
+            return Err(format!("jitter_pixels: the {} field trains through pixel centres (jitter needs field = \"ngp\")", self.field.name()));
         }
         if let Some((section, (min, max))) = self.shapes.field_box(self.field) {
             // A field defined inside its box only is marched through the occupancy grid, whose
@@ -386,9 +421,15 @@ mod tests {
         old.remove("rays_per_image");
         old.remove("early_stop_transmittance");
         let c = TrainConfig::from_toml_str(&toml::to_string(&old).unwrap(), None).unwrap();
-        assert_eq!((c.rays_per_image, c.early_stop_transmittance), (256, 1e-4));
+        assert_eq!((c.rays_per_image, c.early_stop_transmittance, c.jitter_pixels), (256, 1e-4, None));
         assert_eq!(Preset::CpuFast.config().early_stop_transmittance, 0.0);
-        for (key, bad) in [("early_stop_transmittance", "1.0"), ("early_stop_transmittance", "-0.1"), ("rays_per_image", "0")] {
+        for (key, bad) in [
+            ("early_stop_transmittance", "1.0"),
+            ("early_stop_transmittance", "-0.1"),
+            ("rays_per_image", "0"),
+            // The MLP field trains through pixel centres, as nerf-pytorch does.
+            ("jitter_pixels", "true\npreset = 'cpu-fast'"),
+        ] {
             let err = TrainConfig::from_toml_str(&format!("{key} = {bad}"), None).unwrap_err().to_string();
             assert!(err.contains(key), "{key} = {bad}: {err}");
         }
@@ -420,5 +461,30 @@ mod tests {
         assert!((planned.learning_rate(10_000, 0.6) - 0.0033).abs() < 1e-12);
         let err = TrainConfig::from_toml_str("lr_schedule = 'cosine'", None).unwrap_err().to_string();
         assert!(err.contains("cosine") && err.contains("planned"), "{err}");
+    }
+
+    #[test]
+    fn the_learning_rate_stops_at_its_floor() {
+        let ngp = Preset::Ngp.config();
+        // 1e-2 · 0.1^(14k/10k) = 3.98e-4 is above the floor, 20k steps (1e-4) below it.
+        assert!((ngp.learning_rate(14_000, 0.5) - 1e-2 * 0.1f64.powf(1.4)).abs() < 1e-12);
+        assert_eq!(ngp.learning_rate(20_000, 0.5), 3.6e-4);
+        assert_eq!(ngp.learning_rate(1_000_000, 1.0), 3.6e-4);
+        // The reference presets have none.
+        assert!(Preset::Paper.config().learning_rate(5_000_000, 1.0) < 1e-13);
+        // A config file from before the key takes its preset's floor.
+        let mut old = toml::Table::try_from(ngp.clone()).unwrap();
+        old.remove("lr_min");
+        assert_eq!(TrainConfig::from_toml_str(&toml::to_string(&old).unwrap(), None).unwrap().lr_min, 3.6e-4);
+        for (key, bad) in [("lr_min", "-1e-4"), ("lr_min", "0.5"), ("lr_anneal_fraction", "1.0"), ("lr_anneal_fraction", "-0.1")] {
+            let err = TrainConfig::from_toml_str(&format!("preset = 'ngp'\n{key} = {bad}"), None).unwrap_err().to_string();
+            assert!(err.contains(key), "{key} = {bad}: {err}");
+        }
+        // The last tenth of the run falls from the floor to a tenth of it.
+        let annealed = TrainConfig { lr_anneal_fraction: 0.1, ..ngp };
+        assert!((annealed.learning_rate(30_000, 0.9) - 3.6e-4).abs() < 1e-12);
+        assert!((annealed.learning_rate(30_000, 0.95) - 3.6e-4 / 10f64.sqrt()).abs() < 1e-12);
+        assert!((annealed.learning_rate(30_000, 1.0) - 3.6e-5).abs() < 1e-12);
+        assert!((annealed.learning_rate(0, 0.95) - 1e-2 / 10f64.sqrt()).abs() < 1e-12);
     }
 }

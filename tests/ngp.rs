@@ -1,5 +1,5 @@
 //! The hash-grid field end to end on a generated scene: training (the loss falls, a resumed run
-//! equals an uninterrupted one), export (the graph holds exactly the trained field), rendering
+//! equals an uninterrupted one, with pixel centres and with jittered rays), export (the graph holds exactly the trained field), rendering
 //! (`nerf render` vs `nerf-render` ≥ 60 dB, the numpy consumer ≤ 1e-4, marched through the grid
 //! and, with `--dense`, through the whole box),
 //! and bad input (a truncated table, impossible grid configs) refused with clear errors.
@@ -18,7 +18,11 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 fn train_tiny(scene: &Path, run: &Path, iters: usize) -> nerf::train::TrainSummary {
-    let options = TrainOptions { format: None, data: scene.to_path_buf(), run: run.to_path_buf(), config: tiny_ngp(), ndc: None, downscale: 1, time_budget_min: None, iters: Some(iters), progress: false };
+    train_tiny_at(scene, run, iters, 1)
+}
+
+fn train_tiny_at(scene: &Path, run: &Path, iters: usize, downscale: u32) -> nerf::train::TrainSummary {
+    let options = TrainOptions { format: None, data: scene.to_path_buf(), run: run.to_path_buf(), config: tiny_ngp(), ndc: None, downscale, time_budget_min: None, iters: Some(iters), progress: false };
     train(&options).unwrap()
 }
 
@@ -122,21 +126,30 @@ fn ngp_trains_exports_and_renders_the_same_everywhere() {
 fn a_resumed_ngp_run_equals_an_uninterrupted_one() {
     let dir = tempfile::tempdir().unwrap();
     let scene = small_scene(dir.path());
-    let straight = dir.path().join("straight");
-    let resumed = dir.path().join("resumed");
-    train_tiny(&scene, &straight, 40);
-    train_tiny(&scene, &resumed, 20);
-    train_tiny(&scene, &resumed, 40);
+    // At the images' resolution rays go through pixel centres; downscaled, through a random
+    // point of each pixel (one more draw from the run's random stream, which resuming restores).
+    for (downscale, jitter) in [(1, false), (2, true)] {
+        let straight = dir.path().join(format!("straight{downscale}"));
+        let resumed = dir.path().join(format!("resumed{downscale}"));
+        train_tiny_at(&scene, &straight, 40, downscale);
+        train_tiny_at(&scene, &resumed, 20, downscale);
+        train_tiny_at(&scene, &resumed, 40, downscale);
+        assert_eq!(RunDir::open(&resumed).unwrap().read_config().unwrap().jitter_pixels, Some(jitter));
+        assert_same_field(&straight, &resumed);
+    }
+}
+
+fn assert_same_field(straight: &Path, resumed: &Path) {
     let grid = |run: &Path| {
         let latest = std::fs::read_to_string(run.join("checkpoints/latest")).unwrap();
         std::fs::read(run.join("checkpoints").join(latest.trim()).join(nerf::field::ngp::GRID_FILE)).unwrap()
     };
-    assert!(grid(&straight) == grid(&resumed), "table or its Adam state differ after resuming");
+    assert!(grid(straight) == grid(resumed), "table or its Adam state differ after resuming");
     let load = |run: &Path| {
         let model = nerf::field::load_latest(&RunDir::open(run).unwrap(), &nerf::backend::cpu()).unwrap().model;
         model.as_any().downcast_ref::<nerf::field::ngp::NgpField>().expect("an ngp run").to_plain()
     };
-    assert_eq!(load(&straight), load(&resumed));
+    assert_eq!(load(straight), load(resumed));
 }
 
 #[test]

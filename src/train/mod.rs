@@ -8,4 +8,4 @@ mod run;
 mod schedule;
 
 pub use run::{NDC_MARCH_STEPS, TrainOptions, TrainSummary, train};
-pub use schedule::{LrSchedule, learning_rate, planned_learning_rate};
+pub use schedule::{LrSchedule, final_anneal, learning_rate, planned_learning_rate};

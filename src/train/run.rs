@@ -3,6 +3,7 @@
 
 use crate::field::FieldTrainer;
 use crate::config::TrainConfig;
+use nerf_core::field::FieldKind;
 use crate::error::{Error, Result};
 use crate::run_dir::{RunDir, RunSource};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -129,6 +130,11 @@ fn start_or_resume(run: &RunDir, options: &TrainOptions) -> Result<(Box<dyn Fiel
         // (A run from before this key resumes as it started.)
         let random = checkpoint.is_none() && format != CaptureFormat::Blender && config.field.trains_on_random_backgrounds();
         config.train_background = Some(if random { Background::Random } else { Background::from_white(config.white_background) });
+    }
+    if config.jitter_pixels.is_none() {
+        // A downscaled pixel is the mean of its area, which jittered rays learn (a run from
+        // before this key resumes as it started).
+        config.jitter_pixels = Some(checkpoint.is_none() && options.downscale > 1 && config.field == FieldKind::Ngp);
     }
     let load = move |split, frame, background| {
         let load = LoadOptions { format: Some(format), downscale: options.downscale, images: true, background, frame };

@@ -1,5 +1,6 @@
-//! Learning-rate schedules: the reference exponential decay by step count, and a schedule
-//! planned over the run's length (its steps, or its time budget when it has one).
+//! Learning-rate schedules: the reference exponential decay by step count (with an optional
+//! final anneal over the run's last fraction), and a schedule planned over the run's length
+//! (its steps, or its time budget when it has one).
 
 use serde::{Deserialize, Serialize};
 
@@ -31,6 +32,16 @@ pub fn learning_rate(base_lr: f64, decay_ksteps: f64, step: usize) -> f64 {
     base_lr * 0.1f64.powf(step as f64 / (decay_ksteps * 1000.0))
 }
 
+/// The factor of a final anneal over the last `fraction` of a run, `done` (in [0, 1]) of the
+/// way through it: 1 before, then 0.1^((done − (1 − fraction)) / fraction), 0.1 at the end.
+pub fn final_anneal(fraction: f64, done: f64) -> f64 {
+    if fraction <= 0.0 {
+        return 1.0;
+    }
+    let into = ((done - (1.0 - fraction)) / fraction).clamp(0.0, 1.0);
+    0.1f64.powf(into)
+}
+
 /// [`LrSchedule::Planned`]'s rate at `step`, `done` (in [0, 1]) of the way through the run.
 ///
 /// Example: lr 1e-2 → 1e-4 at step 0, 5.05e-3 at step 50, 1e-2 from step 100 until half-way,
@@ -51,6 +62,18 @@ mod tests {
         assert!((learning_rate(5e-4, 500.0, 500_000) - 5e-5).abs() < 1e-12);
         assert!((learning_rate(5e-4, 500.0, 250_000) - 5e-4 / 10f64.sqrt()).abs() < 1e-12);
         assert!((learning_rate(1e-3, 2.0, 4_000) - 1e-5).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_final_anneal_falls_tenfold_over_the_last_fraction() {
+        assert_eq!(final_anneal(0.0, 1.0), 1.0);
+        assert_eq!(final_anneal(0.1, 0.5), 1.0);
+        assert!((final_anneal(0.1, 0.9) - 1.0).abs() < 1e-12);
+        assert!((final_anneal(0.1, 0.95) - 0.1f64.sqrt()).abs() < 1e-12);
+        assert!((final_anneal(0.2, 0.9) - 0.1f64.sqrt()).abs() < 1e-12);
+        assert!((final_anneal(0.1, 1.0) - 0.1).abs() < 1e-12);
+        // A run past its end (the last step of a budget) stays at the end's factor.
+        assert!((final_anneal(0.1, 1.2) - 0.1).abs() < 1e-12);
     }
 
     #[test]

@@ -37,11 +37,18 @@ impl Rays {
     /// # Shapes
     /// `pixels`: `[n]` → `[n]` rays.
     pub fn for_pixels(camera: &PinholeCamera, pose: &Pose, pixels: &[(u32, u32)]) -> Rays {
+        Rays::for_image_points(camera, pose, pixels.iter().map(|&(i, j)| (i as f32, j as f32)))
+    }
+
+    /// The rays through image points `(column, row)` in pixel units, fractional: a pixel's
+    /// ray is at its integer coordinates, so `(i ± 0.5, j ± 0.5)` are the corners of its area
+    /// (training rays jittered within their pixel, as instant-ngp draws them).
+    pub fn for_image_points(camera: &PinholeCamera, pose: &Pose, points: impl ExactSizeIterator<Item = (f32, f32)>) -> Rays {
         let rotation = pose.rotation();
         let origin = pose.origin().to_array();
-        let mut rays = Rays::with_capacity(pixels.len());
-        for &(i, j) in pixels {
-            let d = rotation * camera.camera_direction(i as f32, j as f32);
+        let mut rays = Rays::with_capacity(points.len());
+        for (x, y) in points {
+            let d = rotation * camera.camera_direction(x, y);
             rays.origins.push(origin);
             rays.directions.push(d.to_array());
         }

@@ -40,6 +40,13 @@ fn ray_directions_for_known_pose_and_focal() {
     assert_close(Vec3::from_array(rays.directions[6]), Vec3::new(0.0, 1.0, 0.0));
     let unit = rays.view_directions();
     assert!((Vec3::from_array(unit[0]).length() - 1.0).abs() < 1e-6);
+    // Half a pixel right of the centre pixel, and a corner of pixel (0, 0)'s area: camera
+    // (0.25, 0, −1) → world (0.25, 1, 0); (−1.25, 0.75, −1) → (−1.25, 1, 0.75).
+    let points = Rays::for_image_points(&k, &pose, [(2.5, 1.0), (-0.5, -0.5), (3.0, 1.0)].into_iter());
+    assert_close(Vec3::from_array(points.directions[0]), Vec3::new(0.25, 1.0, 0.0));
+    assert_close(Vec3::from_array(points.directions[1]), Vec3::new(-1.25, 1.0, 0.75));
+    assert_eq!(points.directions[2], Rays::for_pixels(&k, &pose, &[(3, 1)]).directions[0]);
+    assert_eq!(points.origins[1], [0.5, -4.0, 1.0]);
 }
 
 #[test]

@@ -103,7 +103,12 @@ impl NgpTrainer {
             let part = n_rays * (k + 1) / images - n_rays * k / images;
             let (index, pixels, target) = self.batcher.next_batch(&mut self.rng, part, None);
             let view = &self.batcher.data().views[index];
-            rays.extend(self.config.sampling.warp_rays(Rays::for_pixels(&view.camera, &view.pose, &pixels)));
+            let drawn = if self.config.jitter_pixels == Some(true) {
+                Rays::for_image_points(&view.camera, &view.pose, jittered(&pixels, &mut self.rng))
+            } else {
+                Rays::for_pixels(&view.camera, &view.pose, &pixels)
+            };
+            rays.extend(self.config.sampling.warp_rays(drawn));
             for (&(i, j), mut t) in pixels.iter().zip(target) {
                 let b = match background {
                     Background::White => [1.0; 3],
@@ -260,4 +265,29 @@ fn mean_squared_error(colors: &[[f32; 3]], targets: &[[f32; 3]]) -> (f32, Vec<[f
         })
         .collect();
     ((sum / count as f64) as f32, grad)
+}
+
+/// A uniformly random point of each pixel's area, `(i, j) ± 0.5` (a pixel's ray is at its
+/// integer coordinates).
+fn jittered<'a>(pixels: &'a [(u32, u32)], rng: &'a mut Rng) -> impl ExactSizeIterator<Item = (f32, f32)> + 'a {
+    pixels.iter().map(move |&(i, j)| (i as f32 + rng.uniform() - 0.5, j as f32 + rng.uniform() - 0.5))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn jittered_points_cover_their_pixel_and_repeat_with_the_seed() {
+        let pixels: Vec<(u32, u32)> = (0..4000).map(|k| (k % 7, k / 7)).collect();
+        let points: Vec<(f32, f32)> = jittered(&pixels, &mut Rng::new(3)).collect();
+        let offsets: Vec<f32> = pixels.iter().zip(&points).flat_map(|(&(i, j), &(x, y))| [x - i as f32, y - j as f32]).collect();
+        assert!(offsets.iter().all(|o| (-0.5..0.5).contains(o)));
+        // Uniform over the pixel: the offsets span it and average to its centre.
+        let (low, high) = offsets.iter().fold((0.0f32, 0.0f32), |(l, h), &o| (l.min(o), h.max(o)));
+        assert!(low < -0.49 && high > 0.49, "{low} {high}");
+        assert!((offsets.iter().sum::<f32>() / offsets.len() as f32).abs() < 0.01);
+        assert_eq!(jittered(&pixels, &mut Rng::new(3)).collect::<Vec<_>>(), points);
+        assert_ne!(jittered(&pixels, &mut Rng::new(4)).collect::<Vec<_>>(), points);
+    }
 }
