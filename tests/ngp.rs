@@ -1,5 +1,6 @@
 //! The hash-grid field end to end on a generated scene: training (the loss falls, a resumed run
-//! equals an uninterrupted one, with pixel centres and with jittered rays), export (the graph holds exactly the trained field), rendering
+//! equals an uninterrupted one, with pixel centres and with jittered rays), export (the graph
+//! holds exactly the trained field), rendering
 //! (`nerf render` vs `nerf-render` ≥ 60 dB, the numpy consumer ≤ 1e-4, marched through the grid
 //! and, with `--dense`, through the whole box),
 //! and bad input (a truncated table, impossible grid configs) refused with clear errors.
@@ -137,6 +138,12 @@ fn a_resumed_ngp_run_equals_an_uninterrupted_one() {
         assert_eq!(RunDir::open(&resumed).unwrap().read_config().unwrap().jitter_pixels, Some(jitter));
         assert_same_field(&straight, &resumed);
     }
+    // The decision reaches the trainer: the same downscaled run through pixel centres differs.
+    let centres = dir.path().join("centres2");
+    let config = nerf::config::TrainConfig { jitter_pixels: Some(false), ..tiny_ngp() };
+    train(&TrainOptions { format: None, data: scene.clone(), run: centres.clone(), config, ndc: None, downscale: 2, time_budget_min: None, iters: Some(40), progress: false }).unwrap();
+    let grid = |run: &Path| std::fs::read(run.join("checkpoints/step-0000040").join(nerf::field::ngp::GRID_FILE)).unwrap();
+    assert!(grid(&centres) != grid(&dir.path().join("straight2")), "jitter_pixels changed nothing");
 }
 
 fn assert_same_field(straight: &Path, resumed: &Path) {
