@@ -28,7 +28,7 @@ fn test_poses(loaded: &LoadedRun) -> Vec<NamedPose> {
 /// The bundle of `field` trained with `config` on images from `camera` (the reference orbit,
 /// no test poses), marched through `occupancy` (a bounded field without one: its whole box).
 pub fn field_bundle<'a>(field: &'a dyn TrainedField, config: &TrainConfig, camera: &PinholeCamera, occupancy: Option<OccupancyGrid>) -> Bundle<Box<dyn CompileField + 'a>> {
-    let mut scene = SceneDescription::new(camera, &config.sampling, config.white_background, config.march_steps);
+    let mut scene = SceneDescription::new(camera, &config.sampling, config.white_background, config.render_steps());
     scene.poses.orbit = Pose::orbit(ORBIT_FRAMES).iter().map(pose_matrix).collect();
     Bundle { field: field.lowering(), scene, occupancy: field.marching_grid(occupancy) }
 }

@@ -60,7 +60,8 @@ fn ngp_trains_exports_and_renders_the_same_everywhere() {
     assert_eq!(scene_json["field"], "ngp");
     assert_eq!(scene_json["graphs"], serde_json::json!({ "field": "field.onnx" }), "one graph, named by its role");
     assert!(scene_json["networks"].is_null() && scene_json["occupancy"]["file"] == "occupancy.bin");
-    assert_eq!(scene_json["march_steps"], 256);
+    // The bundle marches as `nerf render` does: the render steps, not the training ones.
+    assert_eq!(scene_json["march_steps"], 320);
     // The graph holds exactly the trained field (opset 18, bitwise hash by default).
     let model = ModelProto::decode(std::fs::read(bundle.join("field.onnx")).unwrap().as_slice()).unwrap();
     assert_eq!(model.opset_import[0].version, 18);

@@ -3,7 +3,6 @@
 
 use crate::field::FieldTrainer;
 use crate::config::TrainConfig;
-use nerf_core::field::FieldKind;
 use crate::error::{Error, Result};
 use crate::run_dir::{RunDir, RunSource};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -134,7 +133,7 @@ fn start_or_resume(run: &RunDir, options: &TrainOptions) -> Result<(Box<dyn Fiel
     if config.jitter_pixels.is_none() {
         // A downscaled pixel is the mean of its area, which jittered rays learn (a run from
         // before this key resumes as it started).
-        config.jitter_pixels = Some(checkpoint.is_none() && options.downscale > 1 && config.field == FieldKind::Ngp);
+        config.jitter_pixels = Some(checkpoint.is_none() && options.downscale > 1 && config.field.trains_on_jittered_rays());
     }
     let load = move |split, frame, background| {
         let load = LoadOptions { format: Some(format), downscale: options.downscale, images: true, background, frame };
@@ -155,6 +154,7 @@ fn start_or_resume(run: &RunDir, options: &TrainOptions) -> Result<(Box<dyn Fiel
         config.sampling.ndc = placement.ndc;
         if placement.ndc.is_some() {
             config.march_steps = config.march_steps.min(NDC_MARCH_STEPS);
+            config.render_march_steps = config.render_march_steps.map(|s| s.min(NDC_MARCH_STEPS));
         }
         let space = if placement.ndc.is_some() { "NDC rays" } else { "the field's frame" };
         eprintln!("{} capture: near {near:.4}, far {far:.4} in {space} (scale {:.4})", placement.format, placement.transform.scale);

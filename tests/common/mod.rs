@@ -37,6 +37,7 @@ pub fn tiny_ngp() -> TrainConfig {
     c.shapes.ngp.color_hidden = 32;
     c.target_samples = 1 << 13;
     c.march_steps = 256;
+    c.render_march_steps = Some(320);
     c.occupancy.resolution = 32;
     c.occupancy.warmup_steps = 16;
     c.occupancy.update_every = 8;

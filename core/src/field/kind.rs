@@ -14,10 +14,10 @@ macro_rules! field_kinds {
     ($callback:ident) => {
         $callback! {
             /// The NeRF MLPs: coarse and fine networks with positional encoding.
-            Mlp { folder: mlp, name: "mlp", section: network, shape: NetworkSpec, plain: PlainMlp, random_backgrounds: false },
+            Mlp { folder: mlp, name: "mlp", section: network, shape: NetworkSpec, plain: PlainMlp, random_backgrounds: false, jittered_rays: false },
             /// The instant-ngp field: a hash grid and two tiny MLPs, defined inside its box only
             /// and always marched.
-            Ngp { folder: ngp, name: "ngp", section: ngp, shape: NgpSpec, plain: PlainNgp, random_backgrounds: true },
+            Ngp { folder: ngp, name: "ngp", section: ngp, shape: NgpSpec, plain: PlainNgp, random_backgrounds: true, jittered_rays: true },
         }
     };
 }
@@ -31,7 +31,7 @@ pub trait KindShape {
 }
 
 macro_rules! describe {
-    ($($(#[$doc:meta])* $kind:ident { folder: $folder:ident, name: $name:literal, section: $section:ident, shape: $shape:ident, plain: $plain:ident, random_backgrounds: $random:literal },)*) => {
+    ($($(#[$doc:meta])* $kind:ident { folder: $folder:ident, name: $name:literal, section: $section:ident, shape: $shape:ident, plain: $plain:ident, random_backgrounds: $random:literal, jittered_rays: $jitter:literal },)*) => {
         /// Which kind of radiance field a run trains: the one name the training config (and
         /// with it the checkpoints), graph metadata (`nerf.field`) and `scene.json` carry.
         #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -56,6 +56,14 @@ macro_rules! describe {
             pub fn trains_on_random_backgrounds(self) -> bool {
                 match self {
                     $(FieldKind::$kind => $random,)*
+                }
+            }
+
+            /// Whether its trainer can send each training ray through a random point of its
+            /// pixel (`jitter_pixels`); the others train through pixel centres.
+            pub fn trains_on_jittered_rays(self) -> bool {
+                match self {
+                    $(FieldKind::$kind => $jitter,)*
                 }
             }
         }
