@@ -29,7 +29,7 @@ pub enum Preset {
     CpuFast,
     /// The instant-ngp field: a multiresolution hash grid and two tiny MLPs, trained on packed
     /// samples marched through the occupancy grid (2¹⁶ samples per step, 1024 intervals over
-    /// [near, far]), lr 1e-2 (table and MLPs) decaying 10× per 10k steps.
+    /// [near, far]), lr 1e-2 (table and MLPs), ×0.33 at 50, 75 and 90% of the run.
     Ngp,
 }
 
@@ -116,8 +116,11 @@ impl Preset {
                 iters: 100_000,
                 lr: 1e-2,
                 lr_decay_ksteps: 10.0,
-                // nerfacc's last rate (1e-2 · 0.33³), reached at step 14,437; the 10- and
-                // 20-minute runs end above it. Lego, 60 minutes: docs/quality.md.
+                // nerfacc's: 1e-2 to half-way through the budget, then ×0.33 at 50, 75 and
+                // 90%. Lego, 60 minutes: 31.77 dB (step-count decay) → 32.24 dB over the 100 val
+                // views (docs/quality.md).
+                lr_schedule: crate::train::LrSchedule::Planned,
+                // nerfacc's last rate (1e-2 · 0.33³): the planned schedule's last phase.
                 lr_min: 3.6e-4,
                 adam_beta1: 0.9,
                 adam_beta2: 0.99,
@@ -172,8 +175,8 @@ pub struct TrainConfig {
     pub lr: f64,
     /// The learning rate falls 10× every this many thousand steps (`exponential` schedule).
     pub lr_decay_ksteps: f64,
-    /// How the learning rate moves over the run (absent in runs from before the key:
-    /// `exponential`).
+    /// How the learning rate moves over the run (a run's config.toml from before the key:
+    /// `exponential`, see [`TrainConfig::from_run_toml`]).
     #[serde(default)]
     pub lr_schedule: crate::train::LrSchedule,
     /// The learning rate never falls below this: a long run keeps learning instead of
@@ -284,6 +287,19 @@ impl Default for TrainConfig {
 }
 
 impl TrainConfig {
+    /// A run's recorded `config.toml`: as [`from_toml_str`](Self::from_toml_str), except that
+    /// keys from before a preset changed read as runs were trained then (`lr_schedule`:
+    /// `exponential`), so an old run resumes as it started.
+    pub fn from_run_toml(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let mut table: toml::Table = toml::from_str(&text).map_err(|e| Error::invalid(path, e.to_string()))?;
+        table.entry("lr_schedule").or_insert_with(|| toml::Value::String("exponential".into()));
+        Self::from_toml_str(&toml::to_string(&table).expect("a parsed table serialises"), None).map_err(|e| match e {
+            Error::Config(problem) => Error::invalid(path, problem),
+            other => other,
+        })
+    }
+
     /// A preset, overridden by the keys of a TOML file (which may itself name a `preset`).
     pub fn from_toml_file(path: &Path, preset: Option<Preset>) -> Result<Self> {
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
@@ -485,11 +501,13 @@ march_steps = 300", None).unwrap();
 
     #[test]
     fn the_schedule_key_picks_the_learning_rate() {
-        let exponential = TrainConfig::from_toml_str("lr = 0.01\nlr_decay_ksteps = 10.0", None).unwrap();
+        let exponential = TrainConfig::from_toml_str("lr = 0.01\nlr_decay_ksteps = 10.0\nlr_schedule = 'exponential'", None).unwrap();
         assert_eq!(exponential.lr_schedule, crate::train::LrSchedule::Exponential);
         // 10k steps: 10× lower, however far through the run.
         assert!((exponential.learning_rate(10_000, 0.1) - 1e-3).abs() < 1e-12);
-        let planned = TrainConfig::from_toml_str("lr = 0.01\nlr_schedule = 'planned'", None).unwrap();
+        // The ngp preset's.
+        let planned = TrainConfig::from_toml_str("lr = 0.01", None).unwrap();
+        assert_eq!(planned.lr_schedule, crate::train::LrSchedule::Planned);
         assert_eq!(planned.learning_rate(10_000, 0.1), 0.01);
         assert!((planned.learning_rate(10_000, 0.6) - 0.0033).abs() < 1e-12);
         let err = TrainConfig::from_toml_str("lr_schedule = 'cosine'", None).unwrap_err().to_string();
@@ -497,8 +515,28 @@ march_steps = 300", None).unwrap();
     }
 
     #[test]
+    fn a_run_from_before_the_schedule_key_resumes_on_the_step_count_decay() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("config.toml");
+        let mut old = toml::Table::try_from(Preset::Ngp.config()).unwrap();
+        old.remove("lr_schedule");
+        std::fs::write(&path, toml::to_string(&old).unwrap()).unwrap();
+        assert_eq!(TrainConfig::from_run_toml(&path).unwrap().lr_schedule, crate::train::LrSchedule::Exponential);
+        // A run that recorded its schedule keeps it; a new override file takes the preset's.
+        std::fs::write(&path, Preset::Ngp.config().to_toml()).unwrap();
+        assert_eq!(TrainConfig::from_run_toml(&path).unwrap().lr_schedule, crate::train::LrSchedule::Planned);
+        std::fs::write(&path, "seed = 3").unwrap();
+        assert_eq!(TrainConfig::from_toml_file(&path, None).unwrap().lr_schedule, crate::train::LrSchedule::Planned);
+        std::fs::write(&path, "seed = 'x'").unwrap();
+        let err = TrainConfig::from_run_toml(&path).unwrap_err().to_string();
+        assert!(err.contains("config.toml") && err.contains("seed"), "{err}");
+    }
+
+    #[test]
     fn the_learning_rate_stops_at_its_floor() {
-        let ngp = Preset::Ngp.config();
+        // The planned schedule's last phase (1e-2 · 0.33³ = 3.594e-4) is held at the floor.
+        assert_eq!(Preset::Ngp.config().learning_rate(30_000, 0.95), 3.6e-4);
+        let ngp = TrainConfig { lr_schedule: crate::train::LrSchedule::Exponential, ..Preset::Ngp.config() };
         // 1e-2 · 0.1^(14k/10k) = 3.98e-4 is above the floor, 20k steps (1e-4) below it.
         assert!((ngp.learning_rate(14_000, 0.5) - 1e-2 * 0.1f64.powf(1.4)).abs() < 1e-12);
         assert_eq!(ngp.learning_rate(20_000, 0.5), 3.6e-4);

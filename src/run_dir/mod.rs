@@ -107,7 +107,7 @@ impl RunDir {
 
     /// The run's configuration.
     pub fn read_config(&self) -> Result<TrainConfig> {
-        TrainConfig::from_toml_file(&self.config_path(), None)
+        TrainConfig::from_run_toml(&self.config_path())
     }
 
     /// Record the configuration in force.
