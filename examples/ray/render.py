@@ -46,8 +46,10 @@ def main():
     if args.shards < 1:
         parser.error("--shards must be at least 1")
     views = [v for v in args.views if v != "--"] or ["--orbit"]
+    # Absolute paths: Ray's workers need not share this directory as theirs.
     bundle, out = os.path.abspath(args.bundle), os.path.abspath(args.out)
-    command = [args.nerf_render, "--bundle", bundle, "--out", out, "--threads", str(args.threads), *views]
+    binary = os.path.abspath(args.nerf_render) if os.sep in args.nerf_render else args.nerf_render
+    command = [binary, "--bundle", bundle, "--out", out, "--threads", str(args.threads), *views]
 
     if args.address:
         ray.init(address=args.address)
@@ -58,7 +60,7 @@ def main():
     tasks = [render_shard.options(num_cpus=args.threads).remote(command, i, args.shards) for i in range(args.shards)]
     for i, (host, seconds, summary) in enumerate(ray.get(tasks)):
         print(f"shard {i}/{args.shards} on {host} in {seconds:.1f} s: {summary.splitlines()[0]}", flush=True)
-    merged = subprocess.run([args.nerf_render, "--merge", "--out", out], capture_output=True, text=True)
+    merged = subprocess.run([binary, "--merge", "--out", out], capture_output=True, text=True)
     if merged.returncode != 0:
         sys.exit(f"merge failed:\n{merged.stdout}{merged.stderr}")
     print(f"merged in {time.time() - start:.1f} s after the start of the shards:\n{merged.stdout.strip()}")
