@@ -209,7 +209,8 @@ impl ShardManifest {
     }
 
     /// Read one and check that it is consistent: the part within its count, its range the
-    /// part's share of `total`, its finished frames in its range, in order, with its names.
+    /// part's share of `total`, its finished frames in its range, in order, with its names, and
+    /// every file name it gives (frames, the GIF) a plain name inside the output directory.
     pub fn read(path: &Path) -> Result<Self> {
         let text = limits::read_json_text(path)?;
         let m: ShardManifest = serde_json::from_str(&text).map_err(|source| Error::Json { path: path.to_path_buf(), source })?;
@@ -220,6 +221,12 @@ impl ShardManifest {
                 path,
                 format!("frames {:?} are not shard {part}'s share {:?} of {} frames", m.range(), part.range(m.total), m.total),
             ));
+        }
+        for (k, name) in m.names.iter().enumerate() {
+            limits::check_plain_file_name(name, limits::Origin::Field(path, &format!("names[{k}]")))?;
+        }
+        if let Some(gif) = &m.gif {
+            limits::check_plain_file_name(&gif.file, limits::Origin::Field(path, "gif.file"))?;
         }
         let mut next = m.first;
         for (k, r) in m.done.iter().enumerate() {
@@ -359,6 +366,11 @@ mod tests {
         assert!(e.contains("done[1]"), "{e}");
         let e = edit(&|v| v["done"][0]["metrics"] = serde_json::Value::Null);
         assert!(e.contains("done[0]: no metrics"), "{e}");
+        // A merge writes the GIF and reads the frames it names: only inside the directory.
+        let e = edit(&|v| v["gif"]["file"] = "../../elsewhere.gif".into());
+        assert!(e.contains("gif.file: \"../../elsewhere.gif\" is not a plain file name"), "{e}");
+        let e = edit(&|v| v["names"][2] = "/etc/passwd".into());
+        assert!(e.contains("names[2]"), "{e}");
         std::fs::write(&path, "{").unwrap();
         assert!(ShardManifest::read(&path).unwrap_err().to_string().contains("invalid JSON"));
         // A manifest under another part's name.
