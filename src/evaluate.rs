@@ -8,7 +8,8 @@ use crate::config::TrainConfig;
 use nerf_core::PinholeCamera;
 use nerf_core::camera::Pose;
 use nerf_core::dataset::{Background, ScenePlacement};
-use nerf_core::io::frames::{FrameOutput, FrameSpec, FramesReport, render_frames};
+use nerf_core::io::camera_path::CameraPathFile;
+use nerf_core::io::frames::{FrameOutput, FramePlan, FrameSpec, FramesReport, render_frames, render_frames_with};
 use nerf_core::io::views::{Images, SplitChoice, orbit_poses, split_views};
 use nerf_core::render::metrics::EvalReport;
 use nerf_core::sample::occupancy::OccupancyGrid;
@@ -83,25 +84,78 @@ pub fn eval(run: &Path, data: &SplitChoice, limit: Option<usize>, out: &Path, pr
     report.metrics.ok_or_else(|| Error::invalid(&data.dir, format!("the {} split has no views", data.split)))
 }
 
+/// What `nerf render` renders.
+#[derive(Debug, Clone, PartialEq)]
+pub enum RenderViews {
+    /// The run's orbit (around a capture's cameras, a spiral in front of forward-facing ones,
+    /// else the reference orbit): `frames` frames at the training resolution divided by
+    /// `downscale`, and `orbit.gif`.
+    Orbit {
+        /// Frames in the orbit.
+        frames: usize,
+        /// Divides the training camera's size.
+        downscale: u32,
+    },
+    /// A split's poses (no ground truth needed).
+    Split(SplitChoice),
+    /// A nerfstudio `camera_path.json` (poses in the capture's coordinates, mapped through the
+    /// run's placement): `frame_00000.png`, … and `camera_path.gif`.
+    CameraPath {
+        /// The file.
+        file: PathBuf,
+        /// Divides the path's render size.
+        downscale: u32,
+    },
+}
+
+/// Render `views` of `run` into `out`: PNG + depth map per frame (`.npy` with `raw`), the
+/// frames of `plan.shard` only, keeping an earlier run's with `plan.skip_existing`; a whole
+/// render also writes its GIF (orbits, camera paths).
+pub fn render_views(run: &Path, views: &RenderViews, out: &Path, raw: bool, plan: &FramePlan, progress: bool) -> Result<FramesReport> {
+    if let RenderViews::Orbit { frames, .. } = views {
+        nerf_core::io::limits::check_count(*frames, nerf_core::io::limits::MAX_FRAMES, "frames", nerf_core::io::limits::Origin::Option("--frames"))?;
+    }
+    let loaded = LoadedRun::open(run)?;
+    let (specs, gif) = match views {
+        RenderViews::Orbit { frames, downscale } => {
+            let k = shrink(loaded.camera, *downscale, "training camera")?;
+            (FrameSpec::orbit(&k, &loaded.orbit(*frames)), Some(plan.gif.clone()))
+        }
+        RenderViews::Split(choice) => (loaded.split_views(choice, Images::Skip)?, None),
+        RenderViews::CameraPath { file, downscale } => {
+            let path = CameraPathFile::read(file)?;
+            let transform = loaded.placement().map_or_else(nerf_core::SceneTransform::identity, |p| p.transform);
+            let mut specs = path.frames(&transform);
+            for f in &mut specs {
+                f.camera = shrink(f.camera, *downscale, "camera path's render size")?;
+            }
+            (specs, Some(path.gif()))
+        }
+    };
+    let s = &loaded.config.sampling;
+    let output = FrameOutput { dir: out.to_path_buf(), depth_range: (s.near, s.far), gif: gif.is_some(), raw, progress };
+    let plan = FramePlan { gif: gif.unwrap_or_else(|| plan.gif.clone()), ..plan.clone() };
+    render_frames_with(specs, &output, &plan, |f, p| Ok::<_, Error>(loaded.render(&f.camera, &f.pose, p)))
+}
+
+/// `k` at its size divided by `downscale` (an error when nothing would be left of `what`).
+fn shrink(k: PinholeCamera, downscale: u32, what: &str) -> Result<PinholeCamera> {
+    let (width, height) = (k.width.checked_div(downscale).unwrap_or(0), k.height.checked_div(downscale).unwrap_or(0));
+    if width == 0 || height == 0 {
+        return Err(Error::Config(format!("--downscale {downscale} leaves nothing of the {}×{} {what}", k.width, k.height)));
+    }
+    Ok(k.resized(width, height))
+}
+
 /// Render a split's poses (no ground truth needed) to PNGs and depth maps (and `.npy` with `raw`).
 pub fn render_split(run: &Path, data: &SplitChoice, out: &Path, raw: bool, progress: bool) -> Result<usize> {
-    let loaded = LoadedRun::open(run)?;
-    let views = loaded.split_views(data, Images::Skip)?;
-    Ok(loaded.render_frames(views, out, false, raw, progress)?.frames)
+    Ok(render_views(run, &RenderViews::Split(data.clone()), out, raw, &FramePlan::default(), progress)?.frames)
 }
 
 /// Render the run's orbit (around a capture's cameras, a spiral in front of forward-facing
 /// ones, else the reference orbit) at the training resolution divided by `downscale`:
 /// `frame_NNN.png`, depth maps (`.npy` with `raw`) and `orbit.gif`.
 pub fn render_orbit(run: &Path, frames: usize, downscale: u32, out: &Path, raw: bool, progress: bool) -> Result<PathBuf> {
-    nerf_core::io::limits::check_count(frames, nerf_core::io::limits::MAX_FRAMES, "frames", nerf_core::io::limits::Origin::Option("--frames"))?;
-    let loaded = LoadedRun::open(run)?;
-    let k = loaded.camera;
-    let (width, height) = (k.width.checked_div(downscale).unwrap_or(0), k.height.checked_div(downscale).unwrap_or(0));
-    if width == 0 || height == 0 {
-        return Err(Error::Config(format!("--downscale {downscale} leaves nothing of the {}×{} training camera", k.width, k.height)));
-    }
-    let specs = FrameSpec::orbit(&k.resized(width, height), &loaded.orbit(frames));
-    let report = loaded.render_frames(specs, out, true, raw, progress)?;
+    let report = render_views(run, &RenderViews::Orbit { frames, downscale }, out, raw, &FramePlan::default(), progress)?;
     report.gif.ok_or_else(|| Error::Config("an orbit needs at least one frame".into()))
 }

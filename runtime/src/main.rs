@@ -6,7 +6,9 @@ use nerf_core::PinholeCamera;
 use nerf_core::camera::Pose;
 use nerf_core::SceneTransform;
 use nerf_core::dataset::{Background, CaptureFormat, CaptureSplit};
-use nerf_core::io::frames::{FrameOutput, FrameSpec, render_frames};
+use nerf_core::io::camera_path::CameraPathFile;
+use nerf_core::io::frames::{FrameOutput, FramePlan, FrameSpec, render_frames_with};
+use nerf_core::io::shard::Shard;
 use nerf_core::io::views::{Images, SplitChoice, named_views, orbit_poses, split_views};
 use nerf_core::io::limits::{self, Origin};
 use nerf_runtime::{OpenOptions, OrtScene, network::POINTS_PER_RUN, scene::DEFAULT_CHUNK};
@@ -25,8 +27,8 @@ use std::time::Instant;
 struct Cli {
     /// Bundle directory: scene.json, coarse.onnx and fine.onnx (NeRF MLPs) or field.onnx (a
     /// hash-grid field), [occupancy.bin].
-    #[arg(long)]
-    bundle: PathBuf,
+    #[arg(long, required_unless_present = "merge")]
+    bundle: Option<PathBuf>,
     /// Render the bundle's 360° orbit (scene.json poses.orbit) and orbit.gif.
     #[arg(long, conflicts_with = "split")]
     orbit: bool,
@@ -93,6 +95,24 @@ struct Cli {
     /// Also write <name>.npy per frame: float32 [H, W, 5] = r, g, b, depth, acc.
     #[arg(long)]
     npy: bool,
+    /// Render a nerfstudio camera path (camera_path.json: render_width, render_height, seconds,
+    /// camera_path[] of camera_to_world and fov; perspective cameras; poses in the coordinates
+    /// of the capture, mapped through the bundle's placement): frame_00000.png, … and
+    /// camera_path.gif (--width/--height resize it).
+    #[arg(long, conflicts_with_all = ["orbit", "split", "serve"])]
+    camera_path: Option<PathBuf>,
+    /// Render only shard I of N (0-based): the I-th of N contiguous ranges of the frames, into
+    /// --out shared by all shards; assemble them with --merge once every shard is done.
+    #[arg(long, value_name = "I/N", conflicts_with = "serve")]
+    shard: Option<Shard>,
+    /// Keep the frames --out already holds (PNG and depth map, and .npy with --npy; with ground
+    /// truth, also their recorded metrics) instead of rendering them again.
+    #[arg(long, conflicts_with = "serve")]
+    skip_existing: bool,
+    /// Assemble a render made in shards once all are done: the GIF, metrics.json and the
+    /// contact sheet in --out (checks every shard and frame is there; writes nothing if not).
+    #[arg(long, conflicts_with_all = ["bundle", "orbit", "split", "serve", "camera_path", "shard", "skip_existing"])]
+    merge: bool,
 }
 
 fn main() {
@@ -110,13 +130,19 @@ fn resize(k: PinholeCamera, width: Option<u32>, height: Option<u32>) -> Result<P
 }
 
 fn run(cli: Cli) -> Result<()> {
+    if cli.merge {
+        let out = cli.out.clone().expect("clap requires --out without --serve");
+        println!("{}", nerf_core::io::merge::merge_shards(&out)?.summary(&out, Shard::WHOLE));
+        return Ok(());
+    }
+    let bundle = cli.bundle.clone().expect("clap requires --bundle without --merge");
     if cli.serve {
         let viewer = cli.viewer.clone().or_else(nerf_runtime::serve::viewer_dir).ok_or_else(|| anyhow::anyhow!("no viewer directory: set --viewer or $NERF_VIEWER"))?;
         // A bundle that does not load is still served: the page shows why.
-        if let Err(e) = nerf_bundle::read_scene(&cli.bundle) {
+        if let Err(e) = nerf_bundle::read_scene(&bundle) {
             eprintln!("warning: {e} (the viewer will show it)");
         }
-        let site = nerf_runtime::serve::Site::new(&viewer, &cli.bundle)?;
+        let site = nerf_runtime::serve::Site::new(&viewer, &bundle)?;
         return Ok(nerf_runtime::serve::serve(site, cli.host, cli.port)?);
     }
     let out = cli.out.clone().expect("clap requires --out without --serve");
@@ -125,8 +151,19 @@ fn run(cli: Cli) -> Result<()> {
         rayon::ThreadPoolBuilder::new().num_threads(n).build_global()?;
     }
     let options = OpenOptions { threads: cli.threads, points_per_run: cli.points_per_run, chunk: cli.chunk, skip_empty_space: !cli.dense };
-    let mut scene = OrtScene::open(&cli.bundle, &options)?;
+    let mut scene = OrtScene::open(&bundle, &options)?;
+    let transform = scene.description.placement.as_ref().map_or_else(SceneTransform::identity, |p| p.transform);
+    let mut gif = cli.orbit.then(|| FramePlan::default().gif);
     let mut frames = match (cli.orbit, cli.split, &cli.data) {
+        _ if cli.camera_path.is_some() => {
+            let path = CameraPathFile::read(cli.camera_path.as_deref().expect("matched Some"))?;
+            gif = Some(path.gif());
+            let mut specs = path.frames(&transform);
+            for f in &mut specs {
+                f.camera = resize(f.camera, cli.width, cli.height)?;
+            }
+            specs
+        }
         (true, _, _) => {
             if let Some(n) = cli.frames {
                 limits::check_count(n, limits::MAX_FRAMES, "frames", Origin::Option("--frames"))?;
@@ -142,7 +179,6 @@ fn run(cli: Cli) -> Result<()> {
             FrameSpec::orbit(&resize(scene.camera(None), cli.width, cli.height)?, &poses)
         }
         (false, Some(split), Some(data)) => {
-            let transform = scene.description.placement.as_ref().map_or_else(SceneTransform::identity, |p| p.transform);
             let background = Background::from_white(scene.description.white_background);
             let choice = SplitChoice { dir: data.clone(), format: cli.format, split, downscale: cli.downscale };
             let mut specs = split_views(&choice, transform, background, Images::IfPresent)?;
@@ -159,31 +195,27 @@ fn run(cli: Cli) -> Result<()> {
             named_views(&k, scene.description.poses.test.iter().map(|p| (p.name.as_str(), Pose::from_rows(p.transform_matrix))))
         }
         (false, Some(_), None) => bail!("--split val/train needs --data <scene dir> (the bundle only stores test poses)"),
-        (false, None, _) => bail!("say what to render: --orbit, or --split <val|test> [--data <scene dir>]"),
+        (false, None, _) => bail!("say what to render: --orbit, --camera-path <camera_path.json>, or --split <val|test> [--data <scene dir>]"),
     };
     frames.truncate(cli.limit.unwrap_or(usize::MAX));
     if frames.is_empty() {
         bail!("nothing to render: no poses");
     }
     let s = &scene.options.sampling;
-    let output = FrameOutput { dir: out.clone(), depth_range: (s.near, s.far), gif: cli.orbit, raw: cli.npy, progress: std::io::stderr().is_terminal() };
-    let (first, n) = (frames[0].camera, frames.len());
+    let output = FrameOutput { dir: out.clone(), depth_range: (s.near, s.far), gif: gif.is_some(), raw: cli.npy, progress: std::io::stderr().is_terminal() };
+    let plan = FramePlan { shard: cli.shard.unwrap_or(Shard::WHOLE), skip_existing: cli.skip_existing, gif: gif.unwrap_or_else(|| FramePlan::default().gif) };
+    let first = frames[0].camera;
     let start = Instant::now();
-    let report = render_frames(frames, &output, |f, progress| scene.render(&f.camera, &f.pose, progress))?;
+    let report = render_frames_with(frames, &output, &plan, |f, progress| scene.render(&f.camera, &f.pose, progress))?;
     let seconds = start.elapsed().as_secs_f64();
+    let n = report.frames - report.skipped;
     println!(
-        "{n} frames at {}×{} in {seconds:.1} s ({:.2} s per frame, {}) into {}",
+        "{n} frames rendered at {}×{} in {seconds:.1} s ({:.2} s per frame, {})",
         first.width,
         first.height,
-        seconds / n as f64,
+        seconds / n.max(1) as f64,
         if scene.occupancy.is_some() { "empty space skipped" } else { "dense sampling" },
-        out.display()
     );
-    if let Some(m) = &report.metrics {
-        println!("PSNR {:.2} dB, SSIM {:.4} over {} views: {}", m.psnr_mean, m.ssim_mean, m.per_image.len(), out.join(nerf_core::io::frames::METRICS_FILE).display());
-    }
-    if let Some(gif) = &report.gif {
-        println!("orbit: {}", gif.display());
-    }
+    println!("{}", report.summary(&out, plan.shard));
     Ok(())
 }

@@ -2,14 +2,21 @@
 //! the views to render, a progress bar per frame, PNG + depth map (+ optional raw `.npy`),
 //! metrics against ground truth and the orbit GIF. The renderer is a closure, so both binaries
 //! write the same files the same way.
+//!
+//! A render may be one shard of several processes ([`FramePlan`], [`crate::io::shard`]) and may
+//! keep the frames an earlier run finished; the GIF, `metrics.json` and contact sheet are then
+//! assembled from what is on disk ([`crate::io::merge`]), by the whole render itself or by the
+//! merge of its shards, which write the same bytes.
 
 use crate::camera::Pose;
 use crate::camera::PinholeCamera;
 use crate::dataset::SplitData;
 use crate::io::atomic::write_atomic;
 use crate::error::{Error, Result};
-use crate::io::image::{depth_to_rgb, save_gif, save_png};
-use crate::render::metrics::{EvalReport, ImageMetrics, psnr, ssim};
+use crate::io::image::{depth_to_rgb, save_png};
+use crate::io::merge::assemble;
+use crate::io::shard::{FrameRecord, GifSpec, RecordedMetrics, SHARDS_DIR, Shard, ShardManifest, finished_frames, sheet_row_path};
+use crate::render::metrics::{EvalReport, psnr, ssim};
 use crate::render::RenderedImage;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
@@ -64,7 +71,7 @@ pub struct FrameOutput {
     pub dir: PathBuf,
     /// Depth range of the colour map (near, far).
     pub depth_range: (f32, f32),
-    /// Also write `orbit.gif` of all frames.
+    /// Also write a GIF of all frames ([`FramePlan::gif`]: `orbit.gif` unless told otherwise).
     pub gif: bool,
     /// Also write `<name>.npy`: float32 `[H, W, 5]` = r, g, b, depth, acc (exact values for
     /// comparisons; PNGs are 8-bit).
@@ -73,15 +80,65 @@ pub struct FrameOutput {
     pub progress: bool,
 }
 
+/// How a render is split across processes and resumed, and what its GIF is called.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FramePlan {
+    /// The part of the frames this process renders. The whole render ([`Shard::WHOLE`]) writes
+    /// the GIF, metrics and contact sheet at once; a part leaves them to a merge
+    /// ([`crate::io::merge::merge_shards`]).
+    pub shard: Shard,
+    /// Keep frames an earlier run finished: a frame whose PNG and depth map (and `.npy` when
+    /// asked for) exist is not rendered again (with ground truth, its metrics must also be on
+    /// record in `.shards/`).
+    pub skip_existing: bool,
+    /// The GIF's file and frame time (written when [`FrameOutput::gif`] is set).
+    pub gif: GifSpec,
+}
+
+impl Default for FramePlan {
+    /// The whole render in one process, from scratch, `orbit.gif` at [`GIF_DELAY_MS`].
+    fn default() -> Self {
+        FramePlan { shard: Shard::WHOLE, skip_existing: false, gif: GifSpec { file: GIF_FILE.into(), delay_ms: GIF_DELAY_MS } }
+    }
+}
+
 /// What [`render_frames`] wrote.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FramesReport {
-    /// Number of frames rendered.
+    /// Number of frames this process was given (all of them, or its shard's).
     pub frames: usize,
-    /// Metrics (also in `metrics.json`) when every frame had ground truth.
+    /// Of those, frames an earlier run had finished (kept with `skip_existing`).
+    pub skipped: usize,
+    /// Metrics (also in `metrics.json`) when every frame had ground truth and the render is
+    /// whole (a shard's metrics come with the merge).
     pub metrics: Option<EvalReport>,
-    /// The GIF, when asked for.
+    /// The GIF, when asked for and the render is whole.
     pub gif: Option<PathBuf>,
+}
+
+impl FramesReport {
+    /// What was written into `out` by the render of `shard` (or a merge: [`Shard::WHOLE`]), as
+    /// the binaries print it: the frames (and how many were kept), then for a shard how to
+    /// merge, else the metrics and the GIF.
+    pub fn summary(&self, out: &Path, shard: Shard) -> String {
+        let kept = if self.skipped > 0 { format!(" ({} kept from an earlier run)", self.skipped) } else { String::new() };
+        if !shard.is_whole() {
+            return format!(
+                "shard {shard}: {} frames and depth maps in {}{kept}\nonce every shard is done, assemble them with --merge --out {}",
+                self.frames,
+                out.display(),
+                out.display()
+            );
+        }
+        let mut lines = vec![format!("{} frames and depth maps in {}{kept}", self.frames, out.display())];
+        if let Some(m) = &self.metrics {
+            lines.push(format!("PSNR {:.2} dB, SSIM {:.4} over {} views: {}", m.psnr_mean, m.ssim_mean, m.per_image.len(), out.join(METRICS_FILE).display()));
+        }
+        if let Some(gif) = &self.gif {
+            lines.push(format!("animation: {}", gif.display()));
+        }
+        lines.join("\n")
+    }
 }
 
 /// A progress bar for one frame labelled `what` (hidden when `show` is false).
@@ -95,106 +152,115 @@ pub fn frame_bar(show: bool, what: &str) -> ProgressBar {
 }
 
 /// Render every frame with `render(frame, progress(done, total))` and write PNG + depth map
-/// per frame, then `metrics.json` (if all frames have targets) and `orbit.gif` (if asked).
-/// Errors are the renderer's own type, which takes the core's file errors.
+/// per frame, then `metrics.json` and the contact sheet (if all frames have targets) and
+/// `orbit.gif` (if asked). Errors are the renderer's own type, which takes the core's file errors.
 pub fn render_frames<E: From<Error>>(
     frames: Vec<FrameSpec>,
     out: &FrameOutput,
+    render: impl FnMut(&FrameSpec, &mut dyn FnMut(usize, usize)) -> std::result::Result<RenderedImage, E>,
+) -> std::result::Result<FramesReport, E> {
+    render_frames_with(frames, out, &FramePlan::default(), render)
+}
+
+/// [`render_frames`] for the frames of `plan.shard`, keeping what an earlier run finished when
+/// `plan.skip_existing`. After each frame (files first) the shard's manifest in `.shards/`
+/// records it; a whole render then assembles its GIF, metrics and contact sheet from what is on
+/// disk ([`assemble`]), exactly as a merge of shards does.
+pub fn render_frames_with<E: From<Error>>(
+    frames: Vec<FrameSpec>,
+    out: &FrameOutput,
+    plan: &FramePlan,
     mut render: impl FnMut(&FrameSpec, &mut dyn FnMut(usize, usize)) -> std::result::Result<RenderedImage, E>,
 ) -> std::result::Result<FramesReport, E> {
-    std::fs::create_dir_all(&out.dir).map_err(|e| Error::io(&out.dir, e))?;
+    let shards_dir = out.dir.join(SHARDS_DIR);
+    std::fs::create_dir_all(&shards_dir).map_err(|e| Error::io(&shards_dir, e))?;
     let with_metrics = !frames.is_empty() && frames.iter().all(|f| f.target.is_some());
-    let total = frames.len();
-    let mut per_image = Vec::new();
-    let mut gif_frames = Vec::new();
-    let mut sheet = ContactSheet::default();
-    for (k, frame) in frames.iter().enumerate() {
-        let bar = frame_bar(out.progress, &format!("{} {}/{total}", frame.name, k + 1));
+    let gif = (out.gif && !frames.is_empty()).then(|| plan.gif.clone());
+    let mut manifest = ShardManifest::new(plan.shard, &frames, out.raw, with_metrics, gif);
+    let earlier = if plan.skip_existing { finished_frames(&out.dir, &manifest.fingerprint)? } else { Default::default() };
+    manifest.write(&out.dir)?;
+    let range = manifest.range();
+    let mut skipped = 0;
+    for k in range.clone() {
+        let frame = &frames[k];
+        if plan.skip_existing
+            && let Some(record) = kept_frame(&out.dir, &manifest, k, &frame.name, earlier.get(&k))
+        {
+            manifest.done.push(record);
+            manifest.write(&out.dir)?;
+            skipped += 1;
+            continue;
+        }
+        let bar = frame_bar(out.progress, &format!("{} {}/{}", frame.name, k + 1 - range.start, range.len()));
         bar.set_length(frame.camera.num_pixels() as u64);
         let image = render(frame, &mut |done, _| bar.set_position(done as u64))?;
         let depth = save_frame(&image, &out.dir, &frame.name, out.depth_range, out.raw)?;
+        let mut metrics = None;
         if let Some(target) = frame.target.as_ref().filter(|_| with_metrics) {
-            let m = ImageMetrics {
-                name: frame.name.clone(),
-                psnr: psnr(&image.rays.rgb, target),
-                ssim: ssim(&image.rays.rgb, target, image.width as usize, image.height as usize),
+            let m = RecordedMetrics {
+                psnr: psnr(&image.rays.rgb, target) as f64,
+                ssim: ssim(&image.rays.rgb, target, image.width as usize, image.height as usize) as f64,
             };
             bar.finish_with_message(format!("PSNR {:.2} dB, SSIM {:.3}", m.psnr, m.ssim));
-            per_image.push(m);
             if k < SHEET_VIEWS {
-                sheet.add_row(image.width, image.height, &[target, &image.rays.rgb, &depth]);
+                let (w, h, row) = sheet_row(image.width, image.height, &[target, &image.rays.rgb, &depth]);
+                save_png(&sheet_row_path(&out.dir, &manifest.fingerprint, k), w, h, &row)?;
             }
+            metrics = Some(m);
         } else {
             bar.finish();
         }
-        if out.gif {
-            gif_frames.push(image.rays.rgb);
-        }
+        manifest.done.push(FrameRecord { index: k, name: frame.name.clone(), metrics });
+        manifest.write(&out.dir)?;
     }
-    let metrics = if with_metrics {
-        let report = EvalReport::from_images(per_image);
-        report.write_json(&out.dir.join(METRICS_FILE))?;
-        sheet.save(&out.dir.join(SHEET_FILE))?;
-        Some(report)
-    } else {
-        None
-    };
-    let gif = match (out.gif, frames.first()) {
-        (true, Some(first)) => {
-            let path = out.dir.join(GIF_FILE);
-            let k = first.camera;
-            save_gif(&path, k.width, k.height, &gif_frames, GIF_DELAY_MS)?;
-            Some(path)
-        }
-        _ => None,
-    };
-    Ok(FramesReport { frames: total, metrics, gif })
+    if plan.shard.is_whole() {
+        let report = assemble(&out.dir, std::slice::from_ref(&manifest))?;
+        return Ok(FramesReport { frames: frames.len(), skipped, ..report });
+    }
+    Ok(FramesReport { frames: range.len(), skipped, metrics: None, gif: None })
 }
 
-/// Images side by side, rows stacked; rows narrower than the widest are padded with white.
-#[derive(Debug, Default)]
-struct ContactSheet {
-    rows: Vec<(u32, u32, Vec<[f32; 3]>)>,
+/// The record of frame `index` (`name`) when an earlier run finished it: its PNG, depth map and
+/// (when the render writes them) `.npy` exist, and with ground truth its metrics and contact-sheet
+/// row are on record.
+fn kept_frame(dir: &Path, manifest: &ShardManifest, index: usize, name: &str, earlier: Option<&FrameRecord>) -> Option<FrameRecord> {
+    let mut files = vec![dir.join(format!("{name}.png")), dir.join(format!("{name}_depth.png"))];
+    if manifest.raw {
+        files.push(dir.join(format!("{name}.npy")));
+    }
+    if !files.iter().all(|f| f.is_file()) {
+        return None;
+    }
+    if !manifest.metrics {
+        return Some(FrameRecord { index, name: name.to_string(), metrics: None });
+    }
+    let record = earlier.filter(|r| r.name == name && r.metrics.is_some())?;
+    let row_kept = index >= SHEET_VIEWS || sheet_row_path(dir, &manifest.fingerprint, index).is_file();
+    row_kept.then(|| record.clone())
 }
 
-impl ContactSheet {
-    /// A row of `images`, each `width × height`, row-major, shrunk by the integer factor that
-    /// brings the width to at most [`SHEET_MAX_WIDTH`] (the mean of each factor² block).
-    fn add_row(&mut self, width: u32, height: u32, images: &[&[[f32; 3]]]) {
-        let f = width.div_ceil(SHEET_MAX_WIDTH).max(1) as usize;
-        let (w, h) = (width as usize, height as usize);
-        let (sw, sh) = (w / f, h / f);
-        let mut row = Vec::with_capacity(sw * sh * images.len());
-        for j in 0..sh {
-            for image in images {
-                for i in 0..sw {
-                    let mut sum = [0.0f32; 3];
-                    for (dj, di) in (0..f).flat_map(|dj| (0..f).map(move |di| (dj, di))) {
-                        let p = image[(j * f + dj) * w + i * f + di];
-                        sum = [0, 1, 2].map(|c| sum[c] + p[c]);
-                    }
-                    row.push(sum.map(|v| v / (f * f) as f32));
+/// One contact-sheet row: `images` (each `width × height`, row-major) side by side, shrunk by
+/// the integer factor that brings the width to at most [`SHEET_MAX_WIDTH`] (the mean of each
+/// factor² block; never more than the height, so a row is never empty): `(row width, row
+/// height, pixels)`.
+fn sheet_row(width: u32, height: u32, images: &[&[[f32; 3]]]) -> (u32, u32, Vec<[f32; 3]>) {
+    let f = width.div_ceil(SHEET_MAX_WIDTH).clamp(1, height.max(1)) as usize;
+    let (w, h) = (width as usize, height as usize);
+    let (sw, sh) = (w / f, h / f);
+    let mut row = Vec::with_capacity(sw * sh * images.len());
+    for j in 0..sh {
+        for image in images {
+            for i in 0..sw {
+                let mut sum = [0.0f32; 3];
+                for (dj, di) in (0..f).flat_map(|dj| (0..f).map(move |di| (dj, di))) {
+                    let p = image[(j * f + dj) * w + i * f + di];
+                    sum = [0, 1, 2].map(|c| sum[c] + p[c]);
                 }
+                row.push(sum.map(|v| v / (f * f) as f32));
             }
         }
-        self.rows.push(((sw * images.len()) as u32, sh as u32, row));
     }
-
-    fn save(&self, path: &Path) -> Result<()> {
-        let width = self.rows.iter().map(|r| r.0).max().unwrap_or(0);
-        let height = self.rows.iter().map(|r| r.1).sum::<u32>();
-        if width == 0 || height == 0 {
-            return Ok(());
-        }
-        let mut pixels = Vec::with_capacity((width * height) as usize);
-        for (w, h, row) in &self.rows {
-            for line in row.chunks_exact(*w as usize).take(*h as usize) {
-                pixels.extend_from_slice(line);
-                pixels.extend(std::iter::repeat_n([1.0; 3], (width - w) as usize));
-            }
-        }
-        save_png(path, width, height, &pixels)
-    }
+    ((sw * images.len()) as u32, sh as u32, row)
 }
 
 /// Write `<dir>/<name>.png`, `<dir>/<name>_depth.png` and, with `raw`, `<dir>/<name>.npy`;
@@ -284,10 +350,8 @@ mod tests {
         // 600 px wide → factor 3 (600/256 rounded up): 200×1 from 600×3, each pixel the mean
         // of a 3×3 block. Pixel (i, j) of the image holds i + 1000·j in red.
         let image: Vec<[f32; 3]> = (0..3).flat_map(|j| (0..600).map(move |i| [(i + 1000 * j) as f32, 0.0, 1.0])).collect();
-        let mut sheet = ContactSheet::default();
-        sheet.add_row(600, 3, &[&image, &image]);
-        let (w, h, row) = &sheet.rows[0];
-        assert_eq!((*w, *h, row.len()), (400, 1, 400));
+        let (w, h, row) = sheet_row(600, 3, &[&image, &image]);
+        assert_eq!((w, h, row.len()), (400, 1, 400));
         // Block 0: columns 0..3, rows 0..3: mean of i = 1, of 1000·j = 1000.
         assert_eq!(row[0], [1001.0, 0.0, 1.0]);
         // The second image starts at 200; block 5 covers columns 15..18: 16 + 1000.

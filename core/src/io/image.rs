@@ -205,7 +205,7 @@ pub fn depth_to_rgb(depth: &[f32], acc: &[f32], near: f32, far: f32) -> Vec<[f32
 
 /// Writes an animated GIF that loops forever, each frame shown `delay_ms` milliseconds
 /// (encoded in memory, then written atomically). Every frame must hold `width·height` pixels.
-/// Colours are quantised to a 256-colour palette per frame.
+/// Colours are quantised to 8 bits ([`rgb_to_rgb8`]), then to a 256-colour palette per frame.
 pub fn save_gif(
     path: &Path,
     width: u32,
@@ -213,7 +213,32 @@ pub fn save_gif(
     frames: &[Vec<[f32; 3]>],
     delay_ms: u16,
 ) -> Result<()> {
-    if frames.is_empty() {
+    for (k, frame) in frames.iter().enumerate() {
+        check_len(path, width, height, frame.len())
+            .map_err(|e| Error::invalid(path, format!("frame {k}: {}", strip_path(&e, path))))?;
+    }
+    let bytes = encode_gif_rgb8(path, width, height, frames.len(), delay_ms, |k| {
+        Ok(rgb_to_rgb8(&frames[k]))
+    })?;
+    write_atomic(path, &bytes)
+}
+
+/// The bytes of an animated GIF that loops forever: `count` frames of 8-bit RGB
+/// (`3·width·height` bytes, RGBRGB…), frame `k` from `frame(k)`, asked for one at a time (so a
+/// long video's frames need not all be in memory), each shown `delay_ms` milliseconds. Colours
+/// are quantised to a 256-colour palette per frame. `path` only names the file in errors.
+///
+/// The same 8-bit frames give the same bytes, whether they come from a render
+/// ([`rgb_to_rgb8`]) or from the PNG it was saved to ([`load_rgb8`]).
+pub fn encode_gif_rgb8(
+    path: &Path,
+    width: u32,
+    height: u32,
+    count: usize,
+    delay_ms: u16,
+    mut frame: impl FnMut(usize) -> Result<Vec<u8>>,
+) -> Result<Vec<u8>> {
+    if count == 0 {
         return Err(Error::invalid(path, "cannot write a GIF without frames"));
     }
     if width > u16::MAX as u32 || height > u16::MAX as u32 {
@@ -221,10 +246,6 @@ pub fn save_gif(
             path,
             format!("{width}×{height} is too large for a GIF"),
         ));
-    }
-    for (k, frame) in frames.iter().enumerate() {
-        check_len(path, width, height, frame.len())
-            .map_err(|e| Error::invalid(path, format!("frame {k}: {}", strip_path(&e, path))))?;
     }
     let image_err = |source| Error::Image {
         path: path.to_path_buf(),
@@ -236,11 +257,16 @@ pub fn save_gif(
         let mut encoder = GifEncoder::new_with_speed(&mut buf, 10);
         encoder.set_repeat(Repeat::Infinite).map_err(image_err)?;
         let delay = image::Delay::from_numer_denom_ms(delay_ms as u32, 1);
-        for frame in frames {
-            let rgba: Vec<u8> = frame
-                .iter()
-                .flat_map(|p| [to_u8(p[0]), to_u8(p[1]), to_u8(p[2]), 255])
-                .collect();
+        for k in 0..count {
+            let rgb = frame(k)?;
+            let expected = 3 * width as usize * height as usize;
+            if rgb.len() != expected || expected == 0 {
+                return Err(Error::invalid(
+                    path,
+                    format!("frame {k}: {} bytes for a {width}×{height} frame (expected {expected}, non-empty)", rgb.len()),
+                ));
+            }
+            let rgba: Vec<u8> = rgb.chunks_exact(3).flat_map(|p| [p[0], p[1], p[2], 255]).collect();
             let buffer = image::RgbaImage::from_raw(width, height, rgba)
                 .ok_or_else(|| Error::invalid(path, "frame buffer has the wrong size"))?;
             encoder
@@ -248,7 +274,26 @@ pub fn save_gif(
                 .map_err(image_err)?;
         }
     }
-    write_atomic(path, &buf)
+    Ok(buf)
+}
+
+/// Writes an 8-bit RGB PNG from its bytes (`3·width·height`, RGBRGB…), atomically.
+pub fn save_png_rgb8(path: &Path, width: u32, height: u32, rgb: &[u8]) -> Result<()> {
+    check_len(path, width, height, rgb.len() / 3)?;
+    if rgb.len() % 3 != 0 {
+        return Err(Error::invalid(path, format!("{} bytes is not a whole number of RGB pixels", rgb.len())));
+    }
+    encode_png(path, width, height, rgb, ExtendedColorType::Rgb8)
+}
+
+/// Decodes an image to 8-bit RGB bytes: `(width, height, 3·width·height bytes)`. An 8-bit RGB
+/// PNG (what [`save_png`] writes) reads back exactly as written; alpha is dropped.
+pub fn load_rgb8(path: &Path) -> Result<(u32, u32, Vec<u8>)> {
+    let reader = ImageReader::open(path).map_err(|e| Error::io(path, e))?;
+    let reader = reader.with_guessed_format().map_err(|e| Error::io(path, e))?;
+    let img = reader.decode().map_err(|source| Error::Image { path: path.to_path_buf(), source })?;
+    let rgb = img.to_rgb8();
+    Ok((rgb.width(), rgb.height(), rgb.into_raw()))
 }
 
 fn strip_path(e: &Error, path: &Path) -> String {
@@ -396,6 +441,36 @@ mod tests {
             .to_string();
         assert!(err.contains("frame 0"), "{err}");
         assert!(save_gif(&path, w, h, &[], 40).is_err());
+    }
+
+    #[test]
+    fn a_gif_from_saved_pngs_equals_the_gif_from_the_renders() {
+        // Every 8-bit value survives a PNG round trip, so the GIF a merge builds from the
+        // frames' PNGs is byte for byte the one built from the floats.
+        let dir = tempfile::tempdir().unwrap();
+        let (w, h) = (16u32, 16u32);
+        let frames: Vec<Vec<[f32; 3]>> = (0..3)
+            .map(|f| (0..256).map(|k| [k as f32 / 255.0 + 0.001 * f as f32, (255 - k) as f32 / 251.0, 0.3]).collect())
+            .collect();
+        let direct = dir.path().join("direct.gif");
+        save_gif(&direct, w, h, &frames, 100).unwrap();
+        let pngs: Vec<_> = frames
+            .iter()
+            .enumerate()
+            .map(|(k, f)| {
+                let p = dir.path().join(format!("{k}.png"));
+                save_png(&p, w, h, f).unwrap();
+                p
+            })
+            .collect();
+        for (p, f) in pngs.iter().zip(&frames) {
+            assert_eq!(load_rgb8(p).unwrap(), (w, h, rgb_to_rgb8(f)), "{}", p.display());
+        }
+        let merged = encode_gif_rgb8(&direct, w, h, 3, 100, |k| Ok(load_rgb8(&pngs[k])?.2)).unwrap();
+        assert_eq!(merged, std::fs::read(&direct).unwrap());
+        // A frame of the wrong size is named.
+        let err = encode_gif_rgb8(&direct, w, h, 2, 100, |k| Ok(vec![0; if k == 1 { 5 } else { 768 }])).unwrap_err();
+        assert!(err.to_string().contains("frame 1: 5 bytes"), "{err}");
     }
 
     #[test]

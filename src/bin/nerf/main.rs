@@ -5,7 +5,9 @@ mod ngp_bench;
 
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
-use nerf::evaluate::{eval, render_orbit, render_split};
+use nerf::evaluate::{RenderViews, eval, render_orbit, render_views};
+use nerf_core::io::frames::FramePlan;
+use nerf_core::io::shard::Shard;
 use nerf_core::io::views::SplitChoice;
 use nerf::config::{Preset, TrainConfig};
 use nerf::train::{TrainOptions, train};
@@ -83,11 +85,12 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
-    /// Render a split's poses or a 360° orbit: PNG frames, depth maps, orbit.gif.
+    /// Render a split's poses, a 360° orbit or a nerfstudio camera path: PNG frames, depth maps,
+    /// a GIF; or one shard of them (--shard), or assemble the shards (--merge).
     Render {
         /// Run directory written by `nerf train`.
-        #[arg(long)]
-        run: PathBuf,
+        #[arg(long, required_unless_present = "merge")]
+        run: Option<PathBuf>,
         /// Render the run's orbit at the training resolution: the reference one (radius 4,
         /// elevation −30°) for Blender scenes, around the cameras at their height for captures,
         /// nerf-pytorch's spiral for forward-facing ones.
@@ -106,15 +109,32 @@ enum Command {
         #[arg(long)]
         format: Option<CaptureFormat>,
         /// Image downscale factor (with --split: the dataset's images; with --orbit: the
-        /// training camera, any size).
+        /// training camera; with --camera-path: the path's render size).
         #[arg(long, default_value_t = 1)]
         downscale: u32,
+        /// Render a nerfstudio camera path (camera_path.json: render_width, render_height,
+        /// seconds, camera_path[] of camera_to_world and fov; perspective cameras; poses in the
+        /// coordinates of the capture the run trained on): frame_00000.png, … and camera_path.gif.
+        #[arg(long, conflicts_with_all = ["orbit", "split"])]
+        camera_path: Option<PathBuf>,
         /// Output directory.
         #[arg(long)]
         out: PathBuf,
         /// Also write <name>.npy per frame: float32 [H, W, 5] = r, g, b, depth, acc.
         #[arg(long)]
         npy: bool,
+        /// Render only shard I of N (0-based): the I-th of N contiguous ranges of the frames, into
+        /// --out shared by all shards; assemble them with --merge once every shard is done.
+        #[arg(long, value_name = "I/N")]
+        shard: Option<Shard>,
+        /// Keep the frames --out already holds (PNG and depth map, and .npy with --npy; with
+        /// ground truth, also their recorded metrics) instead of rendering them again.
+        #[arg(long)]
+        skip_existing: bool,
+        /// Assemble a render made in shards once all are done: the GIF, metrics.json and the
+        /// contact sheet in --out (checks every shard and frame is there; writes nothing if not).
+        #[arg(long, conflicts_with_all = ["run", "orbit", "split", "camera_path", "shard", "skip_existing"])]
+        merge: bool,
     },
     /// Turn photos, a video or a COLMAP model into a capture `nerf train` reads: transforms.json
     /// (OpenGL camera-to-world poses, the camera's intrinsics and distortion), images/, and
@@ -295,18 +315,23 @@ fn main() -> Result<()> {
             let r = eval(&run, &SplitChoice { dir: data, format, split, downscale }, limit, &out, progress)?;
             println!("{} views: PSNR {:.2} dB, SSIM {:.4}; {}", r.per_image.len(), r.psnr_mean, r.ssim_mean, out.join("metrics.json").display());
         }
-        Command::Render { run, orbit, frames, split, data, format, downscale, out, npy } => match (orbit, split, data) {
-            (true, None, _) => {
-                let gif = render_orbit(&run, frames, downscale, &out, npy, progress)?;
-                println!("{frames} frames and depth maps in {}; {}", out.display(), gif.display());
+        Command::Render { run, orbit, frames, split, data, format, downscale, camera_path, out, npy, shard, skip_existing, merge } => {
+            if merge {
+                println!("{}", nerf_core::io::merge::merge_shards(&out)?.summary(&out, Shard::WHOLE));
+                return Ok(());
             }
-            (false, Some(split), Some(data)) => {
-                let n = render_split(&run, &SplitChoice { dir: data, format, split, downscale }, &out, npy, progress)?;
-                println!("{n} views and depth maps in {}", out.display());
-            }
-            (false, Some(_), None) => bail!("--split needs --data <scene dir>"),
-            _ => bail!("say what to render: --orbit, or --split <val|test> --data <scene dir>"),
-        },
+            let views = match (orbit, split, data, camera_path) {
+                (true, None, _, None) => RenderViews::Orbit { frames, downscale },
+                (false, Some(split), Some(data), None) => RenderViews::Split(SplitChoice { dir: data, format, split, downscale }),
+                (false, None, _, Some(file)) => RenderViews::CameraPath { file, downscale },
+                (false, Some(_), None, _) => bail!("--split needs --data <scene dir>"),
+                _ => bail!("say what to render: --orbit, --camera-path <camera_path.json>, or --split <val|test> --data <scene dir>"),
+            };
+            let run = run.context("--run <run dir> is needed")?;
+            let plan = FramePlan { shard: shard.unwrap_or(Shard::WHOLE), skip_existing, ..FramePlan::default() };
+            let report = render_views(&run, &views, &out, npy, &plan, progress)?;
+            println!("{}", report.summary(&out, plan.shard));
+        }
         Command::ProcessData { images, video, frames, sharpest_of, colmap_model, camera_model, matcher, vocab_tree, aabb_scale, keep_colmap_coords, downscales, out } => {
             use nerf::process_data::{convert_colmap, process_images, process_video, tools::{ColmapOptions, Matcher}, FrameOptions, OutputOptions};
             use nerf_core::dataset::colmap::Coordinates;
