@@ -1,0 +1,102 @@
+//! `nerf mesh` end to end on the generated scene, whose surfaces are known exactly: a tiny
+//! hash-grid run's mesh lies within a lattice cell of the spheres and the plinth (through burn,
+//! and through onnxruntime from its bundle), is a PLY that reads back, and bad input is refused
+//! with nothing written.
+
+mod common;
+
+use common::{nerf, s, small_scene, tiny_ngp};
+use glam::Vec3;
+use nerf::train::{TrainOptions, train};
+use nerf_core::dataset::surface_distance;
+use nerf_core::mesh::ply::{PlyMesh, read_ply};
+use std::path::Path;
+
+/// Training steps of the tiny run: enough for surfaces within a cell at [`RESOLUTION`].
+const STEPS: usize = 300;
+/// Lattice cells per axis over the field's box ±1.5.
+const RESOLUTION: usize = 40;
+
+/// Mean and 95th percentile of the vertices' distances to the scene's true surfaces.
+fn distances(mesh: &PlyMesh) -> (f32, f32) {
+    let mut d: Vec<f32> = mesh.vertices.iter().map(|v| surface_distance(Vec3::from_array(v.position))).collect();
+    d.sort_by(f32::total_cmp);
+    let mean = d.iter().sum::<f32>() / d.len() as f32;
+    (mean, d[(0.95 * (d.len() - 1) as f32).round() as usize])
+}
+
+fn mesh(args: &[&str], out: &Path) -> PlyMesh {
+    let (ok, text) = nerf(&[&["mesh", "--out", s(out)], args].concat());
+    assert!(ok, "{text}");
+    println!("{}", text.trim());
+    read_ply(out).unwrap()
+}
+
+#[test]
+fn a_trained_run_meshes_onto_the_true_surfaces_through_burn_and_onnxruntime() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = small_scene(dir.path());
+    let run = dir.path().join("run");
+    let options = TrainOptions { format: None, data: scene, run: run.clone(), config: tiny_ngp(), ndc: None, downscale: 1, time_budget_min: None, iters: Some(STEPS), progress: false };
+    train(&options).unwrap();
+    let cell = 3.0 / RESOLUTION as f32;
+    let resolution = RESOLUTION.to_string();
+
+    let burn = mesh(&["--run", s(&run), "--resolution", &resolution], &dir.path().join("burn.ply"));
+    assert!(burn.comments.iter().any(|c| c.contains(&format!("density 2.5 on {RESOLUTION}^3 cells"))), "{:?}", burn.comments);
+    assert!(burn.faces.len() > 1000, "{} triangles", burn.faces.len());
+    let (mean, p95) = distances(&burn);
+    println!("burn: {} vertices, distance to the true surfaces: mean {mean:.4}, 95th percentile {p95:.4} (cell {cell:.4})", burn.vertices.len());
+    assert!(mean < 0.5 * cell && p95 < cell, "mean {mean}, p95 {p95}, cell {cell}");
+    // Normals are unit; colours vary (the spheres are red, green and blue on a grey plinth).
+    assert!(burn.vertices.iter().all(|v| (Vec3::from_array(v.normal).length() - 1.0).abs() < 1e-4));
+    let reddest = burn.vertices.iter().map(|v| v.color[0] as i32 - v.color[2] as i32).max().unwrap();
+    let bluest = burn.vertices.iter().map(|v| v.color[2] as i32 - v.color[0] as i32).max().unwrap();
+    assert!(reddest > 80 && bluest > 80, "red − blue spans {} to {reddest}", -bluest);
+
+    let bundle = dir.path().join("bundle");
+    let (ok, text) = nerf(&["export", "--run", s(&run), "--out", s(&bundle)]);
+    assert!(ok, "{text}");
+    let ort = mesh(&["--bundle", s(&bundle), "--resolution", &resolution], &dir.path().join("ort.ply"));
+    let (ort_mean, ort_p95) = distances(&ort);
+    println!("onnxruntime: {} vertices, mean {ort_mean:.4}, p95 {ort_p95:.4}", ort.vertices.len());
+    // The same field in another runtime: the same surface up to float rounding.
+    let diff = ort.vertices.len().abs_diff(burn.vertices.len());
+    assert!(diff * 100 <= burn.vertices.len(), "{} vs {} vertices", ort.vertices.len(), burn.vertices.len());
+    assert!((ort_mean - mean).abs() < 0.05 * cell && ort_p95 < cell, "{ort_mean} vs {mean}");
+}
+
+#[test]
+fn bad_input_is_refused_and_nothing_is_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out/mesh.ply");
+    let refuse = |args: &[&str], want: &str| {
+        let (ok, text) = nerf(&[&["mesh", "--out", s(&out)], args].concat());
+        assert!(!ok && text.contains(want), "nerf mesh {args:?}: {text}");
+        assert!(!out.exists(), "nerf mesh {args:?} wrote {}", out.display());
+    };
+    let missing = dir.path().join("no-run");
+    refuse(&["--run", s(&missing)], "no-run");
+    refuse(&["--bundle", s(&missing)], "no such bundle directory");
+    refuse(&[], "--run <RUN>");
+    refuse(&["--run", "a", "--bundle", "b"], "cannot be used with");
+
+    // A trained run (a few steps: only the options matter here).
+    let scene = small_scene(dir.path());
+    let run = dir.path().join("run");
+    let options = TrainOptions { format: None, data: scene, run: run.clone(), config: tiny_ngp(), ndc: None, downscale: 1, time_budget_min: None, iters: Some(20), progress: false };
+    train(&options).unwrap();
+    refuse(&["--run", s(&run), "--resolution", "0"], "--resolution: must be at least 1");
+    refuse(&["--run", s(&run), "--resolution", "1"], "at least 2 cells");
+    refuse(&["--run", s(&run), "--resolution", "100000"], "--resolution");
+    refuse(&["--run", s(&run), "--threshold", "-3"], "--threshold -3");
+    refuse(&["--run", s(&run), "--threshold", "nan"], "--threshold NaN");
+    refuse(&["--run", s(&run), "--bound", "0"], "--bound 0");
+    refuse(&["--run", s(&run), "--resolution", "8", "--threshold", "1e30"], "no density above --threshold");
+    // The output is a directory.
+    std::fs::create_dir_all(&out).unwrap();
+    let (ok, text) = nerf(&["mesh", "--run", s(&run), "--out", s(&out), "--resolution", "8"]);
+    assert!(!ok && text.contains("is a directory"), "{text}");
+    let names: Vec<_> = std::fs::read_dir(out.parent().unwrap()).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert_eq!(names.len(), 1, "no temporaries left: {names:?}");
+}
