@@ -10,11 +10,12 @@
 //! cracks. Segments are directed so that, seen from outside the cube, the inside lies on their
 //! left; the segments then chain into closed loops (the boundary of the inside part of the
 //! cube's surface), each loop is reversed (so that it turns counter-clockwise seen from the
-//! outside of the surface) and fanned into triangles.
+//! outside of the surface) and cut into triangles whose diagonals never lie in a face of the
+//! cube ([`triangulate`]).
 //!
 //! The tests check every case (each crossing edge is used by one loop, nothing else is) and the
 //! surfaces built from the table (closed, every edge shared by two triangles in opposite
-//! directions, normals pointing out).
+//! directions, normals pointing out), on a sphere and on random values.
 
 use std::sync::OnceLock;
 
@@ -87,7 +88,40 @@ pub fn loops(case: u8) -> Vec<Vec<u8>> {
 }
 
 fn case_triangles(case: u8) -> Vec<[u8; 3]> {
-    loops(case).iter().flat_map(|l| (1..l.len() - 1).map(move |i| [l[0], l[i], l[i + 1]])).collect()
+    loops(case).iter().flat_map(|l| triangulate(l).unwrap_or_else(|| panic!("case {case}: loop {l:?} has no triangulation"))).collect()
+}
+
+/// Whether edges `a` and `b` lie on one face of the cube.
+fn share_face(a: u8, b: u8) -> bool {
+    let (ea, eb) = (EDGES[a as usize], EDGES[b as usize]);
+    (0..3).any(|axis| (0..2).any(|side| [ea.0, ea.1, eb.0, eb.1].iter().all(|c| (c >> axis) & 1 == side)))
+}
+
+/// Triangles covering the loop `p` (in its order, so they keep its orientation) whose
+/// diagonals never join two edges of one face: such a diagonal would lie in the face, where
+/// the neighbouring cube may draw the same one, and four triangles would meet at it (the
+/// surface pinched where it should pass through the face). `None` if there is no such
+/// triangulation.
+fn triangulate(p: &[u8]) -> Option<Vec<[u8; 3]>> {
+    let n = p.len();
+    if n == 3 {
+        return Some(vec![[p[0], p[1], p[2]]]);
+    }
+    // The side p[0]–p[n−1] belongs to one triangle (p[0], p[k], p[n−1]).
+    (1..n - 1).find_map(|k| {
+        let diagonal_ok = |i: usize, j: usize| j - i == 1 || !share_face(p[i], p[j]);
+        if !(diagonal_ok(0, k) && diagonal_ok(k, n - 1)) {
+            return None;
+        }
+        let mut out = vec![[p[0], p[k], p[n - 1]]];
+        if k > 1 {
+            out.extend(triangulate(&p[..=k])?);
+        }
+        if k < n - 2 {
+            out.extend(triangulate(&p[k..])?);
+        }
+        Some(out)
+    })
 }
 
 /// The directed segments on the face `axis = side` of the cube: (from edge, to edge), inside

@@ -1,7 +1,7 @@
 //! [`extract_mesh`] on an analytic field: a dense ball whose colour shows the view direction.
 
 use super::*;
-use crate::camera::Ndc;
+use crate::camera::ndc::Ndc;
 use crate::dataset::CaptureFormat;
 use crate::field::FieldOutput;
 use crate::mesh::ply::read_ply;
