@@ -89,7 +89,7 @@ fn bad_input_is_refused_and_nothing_is_written() {
     refuse(&["--run", s(&run), "--resolution", "0"], "--resolution: must be at least 1");
     refuse(&["--run", s(&run), "--resolution", "1"], "at least 2 cells");
     refuse(&["--run", s(&run), "--resolution", "100000"], "--resolution");
-    refuse(&["--run", s(&run), "--threshold", "-3"], "--threshold -3");
+    refuse(&["--run", s(&run), "--threshold=-3"], "--threshold -3");
     refuse(&["--run", s(&run), "--threshold", "nan"], "--threshold NaN");
     refuse(&["--run", s(&run), "--bound", "0"], "--bound 0");
     refuse(&["--run", s(&run), "--resolution", "8", "--threshold", "1e30"], "no density above --threshold");
@@ -99,4 +99,13 @@ fn bad_input_is_refused_and_nothing_is_written() {
     assert!(!ok && text.contains("is a directory"), "{text}");
     let names: Vec<_> = std::fs::read_dir(out.parent().unwrap()).unwrap().map(|e| e.unwrap().file_name()).collect();
     assert_eq!(names.len(), 1, "no temporaries left: {names:?}");
+}
+
+#[test]
+#[ignore]
+fn make_scenes() {
+    use nerf_core::dataset::{SyntheticSceneConfig, generate_scene};
+    let dir = Path::new("/tmp/mesh-work");
+    generate_scene(&dir.join("s64"), &SyntheticSceneConfig { width: 64, height: 64, n_train: 40, n_val: 3, n_test: 2, seed: 1 }).unwrap();
+    generate_scene(&dir.join("s200"), &SyntheticSceneConfig { width: 200, height: 200, n_train: 100, n_val: 8, n_test: 8, seed: 0 }).unwrap();
 }

@@ -4,6 +4,7 @@
 //! (`nerf mesh --bundle`) both come here through [`Field`].
 //!
 //! - [`cases`]: the marching-cubes case table (built from a rule, tested case by case).
+//! - [`cavities`]: empty nodes the outside cannot reach (hollows inside solids), filled.
 //! - [`march`]: marching over a lattice fed one z-slice at a time (memory: a few slices).
 //! - [`ply`]: the PLY writer (streamed, written whole or not at all) and reader.
 //!
@@ -14,6 +15,13 @@
 //! skipped node would be outside anyway). Densities below 0 (the burn NeRF MLP leaves its ReLU
 //! to compositing) count as 0.
 //!
+//! # Two passes
+//! Unless asked to keep them, cavities are filled: a first pass over the slices records which
+//! nodes are dense (one bit each), a flood fill from the lattice's border finds the empty nodes
+//! the outside reaches ([`cavities`]), and the second pass, which marches, counts the other
+//! empty nodes as just above the threshold. Only the outer surface is left; the price is
+//! evaluating the densities twice.
+//!
 //! # Normals and colours
 //! A vertex's normal is the density gradient's opposite, normalised: central differences on the
 //! lattice (one-sided at its faces), interpolated along the vertex's edge. No extra field
@@ -22,6 +30,7 @@
 //! straight at the surface from outside).
 
 pub mod cases;
+pub mod cavities;
 pub mod march;
 pub mod ply;
 
@@ -32,6 +41,7 @@ use crate::field::{Field, FieldKind, Stage};
 use crate::io::limits::{Origin, check_count};
 use crate::sample::occupancy::OccupancyGrid;
 use glam::Vec3;
+use cavities::{NodeBits, reached_from_border};
 use march::{Lattice, LayerMesh, march};
 use ply::{PlyVertex, PlyWriter};
 use std::cell::RefCell;
@@ -39,9 +49,9 @@ use std::path::Path;
 
 /// Lattice cells per axis unless asked otherwise (instant-ngp's mesh default).
 pub const DEFAULT_RESOLUTION: usize = 256;
-/// Most lattice cells per axis: a slice of 2049² nodes is 16 MiB; the time (8.6 · 10⁹ points)
-/// is the real limit.
-pub const MAX_RESOLUTION: usize = 2048;
+/// Most lattice cells per axis: filling cavities takes two bits per node, 270 MB at 1024; the
+/// time (10⁹ points, twice) is the real limit.
+pub const MAX_RESOLUTION: usize = 1024;
 /// Half the side of the cube meshed when neither the field nor an occupancy grid gives one:
 /// the Blender scenes' cube.
 pub const DEFAULT_BOUND: f32 = 1.5;
@@ -71,6 +81,8 @@ pub struct MeshOptions {
     pub threshold: f32,
     /// The lattice covers `[−bound, bound]³` in the field's frame.
     pub bound: f32,
+    /// Keep the inner walls of hollows inside solids (one pass instead of two).
+    pub keep_cavities: bool,
 }
 
 impl MeshOptions {
@@ -138,6 +150,8 @@ pub struct MeshRequest {
     pub threshold: Option<f32>,
     /// Half the side of the cube to mesh (default: see [`choose_bound`]).
     pub bound: Option<f32>,
+    /// Keep the inner walls of hollows ([`MeshOptions::keep_cavities`]).
+    pub keep_cavities: bool,
 }
 
 impl MeshRequest {
@@ -151,7 +165,7 @@ impl MeshRequest {
             (None, None) => return Err(Error::invalid(source, "the field's kind is unknown here, so it has no default threshold: give --threshold")),
         };
         let (bound, from) = choose_bound(self.bound, field_box, occupancy);
-        let options = MeshOptions { resolution: self.resolution, threshold, bound };
+        let options = MeshOptions { resolution: self.resolution, threshold, bound, keep_cavities: self.keep_cavities };
         options.check()?;
         Ok((options, from))
     }
@@ -171,8 +185,11 @@ pub struct MeshReport {
     pub faces: usize,
     /// Lattice nodes.
     pub nodes: usize,
-    /// Of them, those the field evaluated (the others were in empty cells of the grid).
+    /// Of them, those the field evaluated (the others were in empty cells of the grid), in
+    /// each pass.
     pub evaluated: usize,
+    /// Empty nodes counted as inside: cavities (0 when they are kept).
+    pub filled: usize,
     /// The largest density seen (to choose a threshold by).
     pub max_density: f32,
 }
@@ -198,27 +215,46 @@ where
         std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
     }
     let mut writer = PlyWriter::create(out)?;
-    let lattice = Lattice::cube(options.resolution, options.bound);
+    let (n, threshold) = (options.resolution, options.threshold);
+    let lattice = Lattice::cube(n, options.bound);
+    let slice_len = lattice.slice_len();
     let field = RefCell::new(field);
-    let bar = progress_bar(progress, options.resolution);
-    let (mut evaluated, mut max_density) = (0usize, 0.0f32);
+    let passes = if options.keep_cavities { n } else { 2 * n + 1 };
+    let bar = progress_bar(progress, passes);
+    // Cavities: which nodes the outside reaches (`None`: keep them).
+    let reached = if options.keep_cavities {
+        None
+    } else {
+        bar.set_message("density");
+        let mut dense = NodeBits::new(slice_len * (n + 1));
+        for k in 0..=n {
+            let (values, _) = densities::<F, E>(&field, &lattice, occupancy, k)?;
+            for (s, v) in values.iter().enumerate() {
+                if *v > threshold {
+                    dense.set(k * slice_len + s);
+                }
+            }
+            bar.inc(1);
+        }
+        Some(reached_from_border(n, &dense))
+    };
+    bar.set_message("surface");
+    let (mut evaluated, mut max_density, mut filled) = (0usize, 0.0f32, 0usize);
     let slice = |k: usize| -> std::result::Result<Vec<f32>, E> {
-        let nodes = lattice.slice_nodes(k);
-        let wanted: Vec<usize> = match occupancy {
-            Some(grid) => grid.occupied_indices(&nodes),
-            None => (0..nodes.len()).collect(),
-        };
-        let mut values = vec![0.0f32; nodes.len()];
-        for chunk in wanted.chunks(POINTS_PER_CALL) {
-            let points: Vec<[f32; 3]> = chunk.iter().map(|&i| nodes[i]).collect();
-            let sigma = field.borrow_mut().evaluate(Stage::Fine, &points, &vec![[0.0, 0.0, 1.0]; points.len()])?.sigma;
-            for (&i, s) in chunk.iter().zip(sigma) {
-                // `max` also turns NaN into 0.
-                values[i] = s.max(0.0);
-                max_density = max_density.max(values[i]);
+        let (mut values, asked) = densities::<F, E>(&field, &lattice, occupancy, k)?;
+        evaluated += asked;
+        max_density = values.iter().fold(max_density, |m, &v| m.max(v));
+        if let Some(reached) = &reached {
+            // Just above the threshold: inside, and (cavities touch no outside node) on no edge
+            // the surface crosses.
+            let inside = threshold * (1.0 + 1e-3);
+            for (s, v) in values.iter_mut().enumerate() {
+                if !(*v > threshold) && !reached.get(k * slice_len + s) {
+                    *v = inside;
+                    filled += 1;
+                }
             }
         }
-        evaluated += wanted.len();
         Ok(values)
     };
     let emit = |_: usize, layer: LayerMesh| -> std::result::Result<(), E> {
@@ -238,26 +274,51 @@ where
         bar.inc(1);
         Ok(())
     };
-    march(&lattice, options.threshold, slice, emit, |problem| E::from(Error::Argument(format!("mesh: {problem}; lower --resolution"))))?;
+    march(&lattice, threshold, slice, emit, |problem| E::from(Error::Argument(format!("mesh: {problem}; lower --resolution"))))?;
     bar.finish_and_clear();
     if writer.vertex_count() == 0 {
         return Err(Error::Argument(format!(
-            "no density above --threshold {} in the box ±{} (the largest seen is {max_density:.3}): lower --threshold, or check --bound",
-            options.threshold, options.bound
+            "no density above --threshold {threshold} in the box ±{} (the largest seen is {max_density:.3}): lower --threshold, or check --bound",
+            options.bound
         ))
         .into());
     }
     let comments = vec![
-        format!("nerf-rs mesh: marching cubes at density {} on {}^3 cells over [-{b}, {b}]^3 of the field", options.threshold, options.resolution, b = options.bound),
+        format!("nerf-rs mesh: marching cubes at density {threshold} on {n}^3 cells over [-{b}, {b}]^3 of the field", b = options.bound),
+        format!("cavities: {}", if options.keep_cavities { "kept" } else { "filled" }),
         "coordinates: the scene's own (its placement in the field undone)".to_string(),
     ];
     let (vertices, faces) = writer.finish(&comments)?;
-    Ok(MeshReport { vertices, faces, nodes: lattice.slice_len() * (options.resolution + 1), evaluated, max_density })
+    Ok(MeshReport { vertices, faces, nodes: slice_len * (n + 1), evaluated, filled, max_density })
+}
+
+/// Slice `k`'s densities (σ ≥ 0; 0 in the grid's empty cells) and how many nodes the field
+/// evaluated.
+fn densities<F, E>(field: &RefCell<&mut F>, lattice: &Lattice, occupancy: Option<&OccupancyGrid>, k: usize) -> std::result::Result<(Vec<f32>, usize), E>
+where
+    F: Field,
+    E: From<F::Error>,
+{
+    let nodes = lattice.slice_nodes(k);
+    let wanted: Vec<usize> = match occupancy {
+        Some(grid) => grid.occupied_indices(&nodes),
+        None => (0..nodes.len()).collect(),
+    };
+    let mut values = vec![0.0f32; nodes.len()];
+    for chunk in wanted.chunks(POINTS_PER_CALL) {
+        let points: Vec<[f32; 3]> = chunk.iter().map(|&i| nodes[i]).collect();
+        let sigma = field.borrow_mut().evaluate(Stage::Fine, &points, &vec![[0.0, 0.0, 1.0]; points.len()])?.sigma;
+        for (&i, s) in chunk.iter().zip(sigma) {
+            // `max` also turns NaN into 0.
+            values[i] = s.max(0.0);
+        }
+    }
+    Ok((values, wanted.len()))
 }
 
 fn progress_bar(show: bool, layers: usize) -> indicatif::ProgressBar {
     let bar = if show { indicatif::ProgressBar::new(layers as u64) } else { indicatif::ProgressBar::hidden() };
-    bar.set_style(indicatif::ProgressStyle::with_template("mesh [{elapsed_precise}<{eta_precise}] {wide_bar} {pos}/{len} slabs").expect("valid template"));
+    bar.set_style(indicatif::ProgressStyle::with_template("mesh {msg} [{elapsed_precise}<{eta_precise}] {wide_bar} {pos}/{len} slabs").expect("valid template"));
     bar
 }
 

@@ -5,6 +5,7 @@ use crate::camera::ndc::Ndc;
 use crate::dataset::CaptureFormat;
 use crate::field::FieldOutput;
 use crate::mesh::ply::read_ply;
+use glam::Vec3;
 
 /// σ = 100 inside the ball (centre `c`, radius `r`), 0 outside, a linear ramp 0.4 wide across
 /// its surface (wider than the lattice's cells, so that linear interpolation finds the sphere
@@ -12,6 +13,8 @@ use crate::mesh::ply::read_ply;
 struct Ball {
     c: [f32; 3],
     r: f32,
+    /// Hollow inside this radius (the same ramp), when positive.
+    hollow: f32,
 }
 
 impl Field for Ball {
@@ -21,7 +24,8 @@ impl Field for Ball {
             .iter()
             .map(|p| {
                 let d = ((p[0] - self.c[0]).powi(2) + (p[1] - self.c[1]).powi(2) + (p[2] - self.c[2]).powi(2)).sqrt();
-                100.0 * ((self.r - d) / 0.4 + 0.5).clamp(0.0, 1.0)
+                let wall = if self.hollow > 0.0 { ((d - self.hollow) / 0.4 + 0.5).clamp(0.0, 1.0) } else { 1.0 };
+                100.0 * ((self.r - d) / 0.4 + 0.5).clamp(0.0, 1.0) * wall
             })
             .collect();
         Ok(FieldOutput { rgb: viewdirs.iter().map(|d| d.map(|x| 0.5 * (1.0 + x))).collect(), sigma })
@@ -29,7 +33,7 @@ impl Field for Ball {
 }
 
 fn ball() -> Ball {
-    Ball { c: [0.2, 0.0, -0.1], r: 0.4 }
+    Ball { c: [0.2, 0.0, -0.1], r: 0.4, hollow: 0.0 }
 }
 
 #[test]
@@ -38,7 +42,7 @@ fn a_ball_meshes_onto_its_surface_in_the_scene_frame() {
     let out = dir.path().join("meshes/ball.ply");
     // The scene's own frame is the field's shrunk by 2 and shifted: x_field = 2·(x + (1, 0, 0)).
     let transform = SceneTransform { scale: 2.0, rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], translation: [1.0, 0.0, 0.0] };
-    let options = MeshOptions { resolution: 32, threshold: 50.0, bound: 1.0 };
+    let options = MeshOptions { resolution: 32, threshold: 50.0, bound: 1.0, keep_cavities: false };
     let mut field = ball();
     let report = extract_mesh::<_, Error>(&mut field, None, &options, &transform, &out, false).unwrap();
     assert_eq!(report.nodes, 33 * 33 * 33);
@@ -70,7 +74,7 @@ fn a_ball_meshes_onto_its_surface_in_the_scene_frame() {
 #[test]
 fn an_occupancy_grid_skips_empty_cells_and_keeps_the_surface() {
     let dir = tempfile::tempdir().unwrap();
-    let options = MeshOptions { resolution: 24, threshold: 50.0, bound: 1.0 };
+    let options = MeshOptions { resolution: 24, threshold: 50.0, bound: 1.0, keep_cavities: false };
     let identity = SceneTransform::identity();
     let (all, skipped) = (dir.path().join("all.ply"), dir.path().join("skipped.ply"));
     extract_mesh::<_, Error>(&mut ball(), None, &options, &identity, &all, false).unwrap();
@@ -93,12 +97,35 @@ fn an_occupancy_grid_skips_empty_cells_and_keeps_the_surface() {
 }
 
 #[test]
+fn a_hollow_inside_is_filled_unless_kept() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("hollow.ply");
+    let mut hollow = Ball { c: [0.0; 3], r: 0.8, hollow: 0.4 };
+    let radii = |keep_cavities: bool, hollow: &mut Ball| {
+        let options = MeshOptions { resolution: 32, threshold: 50.0, bound: 1.0, keep_cavities };
+        let report = extract_mesh::<_, Error>(hollow, None, &options, &SceneTransform::identity(), &out, false).unwrap();
+        let radii: Vec<f32> = read_ply(&out).unwrap().vertices.iter().map(|v| Vec3::from_array(v.position).length()).collect();
+        (report, radii)
+    };
+    // Kept: the outer sphere (r 0.8) and the hollow's wall (r 0.4), facing in.
+    let (report, kept) = radii(true, &mut hollow);
+    assert_eq!(report.filled, 0);
+    assert!(kept.iter().any(|&r| (r - 0.4).abs() < 0.01) && kept.iter().any(|&r| (r - 0.8).abs() < 0.01));
+    // Filled: the empty nodes inside r 0.4 (about 4/3·π·0.4³ / 0.0625³ ≈ 1100 of them) count
+    // as inside, and only the outer sphere is left.
+    let (report, filled) = radii(false, &mut hollow);
+    assert!((900..1300).contains(&report.filled), "{report:?}");
+    assert!(filled.iter().all(|&r| (r - 0.8).abs() < 0.01), "{:?}", filled.iter().fold(1.0f32, |a, &b| a.min(b)));
+    assert_eq!(filled.len(), kept.iter().filter(|&&r| r > 0.6).count());
+}
+
+#[test]
 fn bad_options_and_empty_meshes_write_nothing() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("mesh.ply");
     let identity = SceneTransform::identity();
     let run = |options: MeshOptions| extract_mesh::<_, Error>(&mut ball(), None, &options, &identity, &out, false).unwrap_err().to_string();
-    let ok = MeshOptions { resolution: 8, threshold: 50.0, bound: 1.0 };
+    let ok = MeshOptions { resolution: 8, threshold: 50.0, bound: 1.0, keep_cavities: false };
     assert!(run(MeshOptions { resolution: 0, ..ok }).contains("--resolution"));
     assert!(run(MeshOptions { resolution: 1, ..ok }).contains("at least 2"));
     assert!(run(MeshOptions { resolution: MAX_RESOLUTION + 1, ..ok }).contains("--resolution"));
@@ -132,9 +159,9 @@ fn boxes_kinds_and_placements() {
     placement.ndc = Some(Ndc { width: 8.0, height: 6.0, fx: 10.0, fy: 10.0, near: 1.0 });
     assert!(scene_transform(Some(&placement), false, source).is_err());
     // Options: the kind's threshold unless given; an unknown kind needs one.
-    let request = MeshRequest { resolution: 64, threshold: None, bound: None };
+    let request = MeshRequest { resolution: 64, threshold: None, bound: None, keep_cavities: false };
     let (options, from) = request.options(Some(FieldKind::Ngp), Some(1.5), None, source).unwrap();
-    assert_eq!((options, from), (MeshOptions { resolution: 64, threshold: 2.5, bound: 1.5 }, BoundSource::Field));
+    assert_eq!((options, from), (MeshOptions { resolution: 64, threshold: 2.5, bound: 1.5, keep_cavities: false }, BoundSource::Field));
     let err = request.options(None, None, None, source).unwrap_err().to_string();
     assert!(err.contains("give --threshold"), "{err}");
     let err = MeshRequest { bound: Some(-1.0), ..request }.options(Some(FieldKind::Mlp), None, None, source).unwrap_err().to_string();

@@ -212,6 +212,11 @@ enum Command {
         /// else its occupancy grid's cube, else 1.5).
         #[arg(long)]
         bound: Option<f32>,
+        /// Keep the inner walls of hollows inside solids (by default the empty space the
+        /// outside cannot reach counts as inside, so only the outer surface is left: one pass
+        /// over the densities instead of two).
+        #[arg(long)]
+        keep_cavities: bool,
     },
     /// Import a model trained elsewhere into a scene bundle (coarse.onnx, fine.onnx, scene.json).
     Import {
@@ -393,8 +398,8 @@ fn main() -> Result<()> {
                 println!("{:>10} bytes  {}", f.bytes, f.path.display());
             }
         }
-        Command::Mesh { run, bundle, out, resolution, threshold, bound } => {
-            let request = nerf_core::mesh::MeshRequest { resolution, threshold, bound };
+        Command::Mesh { run, bundle, out, resolution, threshold, bound, keep_cavities } => {
+            let request = nerf_core::mesh::MeshRequest { resolution, threshold, bound, keep_cavities };
             let (report, options, from) = match (run, bundle) {
                 (Some(run), _) => {
                     let m = nerf::mesh::mesh_run(&run, &out, &request, progress)?;
@@ -404,7 +409,7 @@ fn main() -> Result<()> {
                 (None, None) => bail!("say what to mesh: --run RUN or --bundle BUNDLE"),
             };
             println!(
-                "{} vertices, {} triangles at σ = {} on {}³ cells over ±{} ({:?} box); {} of {} lattice points evaluated, largest σ {:.1}: {}",
+                "{} vertices, {} triangles at σ = {} on {}³ cells over ±{} ({:?} box); {} of {} lattice points evaluated, {} in cavities filled, largest σ {:.1}: {}",
                 report.vertices,
                 report.faces,
                 options.threshold,
@@ -413,6 +418,7 @@ fn main() -> Result<()> {
                 from,
                 report.evaluated,
                 report.nodes,
+                report.filled,
                 report.max_density,
                 out.display()
             );
