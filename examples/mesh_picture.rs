@@ -34,6 +34,9 @@ struct Args {
     /// Grey clay instead of the vertex colours.
     #[arg(long)]
     clay: bool,
+    /// Draw only the triangles whose vertices all have y ≤ this (a cut through the mesh).
+    #[arg(long)]
+    cut_y: Option<f32>,
     /// Print the vertices' distances to the generated scene's surfaces.
     #[arg(long)]
     spheres: bool,
@@ -72,6 +75,9 @@ fn main() -> Result<()> {
     let mut depth = vec![f32::NEG_INFINITY; n * n];
     let mut rgb = vec![[1.0f32; 3]; n * n];
     for f in &mesh.faces {
+        if args.cut_y.is_some_and(|cut| f.iter().any(|&v| positions[v as usize].y > cut)) {
+            continue;
+        }
         let [a, b, c] = f.map(|v| screen[v as usize]);
         let [pa, pb, pc] = f.map(|v| positions[v as usize]);
         let normal = (pb - pa).cross(pc - pa).normalize_or_zero();
