@@ -76,6 +76,35 @@ fn a_trained_run_meshes_onto_the_true_surfaces_through_burn_and_onnxruntime() {
 }
 
 #[test]
+fn imported_nerf_pytorch_bundles_mesh_and_ndc_ones_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/nerf-pytorch");
+    let shared = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data");
+    let import = |checkpoint: &str, data: &Path, out: &Path| {
+        let (ok, text) = nerf(&["import", "nerf-pytorch", "--checkpoint", s(&fixtures.join(checkpoint)), "--data", s(data), "--out", s(out)]);
+        assert!(ok, "{text}");
+    };
+    // The tiny lego MLPs of the import tests (1000 steps): σ stays under 20, far below the
+    // default 50 of a fully trained NeRF, which the error says.
+    let lego = dir.path().join("lego");
+    import("trained/001000.tar", &shared.join("nerf_synthetic/lego"), &lego);
+    let out = dir.path().join("lego.ply");
+    let (ok, text) = nerf(&["mesh", "--bundle", s(&lego), "--out", s(&out), "--resolution", "24"]);
+    assert!(!ok && text.contains("no density above --threshold 50") && text.contains("the largest seen is"), "{text}");
+    let mesh = mesh(&["--bundle", s(&lego), "--resolution", "24", "--threshold", "5"], &out);
+    assert!(mesh.faces.len() > 100, "{} triangles", mesh.faces.len());
+    // No occupancy grid, no box: the Blender cube ±1.5, where the lego's vertices are.
+    assert!(mesh.vertices.iter().all(|v| v.position.iter().all(|x| x.abs() <= 1.5)));
+    // fern with NDC rays: refused, nothing written.
+    let fern = dir.path().join("fern");
+    import("llff/001500.tar", &shared.join("real/fern"), &fern);
+    let out = dir.path().join("fern.ply");
+    let (ok, text) = nerf(&["mesh", "--bundle", s(&fern), "--out", s(&out), "--resolution", "8"]);
+    assert!(!ok && text.contains("fern/scene.json: the scene was trained with NDC rays"), "{text}");
+    assert!(!out.exists());
+}
+
+#[test]
 fn bad_input_is_refused_and_nothing_is_written() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out/mesh.ply");

@@ -134,7 +134,7 @@ pub fn scene_transform(placement: Option<&ScenePlacement>, ndc: bool, source: &P
         _ if ndc || placement.is_some_and(|p| p.ndc.is_some()) => Err(Error::invalid(
             source,
             "the scene was trained with NDC rays (a forward-facing capture): its field lives in projected coordinates \
-             reaching to infinity, which have no box to mesh; train it with --ndc false to mesh it",
+             reaching to infinity, which have no box to mesh (train with `--ndc false`, or nerf-pytorch's --no_ndc, to mesh it)",
         )),
         Some(p) => Ok(p.transform),
         None => Ok(SceneTransform::identity()),
