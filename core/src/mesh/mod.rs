@@ -249,7 +249,7 @@ where
             // the surface crosses.
             let inside = threshold * (1.0 + 1e-3);
             for (s, v) in values.iter_mut().enumerate() {
-                if !(*v > threshold) && !reached.get(k * slice_len + s) {
+                if *v <= threshold && !reached.get(k * slice_len + s) {
                     *v = inside;
                     filled += 1;
                 }
