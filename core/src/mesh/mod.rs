@@ -213,6 +213,8 @@ where
     options.check()?;
     if let Some(parent) = out.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
+        // The parts a killed `nerf mesh` left beside its output.
+        crate::io::atomic::remove_stale_temporaries(parent);
     }
     let mut writer = PlyWriter::create(out)?;
     let (n, threshold) = (options.resolution, options.threshold);

@@ -69,6 +69,11 @@ fn a_ball_meshes_onto_its_surface_in_the_scene_frame() {
     }
     let left: Vec<_> = std::fs::read_dir(out.parent().unwrap()).unwrap().map(|e| e.unwrap().file_name()).collect();
     assert_eq!(left.len(), 1, "only the mesh: {left:?}");
+    // A part left by a killed writer (PID 0 names none alive) goes with the next mesh.
+    let stale = out.with_file_name(".ball.ply.faces.tmp-0");
+    std::fs::write(&stale, b"half").unwrap();
+    extract_mesh::<_, Error>(&mut ball(), None, &options, &transform, &out, false).unwrap();
+    assert!(!stale.exists());
 }
 
 #[test]
