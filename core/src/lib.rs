@@ -14,6 +14,7 @@
 //! - [`render`]: compositing, the inference renderers (dense hierarchical, marching through the
 //!   grid) over one front-to-back accumulator, PSNR/SSIM.
 //! - [`io`]: crash-safe writes, limits on what is read, `.npy`, images, rendered frames.
+//! - [`mesh`]: a field's surface by marching cubes, written as a binary PLY.
 #![warn(missing_docs)]
 
 pub mod camera;
@@ -21,6 +22,7 @@ pub mod dataset;
 pub mod error;
 pub mod field;
 pub mod io;
+pub mod mesh;
 pub mod render;
 pub mod rng;
 pub mod sample;

@@ -33,7 +33,7 @@ pub use llff::{
     poses_avg, recenter_poses,
 };
 pub use synthetic::{
-    CAMERA_ANGLE_X, SyntheticSceneConfig, generate_scene, render_reference, split_poses,
+    CAMERA_ANGLE_X, SyntheticSceneConfig, generate_scene, render_reference, split_poses, surface_distance,
 };
 
 use std::collections::HashSet;

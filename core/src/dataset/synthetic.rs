@@ -210,6 +210,15 @@ fn trace(o: Vec3, d: Vec3) -> Option<(Vec3, Vec3)> {
     best.map(|(_, n, a)| (n, a))
 }
 
+/// Distance from `p` to the nearest surface of the scene's solids, each taken alone (a sphere's
+/// or the plinth's own boundary): the ground truth a mesh of the scene is measured against.
+pub fn surface_distance(p: Vec3) -> f32 {
+    // The plinth's signed distance: outside, to the box; inside, minus the nearest face's.
+    let q = (p - 0.5 * (BOX_MIN + BOX_MAX)).abs() - 0.5 * (BOX_MAX - BOX_MIN);
+    let plinth = (q.max(Vec3::ZERO).length() + q.max_element().min(0.0)).abs();
+    SPHERES.iter().map(|s| ((p - s.centre).length() - s.radius).abs()).fold(plinth, f32::min)
+}
+
 fn hit_sphere(o: Vec3, d: Vec3, centre: Vec3, radius: f32) -> Option<f32> {
     let oc = o - centre;
     let a = d.dot(d);
@@ -255,6 +264,21 @@ fn hit_box(o: Vec3, d: Vec3, min: Vec3, max: Vec3) -> Option<(f32, Vec3)> {
 mod tests {
     use super::*;
     use crate::dataset::load_split;
+
+    #[test]
+    fn surface_distance_by_hand() {
+        let d = |x: f32, y: f32, z: f32| surface_distance(Vec3::new(x, y, z));
+        // The red sphere's top (0, 0, −0.15 + 0.6), and 0.55 above it.
+        assert!(d(0.0, 0.0, 0.45).abs() < 1e-6);
+        assert!((d(0.0, 0.0, 1.0) - 0.55).abs() < 1e-6);
+        // 0.1 outside the plinth's +x face (the green sphere is 0.85 − 0.3 away).
+        assert!((d(1.0, 0.0, -0.9) - 0.1).abs() < 1e-6);
+        // Inside the plinth, 0.05 above its bottom face; at its corner, √3·0.1 out.
+        assert!((d(0.0, 0.0, -0.95) - 0.05).abs() < 1e-6);
+        assert!((d(1.0, 1.0, -0.65) - 0.1 * 3f32.sqrt()).abs() < 1e-6);
+        // Inside the blue sphere's centre: its radius.
+        assert!((d(-0.6, 0.55, -0.5) - 0.25).abs() < 1e-6);
+    }
 
     fn close(a: &[f32], b: &[f32], tol: f32) -> bool {
         a.iter().zip(b).all(|(x, y)| (x - y).abs() <= tol)

@@ -18,6 +18,22 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e))
 }
 
+/// Writes `path` through a temporary file in the same directory and a rename, streaming: `fill`
+/// writes the content. If `fill` fails, nothing is left behind and `path` is untouched.
+pub fn write_atomic_with(path: &Path, fill: impl FnOnce(&mut std::io::BufWriter<File>) -> std::io::Result<()>) -> Result<()> {
+    let tmp = temp_sibling(path, "tmp");
+    let written = File::create(&tmp).and_then(|file| {
+        let mut out = std::io::BufWriter::new(file);
+        fill(&mut out)?;
+        out.into_inner().map_err(|e| e.into_error())?.sync_all()
+    });
+    if let Err(e) = written {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(Error::io(&tmp, e));
+    }
+    std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e))
+}
+
 /// Creates the directory `dir` (replacing an existing one) in one atomic step: `fill` writes
 /// the new content into a temporary sibling directory, which is then swapped with `dir`
 /// (`renameat2(RENAME_EXCHANGE)`, or two renames where the filesystem lacks it) and the old
@@ -57,7 +73,8 @@ pub fn write_dir_atomic<T>(dir: &Path, fill: impl FnOnce(&Path) -> Result<T>) ->
 }
 
 /// `dir/.name.<kind>-<pid>` beside `path`: same filesystem, so the final rename is atomic.
-fn temp_sibling(path: &Path, kind: &str) -> PathBuf {
+/// With `kind` ending in `tmp` (`parts.tmp`), [`remove_stale_temporaries`] knows it.
+pub fn temp_sibling(path: &Path, kind: &str) -> PathBuf {
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     path.with_file_name(format!(".{name}.{kind}-{}", std::process::id()))
 }
@@ -222,6 +239,22 @@ mod tests {
         remove_stale_temporaries(root.path());
         let left: Vec<_> = std::fs::read_dir(root.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
         assert_eq!(left.len(), 1, "only the live writer's file stays: {left:?}");
+    }
+
+    #[test]
+    fn a_streamed_file_is_written_whole_or_not_at_all() {
+        use std::io::Write;
+        let root = tempfile::tempdir().unwrap();
+        let path = root.path().join("mesh.ply");
+        write_atomic_with(&path, |out| out.write_all(b"ply\n")).unwrap();
+        let err = write_atomic_with(&path, |out| {
+            out.write_all(b"half")?;
+            Err(std::io::Error::other("disk full"))
+        })
+        .unwrap_err();
+        assert!(err.to_string().contains("disk full"), "{err}");
+        assert_eq!(std::fs::read(&path).unwrap(), b"ply\n");
+        assert_eq!(std::fs::read_dir(root.path()).unwrap().count(), 1, "no temporary left");
     }
 
     #[test]

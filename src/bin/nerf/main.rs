@@ -207,6 +207,37 @@ enum Command {
         #[arg(long, value_enum, default_value_t = Tables::F32)]
         tables: Tables,
     },
+    /// Mesh a trained run or a scene bundle: the surface where the density crosses --threshold,
+    /// by marching cubes over the field's box, as a binary PLY (positions, normals, colours) in
+    /// the scene's own coordinates (docs/mesh.md).
+    #[command(group(clap::ArgGroup::new("field").required(true).args(["run", "bundle"])))]
+    Mesh {
+        /// Run directory written by `nerf train` (its latest checkpoint, through burn).
+        #[arg(long)]
+        run: Option<PathBuf>,
+        /// Scene bundle (`nerf export`, `nerf import`), through onnxruntime.
+        #[arg(long)]
+        bundle: Option<PathBuf>,
+        /// The PLY file to write (written whole or not at all).
+        #[arg(long)]
+        out: PathBuf,
+        /// Lattice cells per axis over the box.
+        #[arg(long, default_value_t = nerf_core::mesh::DEFAULT_RESOLUTION)]
+        resolution: usize,
+        /// Density σ at the surface (default: 2.5 for hash-grid fields, instant-ngp's; 50 for the
+        /// NeRF MLPs, the original NeRF's).
+        #[arg(long)]
+        threshold: Option<f32>,
+        /// Half the side of the cube to mesh, in the field's frame (default: the field's box,
+        /// else its occupancy grid's cube, else 1.5).
+        #[arg(long)]
+        bound: Option<f32>,
+        /// Keep the inner walls of hollows inside solids (by default the empty space the
+        /// outside cannot reach counts as inside, so only the outer surface is left: one pass
+        /// over the densities instead of two).
+        #[arg(long)]
+        keep_cavities: bool,
+    },
     /// Import a model trained elsewhere into a scene bundle (coarse.onnx, fine.onnx, scene.json).
     Import {
         #[command(subcommand)]
@@ -391,6 +422,31 @@ fn main() -> Result<()> {
             for f in nerf_export::write_bundle(&out, b, &nerf_export::CompileOptions { opset: Some(opset), ..Default::default() })? {
                 println!("{:>10} bytes  {}", f.bytes, f.path.display());
             }
+        }
+        Command::Mesh { run, bundle, out, resolution, threshold, bound, keep_cavities } => {
+            let request = nerf_core::mesh::MeshRequest { resolution, threshold, bound, keep_cavities };
+            let (report, options, from) = match (run, bundle) {
+                (Some(run), _) => {
+                    let m = nerf::mesh::mesh_run(&run, &out, &request, progress)?;
+                    (m.report, m.options, m.bound_from)
+                }
+                (None, Some(bundle)) => nerf_runtime::mesh::mesh_bundle(&bundle, &out, &request, None, progress)?,
+                (None, None) => bail!("say what to mesh: --run RUN or --bundle BUNDLE"),
+            };
+            println!(
+                "{} vertices, {} triangles at σ = {} on {}³ cells over ±{} ({:?} box); {} of {} lattice points evaluated, {} in cavities filled, largest σ {:.1}: {}",
+                report.vertices,
+                report.faces,
+                options.threshold,
+                options.resolution,
+                options.bound,
+                from,
+                report.evaluated,
+                report.nodes,
+                report.filled,
+                report.max_density,
+                out.display()
+            );
         }
         Command::Bench(options) => bench::run(&options, progress)?,
         Command::Demo { out, minutes } => demo(out, minutes, progress)?,
