@@ -13,6 +13,7 @@ pub mod evaluate;
 pub mod export;
 pub mod field;
 pub mod inference;
+pub mod plot;
 pub mod process_data;
 pub mod run_dir;
 pub mod train;
