@@ -83,7 +83,7 @@ pub fn eval(run: &Path, data: &SplitChoice, limit: Option<usize>, out: &Path, pr
     let report = loaded.render_frames(views, out, false, false, progress)?;
     let metrics = report.metrics.ok_or_else(|| Error::invalid(&data.dir, format!("the {} split has no views", data.split)))?;
     if metrics.per_image.iter().any(|m| m.psnr.is_finite()) {
-        let title = format!("{}: PSNR per {} view", crate::plot::run_label(run), data.split);
+        let title = format!("{} ({} split)", crate::plot::run_label(run), data.split);
         crate::plot::write_view_psnr(&title, &metrics.per_image, &out.join(crate::plot::VIEWS_FILE))?;
     }
     Ok(metrics)

@@ -12,6 +12,11 @@ fn eval_and_render_write_named_outputs() {
     // Training drew its curve (the final evaluation's row) without any system font.
     let curve = image::open(run.join("curve.png")).unwrap();
     assert_eq!((curve.width(), curve.height()), nerf::plot::figure::SIZE);
+    // `nerf plot` of the run alone draws the same picture.
+    let alone = dir.path().join("alone.png");
+    let (ok, text) = nerf(&["plot", s(&run), "--out", s(&alone)]);
+    assert!(ok, "{text}");
+    assert_eq!(std::fs::read(&alone).unwrap(), std::fs::read(run.join("curve.png")).unwrap());
     let out = dir.path().join("eval");
     let (ok, text) = nerf(&["eval", "--run", s(&run), "--data", s(&scene), "--split", "val", "--limit", "2", "--out", s(&out)]);
     assert!(ok, "{text}");

@@ -8,7 +8,7 @@ use crate::plot::legend::{self, Sample};
 use nerf_core::render::metrics::ImageMetrics;
 use plotters::prelude::*;
 
-/// Draw the PSNR of `views` under `title`. Views with an infinite PSNR (a render equal to its
+/// Draw the PSNR of `views`, titled `title` (the run and split). Views with an infinite PSNR (a render equal to its
 /// target) cannot be placed and are counted in the title instead; at least one must be finite.
 pub fn draw_view_psnr(title: &str, views: &[ImageMetrics]) -> Result<Figure> {
     let finite: Vec<(usize, f64)> = views.iter().enumerate().filter(|(_, m)| m.psnr.is_finite()).map(|(k, m)| (k, m.psnr as f64)).collect();
@@ -22,8 +22,8 @@ pub fn draw_view_psnr(title: &str, views: &[ImageMetrics]) -> Result<Figure> {
     let x_range = -0.5..views.len() as f64 - 0.5;
     let skipped = views.len() - finite.len();
     let caption = match skipped {
-        0 => format!("{title}: {} views", views.len()),
-        k => format!("{title}: {} views ({k} exact, not shown)", views.len()),
+        0 => format!("{title}: PSNR of {} views", views.len()),
+        k => format!("{title}: PSNR of {} views ({k} exact, not shown)", views.len()),
     };
     let colour = PALETTE[0];
     let mean_colour = PALETTE[3];
