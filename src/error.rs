@@ -34,6 +34,10 @@ pub enum Error {
         /// The loss of the last step.
         loss: f32,
     },
+    /// Drawing a plot failed (the font or the chart library; not the data, whose problems are
+    /// [`Error::Invalid`] naming the file).
+    #[error("drawing a plot: {0}")]
+    Plot(String),
     /// An external program (COLMAP, ffmpeg, the PyTorch comparison of `nerf bench`) failed.
     #[error("{program}: {problem}")]
     External {

@@ -75,13 +75,19 @@ impl LoadedRun {
     }
 }
 
-/// Render a split's views, compare with its images, write PNGs and `<out>/metrics.json`.
+/// Render a split's views, compare with its images, write PNGs, `<out>/metrics.json` and the
+/// per-view PSNR plot (`<out>/psnr_per_view.png`, when a view has a finite PSNR).
 pub fn eval(run: &Path, data: &SplitChoice, limit: Option<usize>, out: &Path, progress: bool) -> Result<EvalReport> {
     let loaded = LoadedRun::open(run)?;
     let mut views = loaded.split_views(data, Images::Required)?;
     views.truncate(limit.unwrap_or(usize::MAX));
     let report = loaded.render_frames(views, out, false, false, progress)?;
-    report.metrics.ok_or_else(|| Error::invalid(&data.dir, format!("the {} split has no views", data.split)))
+    let metrics = report.metrics.ok_or_else(|| Error::invalid(&data.dir, format!("the {} split has no views", data.split)))?;
+    if metrics.per_image.iter().any(|m| m.psnr.is_finite()) {
+        let title = format!("{} ({} split)", crate::plot::run_label(run), data.split);
+        crate::plot::write_view_psnr(&title, &metrics.per_image, &out.join(crate::plot::VIEWS_FILE))?;
+    }
+    Ok(metrics)
 }
 
 /// What `nerf render` renders.

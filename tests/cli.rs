@@ -9,9 +9,19 @@ use std::path::Path;
 fn eval_and_render_write_named_outputs() {
     let dir = tempfile::tempdir().unwrap();
     let (scene, run) = trained_run(dir.path());
+    // Training drew its curve (the final evaluation's row) without any system font.
+    let curve = image::open(run.join("curve.png")).unwrap();
+    assert_eq!((curve.width(), curve.height()), nerf::plot::figure::SIZE);
+    // `nerf plot` of the run alone draws the same picture.
+    let alone = dir.path().join("alone.png");
+    let (ok, text) = nerf(&["plot", s(&run), "--out", s(&alone)]);
+    assert!(ok, "{text}");
+    assert_eq!(std::fs::read(&alone).unwrap(), std::fs::read(run.join("curve.png")).unwrap());
     let out = dir.path().join("eval");
     let (ok, text) = nerf(&["eval", "--run", s(&run), "--data", s(&scene), "--split", "val", "--limit", "2", "--out", s(&out)]);
     assert!(ok, "{text}");
+    let per_view = image::open(out.join("psnr_per_view.png")).unwrap();
+    assert_eq!((per_view.width(), per_view.height()), nerf::plot::figure::SIZE);
     let metrics: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();
     assert!(metrics["psnr_mean"].as_f64().unwrap() > 5.0);
     assert!(metrics["ssim_mean"].as_f64().unwrap() > 0.0);

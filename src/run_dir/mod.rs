@@ -7,6 +7,7 @@
 //! | `camera.json` | at the start | the training camera ([`PinholeCamera`]; older runs: `focal` only) |
 //! | `source.json` | at the start | the dataset, downscale and the scene's placement in the field ([`RunSource`]) |
 //! | `curve.csv` | while training | step, minutes, train PSNR, val PSNR ([`Curve`]) |
+//! | `curve.png` | with each `curve.csv` row | the curve drawn ([`crate::plot::write_run_curve`]) |
 //! | `checkpoints/step-NNNNNNN/` | every `checkpoint_every` steps | weights, optimizer, state, grid ([`Checkpoint`]) |
 //! | `checkpoints/latest` | after each checkpoint | the name of the newest complete checkpoint |
 
@@ -93,6 +94,11 @@ impl RunDir {
     /// `curve.csv`.
     pub fn curve_path(&self) -> PathBuf {
         self.root.join("curve.csv")
+    }
+
+    /// `curve.png`: the curve drawn.
+    pub fn curve_plot_path(&self) -> PathBuf {
+        self.root.join("curve.png")
     }
 
     /// `checkpoints/`.

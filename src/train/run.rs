@@ -1,5 +1,5 @@
 //! The run loop: start or resume a run directory, then step until the iteration count or the
-//! time budget is reached, with checkpoints, the PSNR curve and a progress bar.
+//! time budget is reached, with checkpoints, the PSNR curve (and its plot) and a progress bar.
 
 use crate::field::FieldTrainer;
 use crate::config::TrainConfig;
@@ -86,6 +86,7 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
                 val_psnr = Some(validate(trainer.as_ref(), val, &bar));
             }
             curve.record(trainer.steps_done(), clock.minutes(), recent.mean(), val_psnr)?;
+            refresh_curve_plot(&run, &bar);
             next_eval_s += config.eval_every_min * 60.0;
         }
     }
@@ -95,6 +96,7 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
         val_psnr = Some(trainer.view_psnr(val, 0));
     }
     curve.record(trainer.steps_done(), clock.minutes(), recent.mean(), val_psnr)?;
+    refresh_curve_plot(&run, &bar);
     Ok(TrainSummary { steps: trainer.steps_done(), train_psnr: recent.mean(), val_psnr, minutes: clock.minutes() })
 }
 
@@ -196,6 +198,14 @@ fn validate(trainer: &dyn FieldTrainer, val: &SplitData, bar: &ProgressBar) -> f
     let occupied = trainer.occupancy().map(|g| format!(", {:.1}% of the grid occupied", 100.0 * g.occupied_fraction())).unwrap_or_default();
     bar.println(format!("step {}: val {} PSNR {p:.2} dB{occupied}", trainer.steps_done(), val.views[0].name));
     p
+}
+
+/// Redraw `curve.png` from `curve.csv`. A plot that cannot be drawn is a warning: training
+/// (and its checkpoints) matter more than the picture.
+fn refresh_curve_plot(run: &RunDir, bar: &ProgressBar) {
+    if let Err(e) = crate::plot::write_run_curve(run) {
+        bar.println(format!("warning: {} not updated: {e}", run.curve_plot_path().display()));
+    }
 }
 
 /// Training time across resumes.

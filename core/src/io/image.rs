@@ -71,6 +71,16 @@ pub fn save_png(path: &Path, width: u32, height: u32, rgb: &[[f32; 3]]) -> Resul
     )
 }
 
+/// Writes an 8-bit RGB PNG from bytes already quantised (RGBRGB…, `3·width·height` of them),
+/// atomically, like [`save_png`].
+pub fn save_png_rgb8(path: &Path, width: u32, height: u32, rgb8: &[u8]) -> Result<()> {
+    if !rgb8.len().is_multiple_of(3) {
+        return Err(Error::invalid(path, format!("{} bytes are not whole RGB pixels", rgb8.len())));
+    }
+    check_len(path, width, height, rgb8.len() / 3)?;
+    encode_png(path, width, height, rgb8, ExtendedColorType::Rgb8)
+}
+
 /// Writes an 8-bit RGBA PNG (straight, not premultiplied, alpha), atomically.
 pub fn save_png_rgba(path: &Path, width: u32, height: u32, rgba: &[[f32; 4]]) -> Result<()> {
     check_len(path, width, height, rgba.len())?;
@@ -277,15 +287,6 @@ pub fn encode_gif_rgb8(
     Ok(buf)
 }
 
-/// Writes an 8-bit RGB PNG from its bytes (`3·width·height`, RGBRGB…), atomically.
-pub fn save_png_rgb8(path: &Path, width: u32, height: u32, rgb: &[u8]) -> Result<()> {
-    check_len(path, width, height, rgb.len() / 3)?;
-    if rgb.len() % 3 != 0 {
-        return Err(Error::invalid(path, format!("{} bytes is not a whole number of RGB pixels", rgb.len())));
-    }
-    encode_png(path, width, height, rgb, ExtendedColorType::Rgb8)
-}
-
 /// Decodes an image to 8-bit RGB bytes: `(width, height, 3·width·height bytes)`. An 8-bit RGB
 /// PNG (what [`save_png`] writes) reads back exactly as written; alpha is dropped.
 pub fn load_rgb8(path: &Path) -> Result<(u32, u32, Vec<u8>)> {
@@ -347,6 +348,21 @@ mod tests {
         // Wrong pixel count is an error naming the file, not a panic.
         let err = save_png(&path, 4, 4, &rgb).unwrap_err().to_string();
         assert!(err.contains("a.png") && err.contains("4×4"), "{err}");
+    }
+
+    #[test]
+    fn rgb8_png_keeps_bytes_and_refuses_partial_pixels() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("b.png");
+        save_png_rgb8(&path, 2, 1, &[0, 128, 255, 10, 20, 30]).unwrap();
+        let (w, h, back) = load_rgba(&path).unwrap();
+        assert_eq!((w, h), (2, 1));
+        assert_eq!(back[1], [10.0 / 255.0, 20.0 / 255.0, 30.0 / 255.0, 1.0]);
+        let err = save_png_rgb8(&dir.path().join("c.png"), 2, 1, &[0; 5]).unwrap_err().to_string();
+        assert!(err.contains("c.png") && err.contains("5 bytes"), "{err}");
+        let err = save_png_rgb8(&dir.path().join("c.png"), 2, 2, &[0; 6]).unwrap_err().to_string();
+        assert!(err.contains("2×2"), "{err}");
+        assert!(!dir.path().join("c.png").exists());
     }
 
     #[test]

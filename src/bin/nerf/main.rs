@@ -85,6 +85,16 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Overlay runs' PSNR curves (their curve.csv) in one PNG: val solid, train dashed,
+    /// against minutes of training, one colour per run.
+    Plot {
+        /// Run directories written by `nerf train` (1 to 9), labelled by their directory names.
+        #[arg(required = true)]
+        runs: Vec<PathBuf>,
+        /// The PNG to write (written whole or not at all).
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Render a split's poses, a 360° orbit or a nerfstudio camera path: PNG frames, depth maps,
     /// a GIF; or one shard of them (--shard), or assemble the shards (--merge).
     Render {
@@ -345,6 +355,10 @@ fn main() -> Result<()> {
         Command::Eval { run, data, format, split, downscale, limit, out } => {
             let r = eval(&run, &SplitChoice { dir: data, format, split, downscale }, limit, &out, progress)?;
             println!("{} views: PSNR {:.2} dB, SSIM {:.4}; {}", r.per_image.len(), r.psnr_mean, r.ssim_mean, out.join("metrics.json").display());
+        }
+        Command::Plot { runs, out } => {
+            nerf::plot::plot_runs(&runs, &out)?;
+            println!("{} run{} plotted: {}", runs.len(), if runs.len() == 1 { "" } else { "s" }, out.display());
         }
         Command::Render { run, orbit, frames, split, data, format, downscale, camera_path, out, npy, shard, skip_existing, merge } => {
             if merge {
