@@ -13,7 +13,7 @@ use std::path::Path;
 
 /// Default [`TrainConfig::pass_points`]: the paper step (1024 rays × 192 samples) runs as
 /// four passes of 256 rays, two at a time, so only two passes' activations are in memory
-/// (README, "Training speed and memory").
+/// (docs/benchmarks.md, "Training speed and memory").
 pub const DEFAULT_PASS_POINTS: usize = 1 << 16;
 
 /// The named starting points for a configuration.
@@ -35,7 +35,7 @@ pub enum Preset {
 
 impl Preset {
     /// The preset used when none is named: `ngp`, which beats `cpu-fast` on quality per minute
-    /// on a 2-core CPU (README, "The hash-grid field").
+    /// on a 2-core CPU (docs/hash-grid.md and docs/quality.md).
     pub const DEFAULT: Preset = Preset::Ngp;
 
     /// The preset's name as written in configs.

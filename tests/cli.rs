@@ -129,7 +129,7 @@ fn refused(args: &[&str], out: &Path, needles: &[&str]) {
 /// Run directories made by someone else: `camera.json`, `config.toml`, `checkpoints/latest` and
 /// the grid's header with values that would allocate without bound, render forever or read
 /// outside the run. `nerf eval` / `nerf render` refuse each, naming the file and the field
-/// (README.md, "Bad input").
+/// (docs/robustness.md, "Bad input").
 #[test]
 fn untrusted_run_directories_are_refused() {
     let dir = tempfile::tempdir().unwrap();

@@ -121,6 +121,7 @@ fn a_shard_killed_mid_render_resumes_with_skip_existing() {
     let one = dir.path().join("one");
     let (ok, text) = nerf_render(&cat(&args, &["--out", s(&one)]));
     assert!(ok, "{text}");
+    assert!(!one.join(".shards").exists(), "a finished whole render leaves its manifest behind");
     // Kill shard 1/2 (frames 10..20) once it has recorded two frames.
     let split = dir.path().join("split");
     let manifest = split.join(".shards/shard-1-of-2.json");
@@ -149,6 +150,11 @@ fn a_shard_killed_mid_render_resumes_with_skip_existing() {
     assert!(ok && text.contains(&format!("({done} kept from an earlier run)")), "{text}");
     let (ok, text) = nerf_render(&["--merge", "--out", s(&split)]);
     assert!(ok, "{text}");
+    assert_same_files(&one, &split);
+    // A whole render asked to keep what is there keeps every frame, and its manifest for next time.
+    let (ok, text) = nerf_render(&cat(&args, &["--out", s(&split), "--skip-existing"]));
+    assert!(ok && text.contains("(20 kept from an earlier run)"), "{text}");
+    assert!(split.join(".shards/shard-0-of-1.json").is_file());
     assert_same_files(&one, &split);
     println!("shard 1/2 killed after {done} frames, resumed and merged: identical to one process");
 }

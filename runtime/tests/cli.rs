@@ -214,7 +214,7 @@ fn refused(args: &[&str], out: &Path, needles: &[&str]) {
 
 /// Bundles made by someone else: file names that leave the bundle, sizes that would allocate
 /// without bound or render forever. Each is refused at once, naming the file and the field,
-/// before anything is written (the table in README.md, "Bad input", lists these).
+/// before anything is written (the table in docs/robustness.md, "Bad input", lists these).
 #[test]
 fn untrusted_bundles_are_refused() {
     let dir = tempfile::tempdir().unwrap();

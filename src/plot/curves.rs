@@ -7,7 +7,7 @@
 
 use crate::error::{Error, Result};
 use crate::plot::curve::{CurvePoint, step_at};
-use crate::plot::figure::{CAPTION, Figure, GRID, PALETTE, SIZE, TEXT, TICK, drawing_error, tick_label};
+use crate::plot::figure::{CAPTION, Figure, PALETTE, SIZE, TEXT, TICK, drawing_error, style_axes, tick_label};
 use crate::plot::font;
 use crate::plot::legend::{self, Sample};
 use plotters::prelude::*;
@@ -81,18 +81,7 @@ pub fn draw_curves(runs: &[RunCurve]) -> Result<CurvesFigure> {
             .build_cartesian_2d(x_range.clone(), y_range.clone())
             .map_err(drawing_error)?
             .set_secondary_coord(x_range, y_range);
-        chart
-            .configure_mesh()
-            .x_desc("minutes of training")
-            .y_desc("PSNR (dB)")
-            .x_label_formatter(&tick_label)
-            .y_label_formatter(&tick_label)
-            .label_style((font::FAMILY, TICK))
-            .axis_desc_style((font::FAMILY, TEXT))
-            .bold_line_style(GRID)
-            .light_line_style(TRANSPARENT)
-            .draw()
-            .map_err(drawing_error)?;
+        style_axes(&mut chart.configure_mesh()).x_desc("minutes of training").x_label_formatter(&tick_label).draw().map_err(drawing_error)?;
         if single {
             // Steps at the minute ticks, read off the curve (their spacing follows the run's pace).
             let points = &runs[0].points;

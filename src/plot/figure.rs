@@ -2,7 +2,11 @@
 //! share: size, colours and the mapping of plotters' errors.
 
 use crate::error::{Error, Result};
-use plotters::style::RGBColor;
+use crate::plot::font;
+use plotters::chart::MeshStyle;
+use plotters::coord::ranged1d::{Ranged, ValueFormatter};
+use plotters::prelude::DrawingBackend;
+use plotters::style::{RGBColor, TRANSPARENT};
 use std::path::Path;
 
 /// Width × height of every plot, in pixels.
@@ -32,6 +36,22 @@ pub const TICK: u32 = 12;
 
 /// Grid lines at the labelled ticks (no finer grid).
 pub const GRID: RGBColor = RGBColor(225, 225, 225);
+
+/// The axes every plot shares: the bundled font at the tick and description sizes, grid lines
+/// at the labelled ticks only, PSNR on the y axis with [`tick_label`]s. The caller adds the x axis.
+pub fn style_axes<'m, 'a, 'b, X, Y, DB>(mesh: &'m mut MeshStyle<'a, 'b, X, Y, DB>) -> &'m mut MeshStyle<'a, 'b, X, Y, DB>
+where
+    X: Ranged<ValueType = f64> + ValueFormatter<f64>,
+    Y: Ranged<ValueType = f64> + ValueFormatter<f64>,
+    DB: DrawingBackend,
+{
+    mesh.y_desc("PSNR (dB)")
+        .y_label_formatter(&tick_label)
+        .label_style((font::FAMILY, TICK))
+        .axis_desc_style((font::FAMILY, TEXT))
+        .bold_line_style(GRID)
+        .light_line_style(TRANSPARENT)
+}
 
 /// A tick's value with at most two decimals and no trailing zeros: 10.0 → "10", 2.50 → "2.5".
 pub fn tick_label(value: &f64) -> String {

@@ -2,7 +2,7 @@
 //! `metrics.json`, the mean as a dashed line, view names on the ticks.
 
 use crate::error::{Error, Result};
-use crate::plot::figure::{CAPTION, Figure, GRID, PALETTE, SIZE, TEXT, TICK, drawing_error, tick_label};
+use crate::plot::figure::{CAPTION, Figure, PALETTE, SIZE, drawing_error, style_axes};
 use crate::plot::font;
 use crate::plot::legend::{self, Sample};
 use nerf_core::render::metrics::ImageMetrics;
@@ -45,18 +45,7 @@ pub fn draw_view_psnr(title: &str, views: &[ImageMetrics]) -> Result<Figure> {
             let k = x.round();
             if (x - k).abs() > 1e-6 || k < 0.0 { String::new() } else { views.get(k as usize).map(|m| m.name.clone()).unwrap_or_default() }
         };
-        chart
-            .configure_mesh()
-            .x_desc("view (in metrics.json order)")
-            .y_desc("PSNR (dB)")
-            .x_label_formatter(&name)
-            .y_label_formatter(&tick_label)
-            .label_style((font::FAMILY, TICK))
-            .axis_desc_style((font::FAMILY, TEXT))
-            .bold_line_style(GRID)
-            .light_line_style(TRANSPARENT)
-            .draw()
-            .map_err(drawing_error)?;
+        style_axes(&mut chart.configure_mesh()).x_desc("view (in metrics.json order)").x_label_formatter(&name).draw().map_err(drawing_error)?;
         let points: Vec<(f64, f64)> = finite.iter().map(|&(k, p)| (k as f64, p)).collect();
         chart.draw_series(LineSeries::new(points.clone(), colour.mix(0.35).stroke_width(1))).map_err(drawing_error)?;
         chart.draw_series(points.iter().map(|&p| Circle::new(p, 3, colour.filled()))).map_err(drawing_error)?;

@@ -215,6 +215,9 @@ pub fn render_frames_with<E: From<Error>>(
     }
     if plan.shard.is_whole() {
         let report = assemble(&out.dir, std::slice::from_ref(&manifest))?;
+        if !plan.skip_existing {
+            manifest.remove(&out.dir);
+        }
         return Ok(FramesReport { frames: frames.len(), skipped, ..report });
     }
     Ok(FramesReport { frames: range.len(), skipped, metrics: None, gif: None })

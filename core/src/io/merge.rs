@@ -263,7 +263,9 @@ mod tests {
         let dir = root.path().join("out");
         let all = frames(true);
         let mut n = 0;
-        render(&all, &dir, &FramePlan::default(), &mut n);
+        let plan = FramePlan { skip_existing: true, ..FramePlan::default() };
+        // With --skip-existing a finished whole render keeps its manifest for the next run.
+        render(&all, &dir, &plan, &mut n);
         let before = files(&dir);
         // A part killed after its files but before its record, and a frame whose PNG is gone.
         std::fs::remove_file(dir.join("frame_005.png")).unwrap();
@@ -272,14 +274,14 @@ mod tests {
         m.done.retain(|r| r.index != 1);
         m.write(&dir).unwrap();
         let mut n = 0;
-        let plan = FramePlan { skip_existing: true, ..FramePlan::default() };
         let report = render(&all, &dir, &plan, &mut n);
         assert_eq!((n, report.skipped, report.frames), (2, 5, 7));
         assert_eq!(files(&dir), before, "resumed output differs");
         // Without ground truth the files alone say a frame is done.
         let plain = root.path().join("plain");
         render(&frames(false), &plain, &FramePlan::default(), &mut n);
-        std::fs::remove_dir_all(plain.join(SHARDS_DIR)).unwrap();
+        // Without it, a finished whole render leaves no manifest behind.
+        assert!(!plain.join(SHARDS_DIR).exists());
         let mut n = 0;
         assert_eq!(render(&frames(false), &plain, &plan, &mut n).skipped, 7);
         assert_eq!(n, 0);

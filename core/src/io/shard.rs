@@ -4,11 +4,12 @@
 //!
 //! Part `i` of `n` renders a contiguous range of the frames (part 0 the first ones). Every render,
 //! split or not, keeps a manifest per part in `<out>/.shards/shard-<i>-of-<n>.json`, rewritten
-//! atomically after each frame: which frames the whole render has (a fingerprint of their names,
+//! atomically after each frame (a whole render removes it when it has finished, unless asked to
+//! `--skip-existing`): which frames the whole render has (a fingerprint of their names,
 //! cameras and poses), which of them this part finished and their metrics. A frame's files are
 //! written (atomically) before its manifest entry, so whatever a killed part recorded is on disk.
 
-use super::frames::FrameSpec;
+use super::frames::{FrameSpec, SHEET_VIEWS};
 use crate::error::{Error, Result};
 use crate::io::atomic::write_atomic;
 use crate::io::limits::{self, MAX_FRAMES};
@@ -197,6 +198,17 @@ impl ShardManifest {
     /// Where it is kept in the output directory `dir`.
     pub fn path(&self, dir: &Path) -> PathBuf {
         dir.join(SHARDS_DIR).join(self.part().manifest_name())
+    }
+
+    /// Remove its manifest and contact-sheet rows from `dir/.shards/`, and the folder once it is
+    /// empty: a whole render that finished needs them no more. Best effort (what is left only
+    /// costs a rerun with `--skip-existing` nothing).
+    pub fn remove(&self, dir: &Path) {
+        for k in self.first..(self.first + self.names.len()).min(SHEET_VIEWS) {
+            let _ = std::fs::remove_file(sheet_row_path(dir, &self.fingerprint, k));
+        }
+        let _ = std::fs::remove_file(self.path(dir));
+        let _ = std::fs::remove_dir(dir.join(SHARDS_DIR));
     }
 
     /// Write it (atomically) into `dir/.shards/` (created if missing).
