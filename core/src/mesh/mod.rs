@@ -4,7 +4,9 @@
 //! (`nerf mesh --bundle`) both come here through [`Field`].
 //!
 //! - [`cases`]: the marching-cubes case table (built from a rule, tested case by case).
-//! - [`cavities`]: empty nodes the outside cannot reach (hollows inside solids), filled.
+//! - [`carve`]: visibility carving, which nodes the training cameras see as empty.
+//! - [`cavities`]: which empty nodes count as outside (reached from the border through open
+//!   nodes); the others (hollows inside solids, space no camera saw empty) are filled.
 //! - [`march`]: marching over a lattice fed one z-slice at a time (memory: a few slices).
 //! - [`ply`]: the PLY writer (streamed, written whole or not at all) and reader.
 //!
@@ -17,10 +19,12 @@
 //!
 //! # Two passes
 //! Unless asked to keep them, cavities are filled: a first pass over the slices records which
-//! nodes are dense (one bit each), a flood fill from the lattice's border finds the empty nodes
-//! the outside reaches ([`cavities`]), and the second pass, which marches, counts the other
-//! empty nodes as just above the threshold. Only the outer surface is left; the price is
-//! evaluating the densities twice.
+//! nodes are dense (one bit each) and, given depth views ([`carve`]), which empty nodes some
+//! view sees as empty or none has in view (another bit); a flood fill from the lattice's border
+//! finds the empty nodes the outside reaches through those ([`cavities`]), and the second pass,
+//! which marches, counts the other empty nodes as just above the threshold. Only the outer
+//! surface the cameras saw is left; the price is evaluating the densities twice (and rendering
+//! the views).
 //!
 //! # Normals and colours
 //! A vertex's normal is the density gradient's opposite, normalised: central differences on the
@@ -29,6 +33,7 @@
 //! rgb at the vertex seen along the inverse normal (the view direction of a camera looking
 //! straight at the surface from outside).
 
+pub mod carve;
 pub mod cases;
 pub mod cavities;
 pub mod march;
@@ -41,7 +46,9 @@ use crate::field::{Field, FieldKind, Stage};
 use crate::io::limits::{Origin, check_count};
 use crate::sample::occupancy::OccupancyGrid;
 use glam::Vec3;
-use cavities::{NodeBits, reached_from_border};
+use carve::{DepthView, MARGIN_CELLS, Sight, WIDEN_STEPS, sight_of};
+use cavities::{NodeBits, reached_from_border, widen};
+use rayon::prelude::*;
 use march::{Lattice, LayerMesh, march};
 use ply::{PlyVertex, PlyWriter};
 use std::cell::RefCell;
@@ -188,19 +195,37 @@ pub struct MeshReport {
     /// Of them, those the field evaluated (the others were in empty cells of the grid), in
     /// each pass.
     pub evaluated: usize,
-    /// Empty nodes counted as inside: cavities (0 when they are kept).
+    /// Empty nodes counted as inside: cavities, and with carving the space no view saw empty
+    /// (0 when they are kept).
     pub filled: usize,
+    /// Views that carved (0: none).
+    pub views: usize,
     /// The largest density seen (to choose a threshold by).
     pub max_density: f32,
 }
 
+/// What `nerf mesh` did, through either runtime.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MeshSummary {
+    /// Counts and the largest density seen.
+    pub report: MeshReport,
+    /// Resolution, threshold and cube used.
+    pub options: MeshOptions,
+    /// Where the cube came from.
+    pub bound_from: BoundSource,
+    /// What carved, or why nothing did ([`carve::carving_views`]).
+    pub carving: String,
+}
+
 /// Mesh `field` (see the module docs) into the PLY file `out` (its directory is created),
-/// vertices and normals taken back to the scene's frame by `transform`. Nothing is written
-/// unless the whole mesh is; a mesh with no vertex (no density above the threshold) is an
-/// error that says the largest density seen.
+/// vertices and normals taken back to the scene's frame by `transform`; `views` carve (none:
+/// the cavity fill alone; ignored when cavities are kept). Nothing is written unless the whole
+/// mesh is; a mesh with no vertex (no density above the threshold) is an error that says the
+/// largest density seen.
 pub fn extract_mesh<F, E>(
     field: &mut F,
     occupancy: Option<&OccupancyGrid>,
+    views: &[DepthView],
     options: &MeshOptions,
     transform: &SceneTransform,
     out: &Path,
@@ -223,12 +248,14 @@ where
     let field = RefCell::new(field);
     let passes = if options.keep_cavities { n } else { 2 * n + 1 };
     let bar = progress_bar(progress, passes);
+    let views = if options.keep_cavities { &[][..] } else { views };
     // Cavities: which nodes the outside reaches (`None`: keep them).
     let reached = if options.keep_cavities {
         None
     } else {
-        bar.set_message("density");
+        bar.set_message(if views.is_empty() { "density" } else { "density, carving" });
         let mut dense = NodeBits::new(slice_len * (n + 1));
+        let mut open = (!views.is_empty()).then(|| NodeBits::new(slice_len * (n + 1)));
         for k in 0..=n {
             let (values, _) = densities::<F, E>(&field, &lattice, occupancy, k)?;
             for (s, v) in values.iter().enumerate() {
@@ -236,9 +263,26 @@ where
                     dense.set(k * slice_len + s);
                 }
             }
+            if let Some(open) = &mut open {
+                for (s, seen) in seen_open(&lattice, k, &values, threshold, views).into_iter().enumerate() {
+                    if seen {
+                        open.set(k * slice_len + s);
+                    }
+                }
+            }
             bar.inc(1);
         }
-        Some(reached_from_border(n, &dense))
+        // Walls: the dense nodes, and with carving the empty ones left shut.
+        let walls = match open {
+            None => dense,
+            Some(mut open) => {
+                widen(n, &mut open, &dense, WIDEN_STEPS);
+                drop(dense);
+                open.invert();
+                open
+            }
+        };
+        Some(reached_from_border(n, &walls))
     };
     bar.set_message("surface");
     let (mut evaluated, mut max_density, mut filled) = (0usize, 0.0f32, 0usize);
@@ -278,7 +322,9 @@ where
     };
     march(&lattice, threshold, slice, emit, |problem| E::from(Error::Argument(format!("mesh: {problem}; lower --resolution"))))?;
     bar.finish_and_clear();
-    if writer.vertex_count() == 0 {
+    // Filled nodes alone (space no view saw empty, with nothing dense around) are no surface of
+    // the field.
+    if writer.vertex_count() == 0 || max_density <= threshold {
         return Err(Error::Argument(format!(
             "no density above --threshold {threshold} in the box ±{} (the largest seen is {max_density:.3}): lower --threshold, or check --bound",
             options.bound
@@ -287,11 +333,32 @@ where
     }
     let comments = vec![
         format!("nerf-rs mesh: marching cubes at density {threshold} on {n}^3 cells over [-{b}, {b}]^3 of the field", b = options.bound),
-        format!("cavities: {}", if options.keep_cavities { "kept" } else { "filled" }),
+        match (options.keep_cavities, views.len()) {
+            (true, _) => "cavities: kept".to_string(),
+            (false, 0) => "cavities: filled".to_string(),
+            (false, v) => format!("cavities: filled, and the space none of {v} views saw empty"),
+        },
         "coordinates: the scene's own (its placement in the field undone)".to_string(),
     ];
     let (vertices, faces) = writer.finish(&comments)?;
-    Ok(MeshReport { vertices, faces, nodes: slice_len * (n + 1), evaluated, filled, max_density })
+    Ok(MeshReport { vertices, faces, nodes: slice_len * (n + 1), evaluated, filled, views: views.len(), max_density })
+}
+
+/// Which of slice `k`'s nodes (densities `values`) are open to the outside by the views: empty,
+/// and seen empty by one of `views` or in none of them ([`carve`]). Rows go to the cores.
+fn seen_open(lattice: &Lattice, k: usize, values: &[f32], threshold: f32, views: &[DepthView]) -> Vec<bool> {
+    let margin = MARGIN_CELLS * lattice.spacing;
+    let nodes = lattice.slice_nodes(k);
+    let row = lattice.n + 1;
+    let rows: Vec<Vec<bool>> = nodes
+        .par_chunks(row)
+        .zip(values.par_chunks(row))
+        .map(|(points, values)| {
+            let mut hint = 0;
+            points.iter().zip(values).map(|(p, &v)| v <= threshold && sight_of(views, Vec3::from_array(*p), margin, &mut hint) != Sight::Hidden).collect()
+        })
+        .collect();
+    rows.concat()
 }
 
 /// Slice `k`'s densities (σ ≥ 0; 0 in the grid's empty cells) and how many nodes the field

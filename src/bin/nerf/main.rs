@@ -219,7 +219,7 @@ enum Command {
     },
     /// Mesh a trained run or a scene bundle: the surface where the density crosses --threshold,
     /// by marching cubes over the field's box, as a binary PLY (positions, normals, colours) in
-    /// the scene's own coordinates (docs/mesh.md).
+    /// the scene's own coordinates, carved by the training views (docs/mesh.md).
     #[command(group(clap::ArgGroup::new("field").required(true).args(["run", "bundle"])))]
     Mesh {
         /// Run directory written by `nerf train` (its latest checkpoint, through burn).
@@ -244,9 +244,17 @@ enum Command {
         bound: Option<f32>,
         /// Keep the inner walls of hollows inside solids (by default the empty space the
         /// outside cannot reach counts as inside, so only the outer surface is left: one pass
-        /// over the densities instead of two).
+        /// over the densities instead of two, and no carving).
         #[arg(long)]
         keep_cavities: bool,
+        /// Carve with this dataset's train views (poses through the field's placement): the
+        /// empty space none of them sees empty counts as inside. Default: a run's own dataset
+        /// (recorded in its source.json) when it is still there; a bundle carves only with --data.
+        #[arg(long, conflicts_with_all = ["no_carve", "keep_cavities"])]
+        data: Option<PathBuf>,
+        /// No visibility carving: only the cavity fill (the space the outside cannot reach).
+        #[arg(long)]
+        no_carve: bool,
     },
     /// Import a model trained elsewhere into a scene bundle (coarse.onnx, fine.onnx, scene.json).
     Import {
@@ -437,24 +445,29 @@ fn main() -> Result<()> {
                 println!("{:>10} bytes  {}", f.bytes, f.path.display());
             }
         }
-        Command::Mesh { run, bundle, out, resolution, threshold, bound, keep_cavities } => {
+        Command::Mesh { run, bundle, out, resolution, threshold, bound, keep_cavities, data, no_carve } => {
+            use nerf_core::mesh::carve::CarveViews;
             let request = nerf_core::mesh::MeshRequest { resolution, threshold, bound, keep_cavities };
-            let (report, options, from) = match (run, bundle) {
-                (Some(run), _) => {
-                    let m = nerf::mesh::mesh_run(&run, &out, &request, progress)?;
-                    (m.report, m.options, m.bound_from)
-                }
-                (None, Some(bundle)) => nerf_runtime::mesh::mesh_bundle(&bundle, &out, &request, None, progress)?,
+            let carve = match (no_carve, data) {
+                (true, _) => CarveViews::Off,
+                (false, Some(data)) => CarveViews::Data(data),
+                (false, None) => CarveViews::Own,
+            };
+            let m = match (run, bundle) {
+                (Some(run), _) => nerf::mesh::mesh_run(&run, &out, &request, &carve, progress)?,
+                (None, Some(bundle)) => nerf_runtime::mesh::mesh_bundle(&bundle, &out, &request, &carve, None, progress)?,
                 (None, None) => bail!("say what to mesh: --run RUN or --bundle BUNDLE"),
             };
+            let (report, options) = (&m.report, &m.options);
+            println!("{}", m.carving);
             println!(
-                "{} vertices, {} triangles at σ = {} on {}³ cells over ±{} ({:?} box); {} of {} lattice points evaluated, {} in cavities filled, largest σ {:.1}: {}",
+                "{} vertices, {} triangles at σ = {} on {}³ cells over ±{} ({:?} box); {} of {} lattice points evaluated, {} empty ones filled, largest σ {:.1}: {}",
                 report.vertices,
                 report.faces,
                 options.threshold,
                 options.resolution,
                 options.bound,
-                from,
+                m.bound_from,
                 report.evaluated,
                 report.nodes,
                 report.filled,
