@@ -11,7 +11,7 @@ use nerf_core::io::frames::{FrameOutput, FramePlan, FrameSpec, render_frames_wit
 use nerf_core::io::shard::Shard;
 use nerf_core::io::views::{Images, SplitChoice, named_views, orbit_poses, split_views};
 use nerf_core::io::limits::{self, Origin};
-use nerf_runtime::{OpenOptions, OrtScene, network::POINTS_PER_RUN, scene::DEFAULT_CHUNK};
+use nerf_runtime::{OpenOptions, OrtScene, network::POINTS_PER_RUN};
 use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -79,9 +79,10 @@ struct Cli {
     /// intermediates in cache; measured fastest near the default).
     #[arg(long, default_value_t = POINTS_PER_RUN)]
     points_per_run: usize,
-    /// Rays per onnxruntime call: memory is bounded by this, not by the image size.
-    #[arg(long, default_value_t = DEFAULT_CHUNK)]
-    chunk: usize,
+    /// Rays per onnxruntime call: memory is bounded by this, not by the image size (default:
+    /// 4096, fewer for bundles whose rays march more than 1024 intervals).
+    #[arg(long)]
+    chunk: Option<usize>,
     /// Render at this width (focal scales with it; height keeps the aspect unless given).
     #[arg(long)]
     width: Option<u32>,

@@ -4,9 +4,8 @@
 //! through onnxruntime).
 
 use crate::error::{Result, RuntimeError};
-use crate::scene::{DEFAULT_CHUNK, OpenOptions, OrtScene};
-use nerf_bundle::{SCENE_FILE, read_scene};
-use nerf_core::io::limits::MAX_POINTS_PER_CALL;
+use crate::scene::{OpenOptions, OrtScene};
+use nerf_bundle::SCENE_FILE;
 use nerf_core::mesh::carve::{CarveViews, carving_views, render_depth_views};
 use nerf_core::mesh::{MeshRequest, MeshSummary, extract_mesh, kind_named, scene_transform};
 use std::path::Path;
@@ -15,7 +14,7 @@ use std::path::Path;
 /// side, `None`: one per core), carving with the views `carve` names ([`CarveViews::Own`]: none,
 /// see the module docs).
 pub fn mesh_bundle(dir: &Path, out: &Path, request: &MeshRequest, carve: &CarveViews, threads: Option<usize>, progress: bool) -> Result<MeshSummary> {
-    let mut scene = OrtScene::open(dir, &OpenOptions { threads, chunk: carving_chunk(dir)?, ..OpenOptions::default() })?;
+    let mut scene = OrtScene::open(dir, &OpenOptions { threads, ..OpenOptions::default() })?;
     let source = dir.join(SCENE_FILE);
     let d = &scene.description;
     let transform = scene_transform(d.placement.as_ref(), d.sampling.ndc.is_some(), &source)?;
@@ -30,16 +29,4 @@ pub fn mesh_bundle(dir: &Path, out: &Path, request: &MeshRequest, carve: &CarveV
     let views = render_depth_views(&frames, near_far, |k, pose| scene.render(k, pose, &mut |_, _| {}), progress)?;
     let report = extract_mesh::<_, RuntimeError>(&mut scene.field, scene.occupancy.as_ref(), &views, &options, &transform, out, progress)?;
     Ok(MeshSummary { report, options, bound_from, carving })
-}
-
-/// Rays per call for the carving renders: [`DEFAULT_CHUNK`], fewer when the bundle's samples
-/// per ray would take a call past the points limit (a field marched in 2048 steps: 2048 rays).
-fn carving_chunk(dir: &Path) -> Result<usize> {
-    if !dir.is_dir() {
-        // `OrtScene::open` says what is wrong.
-        return Ok(DEFAULT_CHUNK);
-    }
-    let d = read_scene(dir)?;
-    let samples = (d.sampling.n_coarse + d.sampling.n_fine).max(d.march_steps).max(1);
-    Ok(DEFAULT_CHUNK.min(MAX_POINTS_PER_CALL / samples).max(1))
 }

@@ -20,6 +20,13 @@ use std::path::{Path, PathBuf};
 /// hash-grid lego frame: 5.54 s at 1024 rays, 5.05 s at 4096).
 pub const DEFAULT_CHUNK: usize = 4096;
 
+/// The chunk a bundle renders with unless told otherwise: [`DEFAULT_CHUNK`] rays, fewer when
+/// `samples_per_ray` would take a call past [`limits::MAX_POINTS_PER_CALL`] (a field marched in
+/// 2048 intervals: 2048 rays).
+pub fn default_chunk(samples_per_ray: usize) -> usize {
+    DEFAULT_CHUNK.min(limits::MAX_POINTS_PER_CALL / samples_per_ray.max(1)).max(1)
+}
+
 /// How to open a bundle.
 #[derive(Debug, Clone, PartialEq)]
 pub struct OpenOptions {
@@ -28,8 +35,9 @@ pub struct OpenOptions {
     pub threads: Option<usize>,
     /// The most points per onnxruntime call of one session.
     pub points_per_run: usize,
-    /// Rays per onnxruntime call (bounds memory).
-    pub chunk: usize,
+    /// Rays per onnxruntime call (bounds memory). `None`: [`DEFAULT_CHUNK`], or as many as keep
+    /// a call of the bundle's samples per ray within the points limit ([`default_chunk`]).
+    pub chunk: Option<usize>,
     /// Use the bundle's occupancy grid (when it has one) to skip empty space, and stop
     /// marching rays whose transmittance is below 1e-4 (early termination).
     pub skip_empty_space: bool,
@@ -37,7 +45,7 @@ pub struct OpenOptions {
 
 impl Default for OpenOptions {
     fn default() -> Self {
-        OpenOptions { threads: None, points_per_run: POINTS_PER_RUN, chunk: DEFAULT_CHUNK, skip_empty_space: true }
+        OpenOptions { threads: None, points_per_run: POINTS_PER_RUN, chunk: None, skip_empty_space: true }
     }
 }
 
@@ -64,7 +72,13 @@ impl OrtScene {
         let description = read_scene(dir)?;
         let s = &description.sampling;
         let samples_per_ray = (s.n_coarse + s.n_fine).max(description.march_steps);
-        limits::check_chunk(options.chunk, samples_per_ray, Origin::Option("--chunk"))?;
+        let chunk = match options.chunk {
+            Some(chunk) => {
+                limits::check_chunk(chunk, samples_per_ray, Origin::Option("--chunk"))?;
+                chunk
+            }
+            None => default_chunk(samples_per_ray),
+        };
         if let Some(n) = options.threads {
             limits::check_count(n, limits::MAX_THREADS, "threads", Origin::Option("--threads"))?;
         }
@@ -80,7 +94,7 @@ impl OrtScene {
         let bounded = description.is_bounded().then(|| description.occupancy.as_ref().map(|o| o.bound)).flatten();
         let occupancy = marching_grid(occupancy, bounded);
         let mut render_options =
-            RenderOptions::new(description.sampling.clone(), description.white_background, options.chunk, options.skip_empty_space);
+            RenderOptions::new(description.sampling.clone(), description.white_background, chunk, options.skip_empty_space);
         render_options.march_steps = description.march_steps;
         Ok(OrtScene { dir: dir.to_path_buf(), description, field: OrtField { graphs }, occupancy, options: render_options })
     }

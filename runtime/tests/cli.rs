@@ -193,6 +193,20 @@ fn broken_bundles_give_clear_errors() {
     assert!(!out.exists(), "no output is written for a bundle that cannot be opened");
 }
 
+/// The default preset's bundles march 2048 intervals: with no `--chunk`, `nerf-render` takes
+/// as few rays per call as keep a call within the points limit and renders; a `--chunk` given
+/// that passes the limit is still refused.
+#[test]
+fn a_bundle_marching_2048_intervals_renders_with_the_default_chunk() {
+    let dir = tempfile::tempdir().unwrap();
+    let bundle = edited_bundle(&dir.path().join("bundle"), |scene| scene["march_steps"] = 2048.into());
+    let out = dir.path().join("out");
+    let (ok, text) = nerf_render(&["--bundle", s(&bundle), "--orbit", "--frames", "1", "--out", s(&out)]);
+    assert!(ok && out.join("frame_000.png").is_file(), "{text}");
+    let refused_out = dir.path().join("refused");
+    refused(&["--bundle", s(&bundle), "--orbit", "--frames", "1", "--chunk", "4096", "--out", s(&refused_out)], &refused_out, &["--chunk: 4096 rays × 2048 samples"]);
+}
+
 /// A copy of the shipped bundle whose `scene.json` went through `edit`.
 fn edited_bundle(to: &Path, edit: impl FnOnce(&mut serde_json::Value)) -> PathBuf {
     let dir = copy_bundle(to);

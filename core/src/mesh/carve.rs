@@ -60,7 +60,7 @@ pub enum CarveViews {
     /// None: the cavity fill alone (`--no-carve`, or every surface kept with `--keep-cavities`).
     Off,
     /// The field's own: a run's recorded dataset's train views (when the dataset is still
-    /// there), a bundle's test poses (when it has some).
+    /// there); none for a bundle, which holds no training views.
     Own,
     /// The train views of this dataset (`--data`), mapped into the field by its placement.
     Data(PathBuf),

@@ -239,7 +239,7 @@ fn bench_frames(data: Option<&Path>, sizes: &[u32], chunk: usize, progress: bool
     let dir = tempfile::tempdir()?;
     let bundle = dir.path().join("bundle");
     write_bundle(&bundle, &field_bundle(&model, &config, &camera, None), &Default::default())?;
-    let options = OpenOptions { chunk, skip_empty_space: false, ..OpenOptions::default() };
+    let options = OpenOptions { chunk: Some(chunk), skip_empty_space: false, ..OpenOptions::default() };
     let mut scene = OrtScene::open(&bundle, &options)?;
     let samples = format!("{} + {}", config.sampling.n_coarse, config.sampling.n_fine);
     let mut out = Vec::new();

@@ -109,7 +109,7 @@ fn views_together_and_pixel_depths() {
     assert_eq!(sight_of(&[near.clone(), far.clone()], p, 0.1, &mut hint), Sight::Empty);
     assert_eq!(hint, 1, "the view that saw it empty is asked first next time");
     assert_eq!(sight_of(&[near.clone(), near.clone()], p, 0.1, &mut hint), Sight::Hidden);
-    assert_eq!(sight_of(&[far.clone()], Vec3::new(0.0, 0.0, 4.0), 0.1, &mut 0), Sight::Unseen);
+    assert_eq!(sight_of(std::slice::from_ref(&far), Vec3::new(0.0, 0.0, 4.0), 0.1, &mut 0), Sight::Unseen);
     assert_eq!(sight_of(&[far, near], Vec3::new(0.0, 0.0, 4.0), 0.1, &mut 0), Sight::Unseen);
     assert_eq!(sight_of(&[], p, 0.1, &mut 0), Sight::Unseen);
     // Depths.
