@@ -147,6 +147,39 @@ fn a_resumed_ngp_run_equals_an_uninterrupted_one() {
     assert!(grid(&centres) != grid(&dir.path().join("straight2")), "jitter_pixels changed nothing");
 }
 
+#[test]
+fn a_new_run_trains_rgba_scenes_on_random_backgrounds_and_opaque_ones_on_white() {
+    use nerf_core::dataset::Background;
+    let dir = tempfile::tempdir().unwrap();
+    let scene = small_scene(dir.path());
+    let background = |run: &Path| RunDir::open(run).unwrap().read_config().unwrap().train_background;
+    let rgba = dir.path().join("rgba");
+    train_tiny(&scene, &rgba, 2);
+    assert_eq!(background(&rgba), Some(Background::Random));
+    // The same scene with its background painted white into RGB images: an empty ray on white
+    // explains those pixels.
+    for split in ["train", "val", "test"] {
+        for entry in std::fs::read_dir(scene.join(split)).unwrap() {
+            let path = entry.unwrap().path();
+            let img = image::open(&path).unwrap().to_rgba8();
+            let rgb = image::RgbImage::from_fn(img.width(), img.height(), |x, y| {
+                let p = img.get_pixel(x, y).0;
+                let a = p[3] as f32 / 255.0;
+                image::Rgb([0, 1, 2].map(|c| (p[c] as f32 * a + 255.0 * (1.0 - a)).round() as u8))
+            });
+            rgb.save(&path).unwrap();
+        }
+    }
+    let opaque = dir.path().join("opaque");
+    train_tiny(&scene, &opaque, 2);
+    assert_eq!(background(&opaque), Some(Background::White));
+    // An explicit choice is kept.
+    let black = dir.path().join("black");
+    let config = TrainConfig { train_background: Some(Background::Black), white_background: false, ..tiny_ngp() };
+    train(&TrainOptions { format: None, data: scene.clone(), run: black.clone(), config, ndc: None, downscale: 1, time_budget_min: None, iters: Some(2), progress: false }).unwrap();
+    assert_eq!(background(&black), Some(Background::Black));
+}
+
 fn assert_same_field(straight: &Path, resumed: &Path) {
     let grid = |run: &Path| {
         let latest = std::fs::read_to_string(run.join("checkpoints/latest")).unwrap();

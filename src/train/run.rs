@@ -126,10 +126,14 @@ fn start_or_resume(run: &RunDir, options: &TrainOptions) -> Result<(Box<dyn Fiel
         Some(f) => f,
         None => detect_format(&options.data)?,
     };
-    if config.train_background.is_none() {
-        // Captures' photos are opaque: random backgrounds teach the field to be opaque too.
-        // (A run from before this key resumes as it started.)
-        let random = checkpoint.is_none() && format != CaptureFormat::Blender && config.field.trains_on_random_backgrounds();
+    let deciding_background = config.train_background.is_none();
+    if deciding_background {
+        // A new colour per ray, as instant-ngp trains: a capture's opaque photos teach the field
+        // to be opaque, and an RGBA scene's alpha to be empty where it is transparent, instead
+        // of "empty or white" (on white, a dark scene can teach the colour MLP to stay dead
+        // where density grows: the generated spheres rendered grey). A run from before this
+        // key resumes as it started.
+        let random = checkpoint.is_none() && config.field.trains_on_random_backgrounds();
         config.train_background = Some(if random { Background::Random } else { Background::from_white(config.white_background) });
     }
     if config.jitter_pixels.is_none() {
@@ -142,6 +146,11 @@ fn start_or_resume(run: &RunDir, options: &TrainOptions) -> Result<(Box<dyn Fiel
         load_dataset(&options.data, split, &load)
     };
     let train = load(CaptureSplit::Train, frame, config.train_background.expect("decided above"))?;
+    if deciding_background && format == CaptureFormat::Blender && train.data.views.iter().all(|v| v.alpha.is_none()) {
+        // Opaque Blender images have their background painted in: an empty ray on
+        // white_background's colour explains it (the pixels are the same either way).
+        config.train_background = Some(Background::from_white(config.white_background));
+    }
     for w in &train.warnings {
         eprintln!("warning: {w}");
     }

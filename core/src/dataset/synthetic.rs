@@ -2,7 +2,9 @@
 //! box-shaped plinth, ray-traced analytically with the project's own camera rays.
 //!
 //! Scene (world units, +z up, all within |x|, |y|, |z| ≤ 1.2):
-//! - plinth: axis-aligned box (−0.9, −0.9, −1.0)–(0.9, 0.9, −0.75), albedo (0.55, 0.5, 0.45);
+//! - plinth: axis-aligned box (−0.9, −0.9, −1.0)–(0.9, 0.9, −0.75), albedo (0.55, 0.5, 0.45),
+//!   checkered on each face in squares of 0.15 (the dark ones at 60%): a plain face gives the
+//!   views nothing to agree on, and a field may then leave it a soft layer a cell thick;
 //! - red sphere: centre (0, 0, −0.15), radius 0.6, albedo (0.9, 0.2, 0.15);
 //! - green sphere: centre (0.6, −0.6, −0.45), radius 0.3, albedo (0.2, 0.75, 0.25);
 //! - blue sphere: centre (−0.6, 0.55, −0.5), radius 0.25, albedo (0.15, 0.3, 0.85).
@@ -190,6 +192,8 @@ const BOX_MIN: Vec3 = Vec3::new(-0.9, -0.9, -1.0);
 const BOX_MAX: Vec3 = Vec3::new(0.9, 0.9, -0.75);
 const BOX_ALBEDO: Vec3 = Vec3::new(0.55, 0.5, 0.45);
 const EPS: f32 = 1e-5;
+/// Side of the plinth's checker squares.
+const CHECKER: f32 = 0.15;
 
 /// The nearest hit along `o + t·d` (t > 0): its unit normal and albedo.
 fn trace(o: Vec3, d: Vec3) -> Option<(Vec3, Vec3)> {
@@ -205,9 +209,16 @@ fn trace(o: Vec3, d: Vec3) -> Option<(Vec3, Vec3)> {
         }
     }
     if let Some((t, normal)) = hit_box(o, d, BOX_MIN, BOX_MAX) {
-        consider(t, normal, BOX_ALBEDO);
+        consider(t, normal, BOX_ALBEDO * plinth_pattern(o + t * d, normal));
     }
     best.map(|(_, n, a)| (n, a))
+}
+
+/// The plinth's checkerboard at `p` on the face with outward `normal`: squares of [`CHECKER`]
+/// in the face's two axes, dark ones at 60%.
+fn plinth_pattern(p: Vec3, normal: Vec3) -> f32 {
+    let cell = (p / CHECKER).floor() * (Vec3::ONE - normal.abs());
+    if (cell.x + cell.y + cell.z).rem_euclid(2.0) < 1.0 { 1.0 } else { 0.6 }
 }
 
 /// Distance from `p` to the nearest surface of the scene's solids, each taken alone (a sphere's
@@ -308,6 +319,11 @@ mod tests {
         // Box side face seen along +x from x = −4 at z = −0.9: normal −x.
         let (n, _) = trace(Vec3::new(-4.0, 0.0, -0.9), Vec3::X).unwrap();
         assert_eq!(n, Vec3::NEG_X);
+        // The checker: (0.8, 0.65) on the top face is in square (5, 4), a dark one; on the −x
+        // face the squares run in y and z, and (0.1, −0.8) is in (0, −6), a light one.
+        assert_eq!(trace(Vec3::new(0.8, 0.65, 4.0), Vec3::NEG_Z).unwrap().1, BOX_ALBEDO * 0.6);
+        assert_eq!(trace(Vec3::new(-4.0, 0.1, -0.8), Vec3::X).unwrap().1, BOX_ALBEDO);
+        assert_eq!(trace(Vec3::new(-4.0, 0.2, -0.8), Vec3::X).unwrap().1, BOX_ALBEDO * 0.6);
         // Unnormalised directions give the same hit as normalised ones.
         let (n1, _) = trace(Vec3::new(0.1, 0.0, 4.0), Vec3::new(0.0, 0.0, -3.0)).unwrap();
         let (n2, _) = trace(Vec3::new(0.1, 0.0, 4.0), Vec3::NEG_Z).unwrap();

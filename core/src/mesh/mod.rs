@@ -29,13 +29,16 @@
 //! # Normals and colours
 //! A vertex's normal is the density gradient's opposite, normalised: central differences on the
 //! lattice (one-sided at its faces), interpolated along the vertex's edge. No extra field
-//! evaluations, and it points from dense to empty, out of the object. The colour is the field's
-//! rgb at the vertex seen along the inverse normal (the view direction of a camera looking
-//! straight at the surface from outside).
+//! evaluations, and it points from dense to empty, out of the object. The colour is what a
+//! camera looking straight at the surface from outside sees: 16 samples along the inverse
+//! normal, from a cell outside to three inside, composited and normalised by their opacity
+//! ([`colour`]; the vertex alone lies at the surface's faint edge, whose colour the renders
+//! hardly train).
 
 pub mod carve;
 pub mod cases;
 pub mod cavities;
+pub mod colour;
 pub mod march;
 pub mod ply;
 
@@ -305,10 +308,11 @@ where
     };
     let emit = |_: usize, layer: LayerMesh| -> std::result::Result<(), E> {
         let mut vertices = Vec::with_capacity(layer.vertices.len());
-        for chunk in layer.vertices.chunks(POINTS_PER_CALL) {
-            let points: Vec<[f32; 3]> = chunk.iter().map(|v| v.position).collect();
-            let inward: Vec<[f32; 3]> = chunk.iter().map(|v| v.normal.map(|x| -x)).collect();
-            let rgb = field.borrow_mut().evaluate(Stage::Fine, &points, &inward)?.rgb;
+        for chunk in layer.vertices.chunks(POINTS_PER_CALL / colour::SAMPLES) {
+            let points: Vec<[f32; 3]> = chunk.iter().flat_map(|v| colour::sample_points(v.position, v.normal, lattice.spacing)).collect();
+            let inward: Vec<[f32; 3]> = chunk.iter().flat_map(|v| [v.normal.map(|x| -x); colour::SAMPLES]).collect();
+            let out = field.borrow_mut().evaluate(Stage::Fine, &points, &inward)?;
+            let rgb = out.sigma.chunks_exact(colour::SAMPLES).zip(out.rgb.chunks_exact(colour::SAMPLES)).map(|(sigma, rgb)| colour::seen_colour(sigma, rgb, lattice.spacing));
             vertices.extend(chunk.iter().zip(rgb).map(|(v, c)| PlyVertex {
                 position: transform.invert_point(Vec3::from_array(v.position)).to_array(),
                 normal: (transform.rotation_matrix().transpose() * Vec3::from_array(v.normal)).to_array(),
