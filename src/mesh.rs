@@ -18,9 +18,9 @@ pub fn mesh_run(run: &Path, out: &Path, request: &MeshRequest, carve: &CarveView
     let source = run.join("config.toml");
     let transform = scene_transform(loaded.placement(), loaded.config.sampling.ndc.is_some(), &source)?;
     let (options, bound_from) = request.options(Some(loaded.config.field), loaded.model.bounded(), loaded.occupancy.as_ref(), &source)?;
-    let into_field = loaded.placement().map_or_else(nerf_core::SceneTransform::identity, |p| p.transform);
-    let (frames, carving) = carving_views(carve, request.keep_cavities, into_field, || match &loaded.source {
-        Some(s) if s.data.is_dir() => dataset_views(&s.data, s.placement.as_ref().map(|p| p.format), into_field),
+    // The placement maps the dataset's poses into the field, as it maps vertices back.
+    let (frames, carving) = carving_views(carve, request.keep_cavities, transform, || match &loaded.source {
+        Some(s) if s.data.is_dir() => dataset_views(&s.data, s.placement.as_ref().map(|p| p.format), transform),
         Some(s) => Ok((vec![], format!("not carved: the run's dataset {} is not here (give --data DIR to carve)", s.data.display()))),
         None => Ok((vec![], format!("not carved: {} records no dataset (give --data DIR to carve)", run.display()))),
     })?;

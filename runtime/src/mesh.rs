@@ -21,8 +21,8 @@ pub fn mesh_bundle(dir: &Path, out: &Path, request: &MeshRequest, carve: &CarveV
     // A bounded field's box is its grid's cube (`scene.json` checks it has one).
     let field_box = if d.is_bounded() { d.occupancy.as_ref().map(|o| o.bound) } else { None };
     let (options, bound_from) = request.options(kind_named(&d.field), field_box, scene.occupancy.as_ref(), &source)?;
-    let into_field = d.placement.as_ref().map_or_else(nerf_core::SceneTransform::identity, |p| p.transform);
-    let (frames, carving) = carving_views(carve, request.keep_cavities, into_field, || {
+    // The placement maps the dataset's poses into the field, as it maps vertices back.
+    let (frames, carving) = carving_views(carve, request.keep_cavities, transform, || {
         Ok((vec![], "not carved: a bundle holds no training views (give --data DIR to carve with a dataset's)".into()))
     })?;
     let near_far = (d.sampling.near, d.sampling.far);
