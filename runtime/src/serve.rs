@@ -283,3 +283,47 @@ pub fn serve(site: Site, host: IpAddr, port: u16) -> Result<()> {
         axum::serve(listener, app).await.map_err(|e| RuntimeError::Other(format!("the server stopped: {e}")))
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `body`'s bytes until it ends or fails, and its error if it fails.
+    async fn drain(mut body: FileBody) -> (Vec<u8>, Option<std::io::Error>) {
+        let mut bytes = Vec::new();
+        loop {
+            match std::future::poll_fn(|cx| Pin::new(&mut body).poll_frame(cx)).await {
+                None => return (bytes, None),
+                Some(Ok(frame)) => {
+                    let data = frame.into_data().expect("data frames only");
+                    assert!(data.len() as u64 <= CHUNK_BYTES, "a frame of {} bytes", data.len());
+                    bytes.extend_from_slice(&data);
+                }
+                Some(Err(e)) => return (bytes, Some(e)),
+            }
+        }
+    }
+
+    #[test]
+    fn a_file_body_streams_the_promised_length_in_chunks_and_fails_when_the_file_is_shorter() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("graph.onnx");
+        let data: Vec<u8> = (0..200_000u32).map(|i| (i * 7 % 251) as u8).collect();
+        std::fs::write(&path, &data).unwrap();
+        let runtime = tokio::runtime::Builder::new_current_thread().build().unwrap();
+        runtime.block_on(async {
+            let path = path.as_path();
+            let body = |left| async move { FileBody { file: tokio::fs::File::open(&path).await.unwrap(), left } };
+            let whole = body(data.len() as u64).await;
+            assert_eq!(whole.size_hint().exact(), Some(data.len() as u64));
+            let (bytes, err) = drain(whole).await;
+            assert!(bytes == data && err.is_none(), "{} bytes, {err:?}", bytes.len());
+            // The file shrank after its length was sent: the body fails rather than end short.
+            let (bytes, err) = drain(body(data.len() as u64 + 10).await).await;
+            assert!(bytes == data && err.is_some_and(|e| e.kind() == std::io::ErrorKind::UnexpectedEof), "{} bytes", bytes.len());
+            // The file grew: only the length sent.
+            let (bytes, err) = drain(body(1000).await).await;
+            assert!(bytes == data[..1000] && err.is_none(), "{} bytes, {err:?}", bytes.len());
+        });
+    }
+}
