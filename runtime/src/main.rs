@@ -42,6 +42,10 @@ struct Cli {
     /// Port to serve on (0: any free port).
     #[arg(long, requires = "serve", default_value_t = 8000)]
     port: u16,
+    /// When the bundle does not load, serve the viewer anyway with nothing of the bundle but
+    /// its scene.json, so that the page shows why (without it, --serve refuses such a folder).
+    #[arg(long, requires = "serve")]
+    show_bundle_error: bool,
     /// The built viewer's directory (default: $NERF_VIEWER, else ~/.cache/nerf-rs/viewer, where
     /// scripts/setup.sh installs it).
     #[arg(long, requires = "serve")]
@@ -139,11 +143,25 @@ fn run(cli: Cli) -> Result<()> {
     let bundle = cli.bundle.clone().expect("clap requires --bundle without --merge");
     if cli.serve {
         let viewer = cli.viewer.clone().or_else(nerf_runtime::serve::viewer_dir).ok_or_else(|| anyhow::anyhow!("no viewer directory: set --viewer or $NERF_VIEWER"))?;
-        // A bundle that does not load is still served: the page shows why.
-        if let Err(e) = nerf_bundle::read_scene(&bundle) {
-            eprintln!("warning: {e} (the viewer will show it)");
-        }
-        let site = nerf_runtime::serve::Site::new(&viewer, &bundle)?;
+        let files = match nerf_runtime::serve::bundle_files(&bundle) {
+            Ok(files) => files,
+            Err(e) if cli.show_bundle_error && bundle.is_dir() => {
+                eprintln!("warning: {e}");
+                match nerf_runtime::serve::scene_file(&bundle) {
+                    Ok(scene) => {
+                        eprintln!("serving nothing of the bundle but its scene.json, so that the page shows why it does not load");
+                        vec![(nerf_bundle::SCENE_FILE.to_string(), scene)]
+                    }
+                    Err(e) => {
+                        eprintln!("warning: {e}: serving nothing of the bundle (the page will say that scene.json is not found)");
+                        Vec::new()
+                    }
+                }
+            }
+            Err(e) if bundle.is_dir() => bail!("{e}\n(nothing is served; --show-bundle-error serves the viewer with this folder's scene.json alone, so that the page shows why)"),
+            Err(e) => return Err(e.into()),
+        };
+        let site = nerf_runtime::serve::Site::new(&viewer, files)?;
         return Ok(nerf_runtime::serve::serve(site, cli.host, cli.port)?);
     }
     let out = cli.out.clone().expect("clap requires --out without --serve");

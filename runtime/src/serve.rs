@@ -2,18 +2,29 @@
 //!
 //! Only files known when the server starts are served, each at one exact path: the viewer's
 //! regular files at their path below the viewer directory (`/` is its `index.html`), and the
-//! bundle's regular files at `/bundle/<name>`. A request path is looked up as it arrives, never
-//! decoded or joined to a directory, so `..`, encoded variants and absolute paths cannot reach
-//! anything else. GET and HEAD only. Every response carries the cross-origin isolation headers
-//! (COOP same-origin, COEP require-corp, CORP same-origin) that multi-threaded WASM needs.
+//! bundle's files at `/bundle/<name>`: `scene.json` and the files it names, once the bundle
+//! loads ([`bundle_files`]; a folder that is not a loadable bundle is refused, or, when asked,
+//! served with its `scene.json` alone so that the page shows why). A request path is looked up
+//! as it arrives, never decoded or joined to a directory, so `..`, encoded variants and
+//! absolute paths cannot reach anything else. GET and HEAD only; files stream from disk in
+//! chunks, with their length from the file's metadata. Every response carries the
+//! cross-origin isolation headers (COOP same-origin, COEP require-corp, CORP same-origin) that
+//! multi-threaded WASM needs.
 
 use crate::error::{Result, RuntimeError};
-use axum::body::Body;
+use axum::body::{Body, Bytes, HttpBody};
 use axum::http::{HeaderValue, Method, Request, Response, StatusCode, header};
+use http_body::{Frame, SizeHint};
+use nerf_bundle::SCENE_FILE;
+use nerf_bundle::graph::MAX_GRAPH_BYTES;
+use nerf_core::io::limits::{self, Origin};
 use std::collections::HashMap;
 use std::net::{IpAddr, SocketAddr};
 use std::path::{Path, PathBuf};
+use std::pin::Pin;
 use std::sync::Arc;
+use std::task::{Context, Poll, ready};
+use tokio::io::{AsyncRead, ReadBuf};
 
 /// The environment variable naming the viewer directory (default: `$NERF_HOME/viewer`, where
 /// `scripts/setup.sh` installs the built viewer).
@@ -32,6 +43,49 @@ pub fn viewer_dir() -> Option<PathBuf> {
     Some(home.join("viewer"))
 }
 
+/// A bundle's files as served: (name below `/bundle/`, path).
+pub type BundleFiles = Vec<(String, PathBuf)>;
+
+/// The files of the bundle in `dir` once it loads: `scene.json` and every file it names (each
+/// graph, the occupancy grid), nothing else. It loads when `scene.json` reads and passes its
+/// checks, each graph is a regular file inside `dir` within [`MAX_GRAPH_BYTES`], and the
+/// occupancy grid reads and matches `scene.json`; the graphs are not decoded (the page does).
+/// The error names the folder and why it is not served.
+pub fn bundle_files(dir: &Path) -> Result<BundleFiles> {
+    let refuse = |problem: String| RuntimeError::bundle(dir, format!("not a bundle that loads: {problem}"));
+    if !dir.is_dir() {
+        return Err(RuntimeError::bundle(dir, "no such bundle directory"));
+    }
+    let scene_path = scene_file(dir).map_err(|e| refuse(e.to_string()))?;
+    let scene = nerf_bundle::read_scene(dir).map_err(|e| refuse(e.to_string()))?;
+    let mut files = vec![(SCENE_FILE.to_string(), scene_path)];
+    for g in scene.graph_files() {
+        let path = nerf_bundle::bundle_file(dir, g.file, g.key).map_err(|e| refuse(e.to_string()))?;
+        // bundle_file leaves a missing file to the reader: here it is refused now.
+        let meta = std::fs::metadata(&path).map_err(|e| refuse(nerf_core::Error::io(&path, e).to_string()))?;
+        if meta.len() > MAX_GRAPH_BYTES {
+            return Err(refuse(format!("{}: {} bytes is more than the limit of {MAX_GRAPH_BYTES} for a graph", path.display(), meta.len())));
+        }
+        files.push((g.file.to_string(), path));
+    }
+    if let Some(o) = &scene.occupancy {
+        nerf_bundle::read_occupancy(dir, &scene).map_err(|e| refuse(e.to_string()))?;
+        files.push((o.file.clone(), nerf_bundle::bundle_file(dir, &o.file, "occupancy.file").map_err(|e| refuse(e.to_string()))?));
+    }
+    Ok(files)
+}
+
+/// `dir/scene.json` when it is a regular file inside `dir` within the JSON size limit (served
+/// alone for a bundle that does not load, so that the page shows why).
+pub fn scene_file(dir: &Path) -> Result<PathBuf> {
+    let path = limits::file_in_dir(dir, SCENE_FILE, Origin::Field(dir, "the bundle"))?;
+    let meta = std::fs::metadata(&path).map_err(|e| nerf_core::Error::io(&path, e))?;
+    if meta.len() > limits::MAX_JSON_BYTES {
+        return Err(RuntimeError::bundle(&path, format!("{} bytes is more than the limit of {} for this file", meta.len(), limits::MAX_JSON_BYTES)));
+    }
+    Ok(path)
+}
+
 /// The files served, by request path.
 #[derive(Debug, Default)]
 pub struct Site {
@@ -39,29 +93,22 @@ pub struct Site {
 }
 
 impl Site {
-    /// The viewer's files (recursively, regular files only, no hidden names) and the bundle's
-    /// (its top level, regular files only).
-    pub fn new(viewer: &Path, bundle: &Path) -> Result<Self> {
+    /// The viewer's files (recursively, regular files only, no hidden names) and `bundle`, each
+    /// at `/bundle/<name>`.
+    pub fn new(viewer: &Path, bundle: BundleFiles) -> Result<Self> {
         if !viewer.join("index.html").is_file() {
             return Err(RuntimeError::Other(format!(
                 "no viewer at {} (no index.html): run `bash scripts/setup.sh`, which builds it with npm and installs it there, or set {VIEWER_ENV}",
                 viewer.display()
             )));
         }
-        if !bundle.is_dir() {
-            return Err(RuntimeError::bundle(bundle, "no such bundle directory"));
-        }
         let mut site = Site::default();
         site.add_tree(viewer, "", 0)?;
         if let Some(index) = site.files.get("/index.html").cloned() {
             site.files.insert("/".into(), index);
         }
-        for entry in std::fs::read_dir(bundle).map_err(|e| RuntimeError::bundle(bundle, e.to_string()))? {
-            let entry = entry.map_err(|e| RuntimeError::bundle(bundle, e.to_string()))?;
-            let name = entry.file_name().to_string_lossy().into_owned();
-            if plain(&name) && entry.file_type().is_ok_and(|t| t.is_file()) {
-                site.files.insert(format!("/bundle/{name}"), entry.path());
-            }
+        for (name, path) in bundle {
+            site.files.insert(format!("/bundle/{name}"), path);
         }
         Ok(site)
     }
@@ -114,19 +161,81 @@ pub fn content_type(path: &str) -> &'static str {
     }
 }
 
+/// Bytes read from disk per piece of a response body.
+const CHUNK_BYTES: u64 = 64 << 10;
+
+/// The first `left` bytes of a file as a response body, read a chunk of [`CHUNK_BYTES`] at a
+/// time as the connection takes them, so a response holds a chunk or two in memory whatever
+/// the file's size. A file that is shorter than when the response began ends it with an error
+/// (the connection is cut, never a short body under the promised length); one that grew is
+/// sent only up to that length.
+struct FileBody {
+    file: tokio::fs::File,
+    left: u64,
+}
+
+impl HttpBody for FileBody {
+    type Data = Bytes;
+    type Error = std::io::Error;
+
+    fn poll_frame(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<Option<std::io::Result<Frame<Bytes>>>> {
+        let this = self.get_mut();
+        if this.left == 0 {
+            return Poll::Ready(None);
+        }
+        let mut chunk = vec![0; CHUNK_BYTES.min(this.left) as usize];
+        let mut buf = ReadBuf::new(&mut chunk);
+        ready!(Pin::new(&mut this.file).poll_read(cx, &mut buf))?;
+        let n = buf.filled().len();
+        if n == 0 {
+            return Poll::Ready(Some(Err(std::io::Error::new(std::io::ErrorKind::UnexpectedEof, "the file is shorter than when its response began"))));
+        }
+        chunk.truncate(n);
+        this.left -= n as u64;
+        Poll::Ready(Some(Ok(Frame::data(Bytes::from(chunk)))))
+    }
+
+    fn is_end_stream(&self) -> bool {
+        self.left == 0
+    }
+
+    fn size_hint(&self) -> SizeHint {
+        SizeHint::with_exact(self.left)
+    }
+}
+
+/// The body and length of `file`: streamed from disk for GET, empty for HEAD (the length is
+/// its metadata's either way). Only regular files: a FIFO put in a file's place would block.
+async fn file_body(file: &Path, head: bool) -> std::io::Result<(Body, u64)> {
+    let not_regular = || std::io::Error::other("not a regular file");
+    let meta = tokio::fs::metadata(file).await?;
+    if !meta.is_file() {
+        return Err(not_regular());
+    }
+    if head {
+        return Ok((Body::empty(), meta.len()));
+    }
+    let file = tokio::fs::File::open(file).await?;
+    let meta = file.metadata().await?;
+    if !meta.is_file() {
+        return Err(not_regular());
+    }
+    Ok((Body::new(FileBody { file, left: meta.len() }), meta.len()))
+}
+
 /// The response to `method path` (the path as requested, query excluded).
 pub async fn respond(site: &Site, method: &Method, path: &str) -> Response<Body> {
-    let (status, body, kind) = if method != Method::GET && method != Method::HEAD {
-        (StatusCode::METHOD_NOT_ALLOWED, Body::from("only GET and HEAD\n"), "text/plain; charset=utf-8")
+    let text = "text/plain; charset=utf-8";
+    let (status, body, kind, length) = if method != Method::GET && method != Method::HEAD {
+        (StatusCode::METHOD_NOT_ALLOWED, Body::from("only GET and HEAD\n"), text, None)
     } else {
         match site.file(path) {
-            None => (StatusCode::NOT_FOUND, Body::from("not found\n"), "text/plain; charset=utf-8"),
-            Some(file) => match tokio::fs::read(file).await {
-                // For HEAD, hyper sends the headers (with the length) and not the body.
-                Ok(bytes) => (StatusCode::OK, Body::from(bytes), content_type(path)),
+            None => (StatusCode::NOT_FOUND, Body::from("not found\n"), text, None),
+            Some(file) => match file_body(file, method == Method::HEAD).await {
+                Ok((body, length)) => (StatusCode::OK, body, content_type(path), Some(length)),
                 Err(e) => {
                     eprintln!("{}: {e}", file.display());
-                    (StatusCode::NOT_FOUND, Body::from("not found\n"), "text/plain; charset=utf-8")
+                    (StatusCode::NOT_FOUND, Body::from("not found\n"), text, None)
                 }
             },
         }
@@ -135,6 +244,9 @@ pub async fn respond(site: &Site, method: &Method, path: &str) -> Response<Body>
     *response.status_mut() = status;
     let headers = response.headers_mut();
     headers.insert(header::CONTENT_TYPE, HeaderValue::from_static(kind));
+    if let Some(length) = length {
+        headers.insert(header::CONTENT_LENGTH, HeaderValue::from(length));
+    }
     headers.insert("cross-origin-opener-policy", HeaderValue::from_static("same-origin"));
     headers.insert("cross-origin-embedder-policy", HeaderValue::from_static("require-corp"));
     headers.insert("cross-origin-resource-policy", HeaderValue::from_static("same-origin"));
@@ -170,4 +282,48 @@ pub fn serve(site: Site, host: IpAddr, port: u16) -> Result<()> {
         });
         axum::serve(listener, app).await.map_err(|e| RuntimeError::Other(format!("the server stopped: {e}")))
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `body`'s bytes until it ends or fails, and its error if it fails.
+    async fn drain(mut body: FileBody) -> (Vec<u8>, Option<std::io::Error>) {
+        let mut bytes = Vec::new();
+        loop {
+            match std::future::poll_fn(|cx| Pin::new(&mut body).poll_frame(cx)).await {
+                None => return (bytes, None),
+                Some(Ok(frame)) => {
+                    let data = frame.into_data().expect("data frames only");
+                    assert!(data.len() as u64 <= CHUNK_BYTES, "a frame of {} bytes", data.len());
+                    bytes.extend_from_slice(&data);
+                }
+                Some(Err(e)) => return (bytes, Some(e)),
+            }
+        }
+    }
+
+    #[test]
+    fn a_file_body_streams_the_promised_length_in_chunks_and_fails_when_the_file_is_shorter() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("graph.onnx");
+        let data: Vec<u8> = (0..200_000u32).map(|i| (i * 7 % 251) as u8).collect();
+        std::fs::write(&path, &data).unwrap();
+        let runtime = tokio::runtime::Builder::new_current_thread().build().unwrap();
+        runtime.block_on(async {
+            let path = path.as_path();
+            let body = |left| async move { FileBody { file: tokio::fs::File::open(&path).await.unwrap(), left } };
+            let whole = body(data.len() as u64).await;
+            assert_eq!(whole.size_hint().exact(), Some(data.len() as u64));
+            let (bytes, err) = drain(whole).await;
+            assert!(bytes == data && err.is_none(), "{} bytes, {err:?}", bytes.len());
+            // The file shrank after its length was sent: the body fails rather than end short.
+            let (bytes, err) = drain(body(data.len() as u64 + 10).await).await;
+            assert!(bytes == data && err.is_some_and(|e| e.kind() == std::io::ErrorKind::UnexpectedEof), "{} bytes", bytes.len());
+            // The file grew: only the length sent.
+            let (bytes, err) = drain(body(1000).await).await;
+            assert!(bytes == data[..1000] && err.is_none(), "{} bytes, {err:?}", bytes.len());
+        });
+    }
 }

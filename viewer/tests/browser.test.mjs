@@ -5,8 +5,9 @@
 // The pages are served by `nerf-render --bundle B --serve --port P --viewer dist/` on a free
 // loopback port. Environment: NERF_SERVE_CMD swaps the server: a shell command with {root},
 // {bundle} and {port} filled in; `node` uses the in-process Node server (tests/serve.mjs)
-// instead. The test without COOP/COEP always uses the Node server (nerf-render always sends
-// them). CHROMIUM (default
+// instead. The broken-bundle tests add --show-bundle-error to the command (nerf-render refuses
+// to serve a bundle that does not load without it). The test without COOP/COEP always uses the
+// Node server (nerf-render always sends them). CHROMIUM (default
 // /usr/bin/chromium), NERF_RENDER (default $CARGO_TARGET_DIR/release/nerf-render after
 // scripts/env.sh). Run `npm run build` first.
 import { after, before, test } from "node:test";
@@ -56,8 +57,9 @@ async function freePort() {
   return port;
 }
 
-/** Start a server for `bundle`; returns { url, stop }. NERF_SERVE_CMD swaps in another server. */
-export async function startServer(bundle) {
+/** Start a server for `bundle` (`broken`: one that does not load, served with
+ * --show-bundle-error); returns { url, stop }. NERF_SERVE_CMD swaps in another server. */
+export async function startServer(bundle, { broken = false } = {}) {
   const cmd = process.env.NERF_SERVE_CMD ??
     (process.env.NERF_RENDER ? `'${process.env.NERF_RENDER}'` : '. scripts/env.sh && exec "$CARGO_TARGET_DIR/release/nerf-render"') +
       " --bundle {bundle} --serve --port {port} --viewer {root}";
@@ -66,7 +68,7 @@ export async function startServer(bundle) {
     return { url: `http://127.0.0.1:${server.address().port}/`, stop: () => new Promise((ok) => server.close(ok)) };
   }
   const port = await freePort();
-  const line = cmd.replaceAll("{root}", DIST).replaceAll("{bundle}", bundle).replaceAll("{port}", String(port));
+  const line = (cmd + (broken ? " --show-bundle-error" : "")).replaceAll("{root}", DIST).replaceAll("{bundle}", bundle).replaceAll("{port}", String(port));
   const child = spawn("bash", ["-c", line], { cwd: REPO, stdio: ["ignore", "inherit", "inherit"], detached: true });
   const url = `http://127.0.0.1:${port}/`;
   for (let i = 0; ; i++) {
@@ -182,8 +184,10 @@ function brokenBundle(edit) {
   return dir;
 }
 
+// nerf-render serves such a bundle's scene.json alone: a scene.json error shows as it is, and
+// for any other file the page shows the first graph it could not fetch.
 for (const [what, edit, message] of [
-  ["a missing graph", (dir) => rmSync(join(dir, "fine.onnx")), /fine\.onnx.*404/],
+  ["a missing graph", (dir) => rmSync(join(dir, "fine.onnx")), /bundle\/(coarse|fine)\.onnx: HTTP 404/],
   ["a scene.json that is not JSON", (dir) => writeFileSync(join(dir, "scene.json"), "{ not json"), /scene\.json/],
   ["a scene.json without a camera", (dir) => {
     const scene = JSON.parse(readFileSync(join(dir, "scene.json"), "utf8"));
@@ -193,7 +197,7 @@ for (const [what, edit, message] of [
 ]) {
   test(`a bundle with ${what} shows its error on the page`, { timeout: 120_000 }, async () => {
     const bundle = brokenBundle(edit);
-    const server = await startServer(bundle);
+    const server = await startServer(bundle, { broken: true });
     const page = await browser.newPage();
     try {
       await page.goto(`${server.url}?pose=test:0&width=32&height=32`);
