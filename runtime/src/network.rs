@@ -82,13 +82,16 @@ impl OrtNetwork {
         // Tables and weights the size their shapes say, before onnxruntime indexes into them.
         check_initializers(&model).map_err(|e| RuntimeError::bundle(path, e))?;
         let ort_err = |e: &dyn std::fmt::Display| RuntimeError::Ort { path: path.to_path_buf(), message: e.to_string() };
+        // The library first: ort's own calls (a tensor for the shared tables) would otherwise
+        // load it themselves and panic where it is missing.
+        let environment = environment()?;
         // The large tables once for all workers' sessions (onnxruntime uses a value given as an
         // initializer in place of the graph's copy, without copying it).
         let shared = if threading.workers > 1 { shared_initializers(&model).map_err(|e| ort_err(&e))? } else { vec![] };
         drop(model);
         let sessions = (0..threading.workers.max(1))
             .map(|_| {
-                let builder = Session::builder(environment()?).map_err(|e| ort_err(&e))?;
+                let builder = Session::builder(environment).map_err(|e| ort_err(&e))?;
                 let mut builder = builder.with_intra_threads(1).map_err(|e| ort_err(&e))?;
                 for (name, value) in &shared {
                     builder = builder.with_initializer(name, value.clone()).map_err(|e| ort_err(&e))?;

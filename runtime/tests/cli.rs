@@ -187,9 +187,19 @@ fn broken_bundles_give_clear_errors() {
     std::fs::write(grid.join("occupancy.bin"), &bytes[..1000]).unwrap();
     run(&grid, &["occupancy.bin", "truncated"]);
 
-    // No onnxruntime library: say where it was looked for and how to install it.
-    let args = render(&shipped_bundle());
-    expect_error(&args.iter().map(String::as_str).collect::<Vec<_>>(), &[("ORT_DYLIB_PATH", "/nonexistent/libonnxruntime.so")], &["ORT_DYLIB_PATH", "scripts/setup.sh"]);
+    // No onnxruntime library: say where it was looked for and how to install it. The
+    // hash-grid bundle too: its shared tables were once made (by ort, which then loaded the
+    // library itself and panicked) before the library was looked for.
+    let not_a_library = dir.path().join("libonnxruntime.so");
+    std::fs::write(&not_a_library, b"not a shared library").unwrap();
+    for bundle in [shipped_bundle(), shipped_bundle().with_file_name("lego-ngp")] {
+        let args = render(&bundle);
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        expect_error(&args, &[("ORT_DYLIB_PATH", "/nonexistent/libonnxruntime.so")], &["ORT_DYLIB_PATH", "scripts/setup.sh"]);
+        expect_error(&args, &[("ORT_DYLIB_PATH", s(&not_a_library))], &[s(&not_a_library), "cannot load onnxruntime", "scripts/setup.sh"]);
+        // Nothing set, and no venv under $NERF_HOME: where it looked.
+        expect_error(&args, &[("ORT_DYLIB_PATH", ""), ("NERF_HOME", s(dir.path()))], &["onnxruntime library not found", "scripts/setup.sh"]);
+    }
     assert!(!out.exists(), "no output is written for a bundle that cannot be opened");
 }
 
