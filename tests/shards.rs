@@ -514,7 +514,7 @@ fn ray_head(py: &str, dir: &Path, cpus: usize, token: &str) -> (Group, String, S
             break address.trim().to_string();
         }
         let exited = head.leader.try_wait().unwrap();
-        assert!(exited.is_none() && start.elapsed() < Duration::from_secs(120), "ray start --head: not started ({exited:?}):\n{}", std::fs::read_to_string(&log).unwrap());
+        assert!(exited.is_none() && start.elapsed() < Duration::from_secs(180), "ray start --head: not started ({exited:?}):\n{}", std::fs::read_to_string(&log).unwrap());
         std::thread::sleep(Duration::from_millis(100));
     };
     // The head names its session's port files after its node id.
@@ -555,8 +555,11 @@ fn the_ray_example_renders_shards_as_ray_tasks() {
     let cluster = tempfile::Builder::new().prefix("ray").tempdir_in("/tmp").unwrap();
     let (mut head, address, node) = ray_head(&py, cluster.path(), 3, &token);
     let (out, log) = (dir.path().join("joined"), dir.path().join("joined.log"));
-    let mut driver = Group::spawn(logged(render(&out, &[]).env("RAY_ADDRESS", &address), &log));
-    let ok = driver.wait(Duration::from_secs(120), "render.py on the test's cluster", &log);
+    // RAY_TMPDIR too, so that a script that started a cluster of its own would leave no /tmp/ray.
+    let mut cmd = render(&out, &[]);
+    cmd.env("RAY_ADDRESS", &address).env("RAY_TMPDIR", cluster.path());
+    let mut driver = Group::spawn(logged(&mut cmd, &log));
+    let ok = driver.wait(Duration::from_secs(300), "render.py on the test's cluster", &log);
     let text = std::fs::read_to_string(&log).unwrap();
     assert!(ok, "{text}");
     let line = |prefix: &str| text.lines().find(|l| l.starts_with(prefix)).unwrap_or_else(|| panic!("no {prefix:?} line:\n{text}"));
@@ -588,7 +591,7 @@ fn the_ray_example_renders_shards_as_ray_tasks() {
     let own = tempfile::Builder::new().prefix("ray").tempdir_in("/tmp").unwrap();
     let (out, log) = (dir.path().join("own"), dir.path().join("own.log"));
     let mut driver = Group::spawn(logged(render(&out, &["--num-cpus", "2"]).env("RAY_TMPDIR", own.path()), &log));
-    let ok = driver.wait(Duration::from_secs(120), "render.py on its own cluster", &log);
+    let ok = driver.wait(Duration::from_secs(300), "render.py on its own cluster", &log);
     let text = std::fs::read_to_string(&log).unwrap();
     assert!(ok, "{text}");
     assert!(text.lines().any(|l| l.starts_with("ray: started a local cluster at ") && l.contains("(1 nodes, 2 CPUs)")), "{text}");
