@@ -2,12 +2,15 @@
 # Python side of the set-up, idempotent: a virtual environment with numpy, onnx (graph checks),
 # onnxruntime (whose wheel also carries libonnxruntime.so for the Rust renderer: ort,
 # load-dynamic), Pillow and pytest, and the project's Python package (python/, nerf_bundle,
-# editable). Everything lives under ~/.cache/nerf-rs (override with NERF_HOME).
+# editable). For the distributed examples' tests (tests/shards.rs): Ray (examples/ray runs on a
+# local Ray cluster), PyYAML (the Kubernetes manifests) and kubernetes-validate (Kubernetes'
+# OpenAPI schemas, offline: what `kubectl apply --dry-run=client` checks a Job against).
+# Everything lives under ~/.cache/nerf-rs (override with NERF_HOME).
 set -euo pipefail
 NERF_HOME="${NERF_HOME:-$HOME/.cache/nerf-rs}"
 VENV="$NERF_HOME/venv"
 STAMP="$VENV/.nerf-rs-requirements"
-REQUIREMENTS="numpy onnx onnxruntime==1.31.1 Pillow pytest wheel"
+REQUIREMENTS="numpy onnx onnxruntime==1.31.1 Pillow pytest wheel pyyaml==6.0.3 ray==2.60.0 kubernetes-validate==1.37.0"
 if [ ! -f "$STAMP" ] || [ "$(cat "$STAMP")" != "$REQUIREMENTS" ]; then
   PYTHON="${PYTHON:-python3}"
   command -v "$PYTHON" >/dev/null || { echo "python3 not found: install Python ≥ 3.9 first" >&2; exit 1; }
