@@ -3,9 +3,9 @@
 //! metrics against ground truth and the orbit GIF. The renderer is a closure, so both binaries
 //! write the same files the same way.
 //!
-//! A render may be one shard of several processes ([`FramePlan`], [`crate::io::shard`]) and may
+//! A render may be one shard of several processes ([`FramePlan`], [`crate::frames::shard`]) and may
 //! keep the frames an earlier run finished; the GIF, `metrics.json` and contact sheet are then
-//! assembled from what is on disk ([`crate::io::merge`]), by the whole render itself or by the
+//! assembled from what is on disk ([`crate::frames::merge`]), by the whole render itself or by the
 //! merge of its shards, which write the same bytes.
 
 use crate::camera::Pose;
@@ -14,8 +14,8 @@ use crate::dataset::SplitData;
 use crate::io::atomic::write_atomic;
 use crate::error::{Error, Result};
 use crate::io::image::{depth_to_rgb, save_png};
-use crate::io::merge::assemble;
-use crate::io::shard::{FrameRecord, GifSpec, RecordedMetrics, SHARDS_DIR, Shard, ShardManifest, finished_frames, sheet_row_path};
+use crate::frames::merge::assemble;
+use crate::frames::shard::{FrameRecord, GifSpec, RecordedMetrics, SHARDS_DIR, Shard, ShardManifest, finished_frames, sheet_row_path};
 use crate::render::metrics::{EvalReport, psnr, ssim};
 use crate::render::RenderedImage;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -85,7 +85,7 @@ pub struct FrameOutput {
 pub struct FramePlan {
     /// The part of the frames this process renders. The whole render ([`Shard::WHOLE`]) writes
     /// the GIF, metrics and contact sheet at once; a part leaves them to a merge
-    /// ([`crate::io::merge::merge_shards`]).
+    /// ([`crate::frames::merge::merge_shards`]).
     pub shard: Shard,
     /// Keep frames an earlier run finished: a frame whose PNG and depth map (and `.npy` when
     /// asked for) exist is not rendered again (with ground truth, its metrics must also be on

@@ -6,7 +6,7 @@
 //! Everything is read and checked before anything is written: a missing part, an unfinished
 //! frame or a missing file is an error naming it, and leaves the output directory as it was.
 
-use super::frames::{FramesReport, METRICS_FILE, SHEET_FILE, SHEET_VIEWS};
+use super::write::{FramesReport, METRICS_FILE, SHEET_FILE, SHEET_VIEWS};
 use super::shard::{SHARDS_DIR, ShardManifest, read_manifests, sheet_row_path};
 use crate::error::{Error, Result};
 use crate::io::image::{encode_gif_rgb8, load_rgb8, save_png_rgb8};
@@ -176,8 +176,8 @@ fn listed(names: &[impl AsRef<str>]) -> String {
 mod tests {
     use super::*;
     use crate::camera::{Intrinsics, PinholeCamera, Pose};
-    use crate::io::frames::{FrameOutput, FramePlan, FrameSpec, render_frames_with};
-    use crate::io::shard::Shard;
+    use crate::frames::write::{FrameOutput, FramePlan, FrameSpec, render_frames_with};
+    use crate::frames::shard::Shard;
     use crate::render::{RenderedImage, RenderedRays};
     use std::collections::BTreeMap;
 

@@ -9,7 +9,7 @@
 //! cameras and poses), which of them this part finished and their metrics. A frame's files are
 //! written (atomically) before its manifest entry, so whatever a killed part recorded is on disk.
 
-use super::frames::{FrameSpec, SHEET_VIEWS};
+use super::write::{FrameSpec, SHEET_VIEWS};
 use crate::error::{Error, Result};
 use crate::io::atomic::write_atomic;
 use crate::io::limits::{self, MAX_FRAMES};
