@@ -27,7 +27,7 @@
 use crate::camera::{PinholeCamera, Pose};
 use crate::dataset::{Background, CaptureFormat, CaptureSplit};
 use crate::error::{Error, Result};
-use crate::frames::write::FrameSpec;
+use crate::frames::spec::FrameSpec;
 use crate::frames::views::{Images, SplitChoice, split_views};
 use crate::render::RenderedImage;
 use crate::SceneTransform;
