@@ -217,7 +217,7 @@ pub fn burn_frame(field: &dyn TrainedField, config: &TrainConfig, camera: &Pinho
 
 /// `render(progress)` under a progress bar labelled `what` over `pixels`, and its seconds.
 pub fn timed_frame<R>(show: bool, what: &str, pixels: usize, render: impl FnOnce(&mut dyn FnMut(usize, usize)) -> R) -> (R, f64) {
-    let bar = nerf_core::io::frames::frame_bar(show, what);
+    let bar = nerf_core::frames::write::frame_bar(show, what);
     bar.set_length(pixels as u64);
     let start = Instant::now();
     let out = render(&mut |done, _| bar.set_position(done as u64));

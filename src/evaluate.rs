@@ -1,5 +1,5 @@
 //! `nerf eval` and `nerf render`: test-time rendering of a trained run through the shared
-//! renderer and frame writer (`nerf_core::io::frames`), the same ones `nerf-render` uses.
+//! renderer and frame writer (`nerf_core::frames::write`), the same ones `nerf-render` uses.
 
 use crate::error::{Error, Result};
 use crate::field::TrainedField;
@@ -8,9 +8,10 @@ use crate::config::TrainConfig;
 use nerf_core::PinholeCamera;
 use nerf_core::camera::Pose;
 use nerf_core::dataset::{Background, ScenePlacement};
-use nerf_core::io::camera_path::CameraPathFile;
-use nerf_core::io::frames::{FrameOutput, FramePlan, FrameSpec, FramesReport, render_frames, render_frames_with};
-use nerf_core::io::views::{Images, SplitChoice, orbit_poses, split_views};
+use nerf_core::frames::camera_path::CameraPathFile;
+use nerf_core::frames::spec::{FrameSpec, FramesReport};
+use nerf_core::frames::views::{Images, SplitChoice, orbit_poses, split_views};
+use nerf_core::frames::write::{FrameOutput, FramePlan, render_frames, render_frames_with};
 use nerf_core::render::metrics::EvalReport;
 use nerf_core::sample::occupancy::OccupancyGrid;
 use nerf_core::render::RenderedImage;

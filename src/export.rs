@@ -10,7 +10,7 @@ use nerf_bundle::{WrittenFile, pose_matrix};
 use nerf_core::PinholeCamera;
 use nerf_core::camera::{ORBIT_FRAMES, Pose};
 use nerf_core::dataset::{CaptureFormat, CaptureSplit};
-use nerf_core::io::views::{Images, SplitChoice};
+use nerf_core::frames::views::{Images, SplitChoice};
 use nerf_core::sample::occupancy::OccupancyGrid;
 use nerf_export::{Bundle, CompileField, CompileOptions, write_bundle};
 use std::path::Path;

@@ -11,7 +11,7 @@ use glam::Vec3;
 use image::AnimationDecoder;
 use nerf::train::{TrainOptions, train};
 use nerf_core::dataset::{Split, SyntheticSceneConfig, render_reference, split_poses};
-use nerf_core::io::frames::load_npy;
+use nerf_core::frames::raw::load_npy;
 use nerf_core::io::image::save_png_rgba;
 use nerf_core::render::metrics::psnr;
 use nerf_core::{PinholeCamera, PixelCenter};

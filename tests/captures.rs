@@ -61,8 +61,8 @@ fn capture(dir: &Path) -> PathBuf {
 fn check_parity(run: &Path, bundle: &Path, data: &Path, name: &str, ort_npy: &Path, out: &Path) -> f32 {
     let (ok, text) = nerf(&["render", "--run", s(run), "--split", "test", "--data", s(data), "--out", s(out), "--npy"]);
     assert!(ok, "{text}");
-    let (_, _, a) = nerf_core::io::frames::load_npy(&out.join(format!("{name}.npy"))).unwrap();
-    let (_, _, b) = nerf_core::io::frames::load_npy(ort_npy).unwrap();
+    let (_, _, a) = nerf_core::frames::raw::load_npy(&out.join(format!("{name}.npy"))).unwrap();
+    let (_, _, b) = nerf_core::frames::raw::load_npy(ort_npy).unwrap();
     let red = || a.chunks_exact(5).map(|p| p[0]);
     assert!(red().fold(f32::INFINITY, f32::min) < red().fold(0.0, f32::max) - 0.1, "a flat image: parity would mean nothing");
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python/render_rays.py");
@@ -114,7 +114,7 @@ fn a_capture_trains_evaluates_and_renders_through_its_recorded_placement() {
         let out = dir.path().join(out);
         let (ok, text) = nerf(&["render", "--run", s(&run), "--data", s(&data), "--split", "test", "--npy", "--out", s(&out)]);
         assert!(ok, "{text}");
-        nerf_core::io::frames::load_npy(&out.join("train_0.npy")).unwrap().2
+        nerf_core::frames::raw::load_npy(&out.join("train_0.npy")).unwrap().2
     };
     let before = render("before");
     // A far-away extra frame would move a refit's centre and scale; the run's placement holds.
@@ -216,8 +216,8 @@ fn a_forward_facing_capture_trains_on_ndc_rays_and_renders_alike_everywhere() {
     let held = forward_facing_capture(dir.path(), "held", &[0]);
     let (ok, text) = nerf(&["render", "--run", s(&run), "--split", "all", "--data", s(&held), "--out", s(&dir.path().join("held-out")), "--npy"]);
     assert!(ok, "{text}");
-    let (_, _, a) = nerf_core::io::frames::load_npy(&dir.path().join("held-out/000.npy")).unwrap();
-    let (_, _, b) = nerf_core::io::frames::load_npy(&dir.path().join("burn/000.npy")).unwrap();
+    let (_, _, a) = nerf_core::frames::raw::load_npy(&dir.path().join("held-out/000.npy")).unwrap();
+    let (_, _, b) = nerf_core::frames::raw::load_npy(&dir.path().join("burn/000.npy")).unwrap();
     let moved = a.iter().zip(&b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
     assert!(moved < 1e-3, "a view given in another file renders elsewhere: max |Δ| {moved}");
 

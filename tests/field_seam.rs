@@ -12,7 +12,7 @@ use nerf_bundle::proto::{GraphProto, ModelProto};
 use nerf_bundle::scene::SceneDescription;
 use nerf_core::camera::{ORBIT_FRAMES, Pose};
 use nerf_core::field::{Field, FieldOutput, Role, Stage};
-use nerf_core::io::frames::load_npy;
+use nerf_core::frames::raw::load_npy;
 use nerf_core::{Intrinsics, PinholeCamera};
 use nerf_export::builder::{Builder, contract_inputs, contract_outputs, model_proto, scene_metadata};
 use nerf_export::{CompileField, ExportError, write_bundle};

@@ -5,7 +5,7 @@
 mod common;
 
 use common::{lego_dir, nerf, nerf_render, s};
-use nerf_core::io::frames::load_npy;
+use nerf_core::frames::raw::load_npy;
 use std::path::{Path, PathBuf};
 
 fn fixture(path: &str) -> PathBuf {

@@ -11,7 +11,7 @@ use common::{nerf, nerf_render, python, s, small_scene, tiny_ngp};
 use nerf::run_dir::RunDir;
 use nerf::config::TrainConfig;
 use nerf::train::{TrainOptions, train};
-use nerf_core::io::frames::load_npy;
+use nerf_core::frames::raw::load_npy;
 use nerf_core::render::metrics::psnr;
 use nerf_export::proto::ModelProto;
 use prost::Message;

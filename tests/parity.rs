@@ -9,7 +9,7 @@ use nerf::bench::random_points;
 use nerf::field::mlp::NerfMlp;
 use nerf::inference::{tensor_vec3, vec3_tensor};
 use nerf::train::{TrainOptions, train};
-use nerf_core::io::frames::load_npy;
+use nerf_core::frames::raw::load_npy;
 use nerf_core::render::metrics::psnr;
 use nerf_core::field::mlp::{NetworkSpec, PlainNetwork};
 use nerf_runtime::OrtNetwork;

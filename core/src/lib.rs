@@ -13,7 +13,9 @@
 //!   (the NeRF MLP, the instant-ngp hash-grid field).
 //! - [`render`]: compositing, the inference renderers (dense hierarchical, marching through the
 //!   grid) over one front-to-back accumulator, PSNR/SSIM.
-//! - [`io`]: crash-safe writes, limits on what is read, `.npy`, images, rendered frames.
+//! - [`frames`]: which views to render, the frames written (PNG, depth, `.npy`, metrics, GIF),
+//!   a render split across processes and its merge.
+//! - [`io`]: crash-safe writes, limits on what is read, `.npy`, images.
 //! - [`mesh`]: a field's surface by marching cubes, written as a binary PLY.
 #![warn(missing_docs)]
 
@@ -21,6 +23,7 @@ pub mod camera;
 pub mod dataset;
 pub mod error;
 pub mod field;
+pub mod frames;
 pub mod io;
 pub mod mesh;
 pub mod render;

@@ -6,10 +6,10 @@ use nerf_core::PinholeCamera;
 use nerf_core::camera::Pose;
 use nerf_core::SceneTransform;
 use nerf_core::dataset::{Background, CaptureFormat, CaptureSplit};
-use nerf_core::io::camera_path::CameraPathFile;
-use nerf_core::io::frames::{FrameOutput, FramePlan, FrameSpec, render_frames_with};
-use nerf_core::io::shard::Shard;
-use nerf_core::io::views::{Images, SplitChoice, named_views, orbit_poses, split_views};
+use nerf_core::frames::camera_path::CameraPathFile;
+use nerf_core::frames::spec::{FrameSpec, Shard};
+use nerf_core::frames::views::{Images, SplitChoice, named_views, orbit_poses, split_views};
+use nerf_core::frames::write::{FrameOutput, FramePlan, render_frames_with};
 use nerf_core::io::limits::{self, Origin};
 use nerf_runtime::{OpenOptions, OrtScene, network::POINTS_PER_RUN};
 use std::io::IsTerminal;
@@ -137,7 +137,7 @@ fn resize(k: PinholeCamera, width: Option<u32>, height: Option<u32>) -> Result<P
 fn run(cli: Cli) -> Result<()> {
     if cli.merge {
         let out = cli.out.clone().expect("clap requires --out without --serve");
-        println!("{}", nerf_core::io::merge::merge_shards(&out)?.summary(&out, Shard::WHOLE));
+        println!("{}", nerf_core::frames::merge::merge_shards(&out)?.summary(&out, Shard::WHOLE));
         return Ok(());
     }
     let bundle = cli.bundle.clone().expect("clap requires --bundle without --merge");

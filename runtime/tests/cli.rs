@@ -46,7 +46,7 @@ fn orbit_of_the_shipped_bundle() {
         assert!(out.join(name).exists(), "{name} missing:\n{text}");
     }
     // The scene is there: some pixels are opaque, some show the white background.
-    let (h, w, v) = nerf_core::io::frames::load_npy(&out.join("frame_000.npy")).unwrap();
+    let (h, w, v) = nerf_core::frames::raw::load_npy(&out.join("frame_000.npy")).unwrap();
     assert_eq!((h, w), (64, 64));
     let acc: Vec<f32> = v.chunks_exact(5).map(|p| p[4]).collect();
     assert!(acc.iter().any(|a| *a > 0.9) && acc.iter().any(|a| *a < 0.1), "an empty or a full frame");
@@ -54,7 +54,7 @@ fn orbit_of_the_shipped_bundle() {
     let out2 = dir.path().join("small");
     let (ok, text) = nerf_render(&["--bundle", s(&shipped_bundle()), "--split", "test", "--limit", "1", "--width", "32", "--out", s(&out2), "--npy"]);
     assert!(ok, "{text}");
-    assert_eq!(nerf_core::io::frames::load_npy(&out2.join("r_0.npy")).unwrap().0, 32);
+    assert_eq!(nerf_core::frames::raw::load_npy(&out2.join("r_0.npy")).unwrap().0, 32);
 }
 
 fn python() -> String {

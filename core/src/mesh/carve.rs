@@ -27,8 +27,8 @@
 use crate::camera::{PinholeCamera, Pose};
 use crate::dataset::{Background, CaptureFormat, CaptureSplit};
 use crate::error::{Error, Result};
-use crate::io::frames::FrameSpec;
-use crate::io::views::{Images, SplitChoice, split_views};
+use crate::frames::spec::FrameSpec;
+use crate::frames::views::{Images, SplitChoice, split_views};
 use crate::render::RenderedImage;
 use crate::SceneTransform;
 use glam::{Mat3, Vec3};

@@ -141,11 +141,11 @@ fn cameras_from_above_close_a_hollow_that_opens_downwards() {
     let out = dir.path().join("tunnel.ply");
     let ball = || Ball { c: [0.0; 3], r: 0.8, hollow: 0.5, tunnel: 0.3 };
     let camera = crate::camera::PinholeCamera::from(crate::camera::Intrinsics::from_camera_angle_x(32, 32, 0.69));
-    let frames: Vec<crate::io::frames::FrameSpec> = [-10.0, -40.0, -70.0]
+    let frames: Vec<crate::frames::spec::FrameSpec> = [-10.0, -40.0, -70.0]
         .iter()
         .flat_map(|&phi| (0..8).map(move |k| crate::camera::Pose::spherical(45.0 * k as f32, phi, 4.0)))
         .enumerate()
-        .map(|(k, pose)| crate::io::frames::FrameSpec { name: format!("v{k}"), camera, pose, target: None })
+        .map(|(k, pose)| crate::frames::spec::FrameSpec { name: format!("v{k}"), camera, pose, target: None })
         .collect();
     let render_options = crate::render::RenderOptions::new(crate::sample::SamplingConfig::default(), false, 4096, false);
     let views = carve::render_depth_views(&frames, (2.0, 6.0), |k, pose| crate::render::render_image(&mut ball(), None, k, pose, &render_options, &mut |_, _| {}), false).unwrap();

@@ -6,9 +6,9 @@ mod ngp_bench;
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
 use nerf::evaluate::{RenderViews, eval, render_orbit, render_views};
-use nerf_core::io::frames::FramePlan;
-use nerf_core::io::shard::Shard;
-use nerf_core::io::views::SplitChoice;
+use nerf_core::frames::spec::Shard;
+use nerf_core::frames::views::SplitChoice;
+use nerf_core::frames::write::FramePlan;
 use nerf::config::{Preset, TrainConfig};
 use nerf::train::{TrainOptions, train};
 use nerf_core::dataset::{CaptureFormat, CaptureSplit, SyntheticSceneConfig, generate_scene};
@@ -370,7 +370,7 @@ fn main() -> Result<()> {
         }
         Command::Render { run, orbit, frames, split, data, format, downscale, camera_path, out, npy, shard, skip_existing, merge } => {
             if merge {
-                println!("{}", nerf_core::io::merge::merge_shards(&out)?.summary(&out, Shard::WHOLE));
+                println!("{}", nerf_core::frames::merge::merge_shards(&out)?.summary(&out, Shard::WHOLE));
                 return Ok(());
             }
             let views = match (orbit, split, data, camera_path) {

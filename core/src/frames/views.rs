@@ -3,7 +3,7 @@
 //! (poses mapped through the run's recorded placement, never refitted; ground truth when its
 //! images are there), or named poses a bundle stores.
 
-use super::frames::FrameSpec;
+use super::spec::FrameSpec;
 use crate::camera::{PinholeCamera, Pose, SceneTransform};
 use crate::dataset::{Background, CameraPath, CaptureFormat, CaptureSplit, LoadOptions, SceneFrame, load_dataset};
 use crate::error::Result;

@@ -1,5 +1,5 @@
-//! One render split across processes or machines (`--shard i/n`), and the record each part
-//! keeps of what it finished, so that a killed part resumes (`--skip-existing`) and a merge
+//! The record each part of a render split across processes or machines ([`Shard`], `--shard
+//! i/n`) keeps of what it finished, so that a killed part resumes (`--skip-existing`) and a merge
 //! assembles the GIF, `metrics.json` and contact sheet of all parts ([`super::merge`]).
 //!
 //! Part `i` of `n` renders a contiguous range of the frames (part 0 the first ones). Every render,
@@ -9,7 +9,7 @@
 //! cameras and poses), which of them this part finished and their metrics. A frame's files are
 //! written (atomically) before its manifest entry, so whatever a killed part recorded is on disk.
 
-use super::frames::{FrameSpec, SHEET_VIEWS};
+use super::spec::{FrameSpec, GifSpec, SHARDS_DIR, SHEET_VIEWS, Shard};
 use crate::error::{Error, Result};
 use crate::io::atomic::write_atomic;
 use crate::io::limits::{self, MAX_FRAMES};
@@ -18,82 +18,6 @@ use serde::{Deserialize, Deserializer, Serialize};
 use std::collections::HashMap;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
-use std::str::FromStr;
-
-/// Folder of an output directory holding the parts' manifests and contact-sheet rows.
-pub const SHARDS_DIR: &str = ".shards";
-
-/// Part `index` of `count` (0-based) of a render.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Shard {
-    /// Which part, `0..count`.
-    pub index: usize,
-    /// How many parts, `1..=MAX_FRAMES`.
-    pub count: usize,
-}
-
-impl Shard {
-    /// The whole render in one process.
-    pub const WHOLE: Shard = Shard { index: 0, count: 1 };
-
-    /// Part `index` of `count`: an error unless `index < count <= MAX_FRAMES`.
-    pub fn new(index: usize, count: usize) -> Result<Self> {
-        if count == 0 || count > MAX_FRAMES {
-            return Err(Error::Argument(format!("{index}/{count}: give 1 to {MAX_FRAMES} shards")));
-        }
-        if index >= count {
-            return Err(Error::Argument(format!(
-                "{index}/{count}: shards count from 0, so the index of one of {count} is 0 to {}",
-                count - 1
-            )));
-        }
-        Ok(Shard { index, count })
-    }
-
-    /// Whether this is the whole render.
-    pub fn is_whole(&self) -> bool {
-        self.count == 1
-    }
-
-    /// The frames of this part out of `frames`: `index·frames/count .. (index+1)·frames/count`
-    /// (10 frames in 3 parts: 0..3, 3..6, 6..10; a part of more parts than frames may be empty).
-    pub fn range(&self, frames: usize) -> Range<usize> {
-        let at = |i: usize| (i as u128 * frames as u128 / self.count as u128) as usize;
-        at(self.index)..at(self.index + 1)
-    }
-
-    /// The manifest's file name, `shard-<i>-of-<n>.json`.
-    pub fn manifest_name(&self) -> String {
-        format!("shard-{}-of-{}.json", self.index, self.count)
-    }
-}
-
-impl std::fmt::Display for Shard {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{}/{}", self.index, self.count)
-    }
-}
-
-impl FromStr for Shard {
-    type Err = Error;
-
-    /// `i/n`, e.g. `0/3` (what `--shard` takes).
-    fn from_str(s: &str) -> Result<Self> {
-        let bad = || Error::Argument(format!("{s:?}: give the shard as i/n, e.g. 0/3 (the first of 3)"));
-        let (i, n) = s.split_once('/').ok_or_else(bad)?;
-        let number = |t: &str| t.trim().parse::<usize>().map_err(|_| bad());
-        Shard::new(number(i)?, number(n)?)
-    }
-}
-
-/// The GIF a render writes: file name and the time each frame is shown.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-pub struct GifSpec {
-    /// File name inside the output directory.
-    pub file: String,
-    /// Milliseconds per frame.
-    pub delay_ms: u16,
-}
 
 /// Metrics of a finished frame as a manifest keeps them: f64 holds each f32 exactly, so the
 /// merged `metrics.json` is the one a single process writes. Non-finite values (an exact frame's
@@ -317,29 +241,6 @@ mod tests {
     fn frames(n: usize) -> Vec<FrameSpec> {
         let k = PinholeCamera::from(Intrinsics { width: 2, height: 2, focal: 2.0 });
         FrameSpec::orbit(&k, &Pose::orbit(n))
-    }
-
-    #[test]
-    fn parts_are_contiguous_and_cover_every_frame_once() {
-        let parts: Vec<_> = (0..3).map(|i| Shard::new(i, 3).unwrap().range(10)).collect();
-        assert_eq!(parts, vec![0..3, 3..6, 6..10]);
-        assert_eq!(Shard::WHOLE.range(7), 0..7);
-        // More parts than frames: some are empty, none overlaps.
-        let parts: Vec<_> = (0..4).map(|i| Shard::new(i, 4).unwrap().range(2)).collect();
-        assert_eq!(parts, vec![0..0, 0..1, 1..1, 1..2]);
-        assert_eq!(Shard::new(9_999, 10_000).unwrap().range(10_000), 9_999..10_000);
-    }
-
-    #[test]
-    fn shards_parse_as_i_of_n_with_clear_errors() {
-        assert_eq!("2/5".parse::<Shard>().unwrap(), Shard { index: 2, count: 5 });
-        assert_eq!(Shard { index: 2, count: 5 }.to_string(), "2/5");
-        let err = |s: &str| s.parse::<Shard>().unwrap_err().to_string();
-        assert!(err("3/3").contains("0 to 2"), "{}", err("3/3"));
-        assert!(err("0/0").contains("1 to 10000"), "{}", err("0/0"));
-        assert!(err("1-3").contains("i/n"), "{}", err("1-3"));
-        assert!(err("a/3").contains("i/n"), "{}", err("a/3"));
-        assert!(err("-1/3").contains("i/n"), "{}", err("-1/3"));
     }
 
     #[test]

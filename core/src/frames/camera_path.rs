@@ -21,8 +21,7 @@
 //! Python's `json` writes a NaN as the bare word `NaN`, which is not JSON: such words are read
 //! so that the error names the key that holds one.
 
-use super::frames::FrameSpec;
-use super::shard::GifSpec;
+use super::spec::{FrameSpec, GifSpec};
 use crate::camera::{PinholeCamera, PixelCenter, Pose, SceneTransform};
 use crate::error::{Error, Result};
 use crate::io::limits::{self, MAX_FRAMES, Origin};

@@ -1,68 +1,23 @@
 //! Frame output shared by `nerf eval`/`nerf render` (burn) and `nerf-render` (onnxruntime):
-//! the views to render, a progress bar per frame, PNG + depth map (+ optional raw `.npy`),
-//! metrics against ground truth and the orbit GIF. The renderer is a closure, so both binaries
-//! write the same files the same way.
+//! a progress bar per frame, PNG + depth map (+ optional raw `.npy`, [`super::raw`]), metrics
+//! against ground truth and the orbit GIF. The renderer is a closure, so both binaries write the
+//! same files the same way.
 //!
-//! A render may be one shard of several processes ([`FramePlan`], [`crate::io::shard`]) and may
+//! A render may be one shard of several processes ([`FramePlan`], [`super::manifest`]) and may
 //! keep the frames an earlier run finished; the GIF, `metrics.json` and contact sheet are then
-//! assembled from what is on disk ([`crate::io::merge`]), by the whole render itself or by the
+//! assembled from what is on disk ([`super::merge`]), by the whole render itself or by the
 //! merge of its shards, which write the same bytes.
 
-use crate::camera::Pose;
-use crate::camera::PinholeCamera;
-use crate::dataset::SplitData;
-use crate::io::atomic::write_atomic;
+use super::manifest::{FrameRecord, RecordedMetrics, ShardManifest, finished_frames, sheet_row_path};
+use super::merge::assemble;
+use super::raw::save_npy;
+use super::spec::{FrameSpec, FramesReport, GIF_DELAY_MS, GIF_FILE, GifSpec, SHARDS_DIR, SHEET_MAX_WIDTH, SHEET_VIEWS, Shard};
 use crate::error::{Error, Result};
 use crate::io::image::{depth_to_rgb, save_png};
-use crate::io::merge::assemble;
-use crate::io::shard::{FrameRecord, GifSpec, RecordedMetrics, SHARDS_DIR, Shard, ShardManifest, finished_frames, sheet_row_path};
-use crate::render::metrics::{EvalReport, psnr, ssim};
+use crate::render::metrics::{psnr, ssim};
 use crate::render::RenderedImage;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
-
-/// File name of the metrics written when the frames have ground truth.
-pub const METRICS_FILE: &str = "metrics.json";
-/// File name of the contact sheet written with metrics: ground truth | render | depth, one row
-/// per view, for the first [`SHEET_VIEWS`] views (at most [`SHEET_MAX_WIDTH`] pixels wide each).
-pub const SHEET_FILE: &str = "contact_sheet.png";
-/// Views on the contact sheet.
-pub const SHEET_VIEWS: usize = 4;
-/// Widest image on the contact sheet: wider views are shrunk by an integer factor.
-pub const SHEET_MAX_WIDTH: u32 = 256;
-/// File name of the orbit animation.
-pub const GIF_FILE: &str = "orbit.gif";
-/// Milliseconds per GIF frame.
-pub const GIF_DELAY_MS: u16 = 100;
-
-/// One image to render.
-#[derive(Debug, Clone, PartialEq)]
-pub struct FrameSpec {
-    /// Output file stem (`r_0`, `frame_007`).
-    pub name: String,
-    /// Camera.
-    pub camera: PinholeCamera,
-    /// Camera-to-world pose.
-    pub pose: Pose,
-    /// Ground truth (row-major RGB, white background) for metrics.
-    pub target: Option<Vec<[f32; 3]>>,
-}
-
-impl FrameSpec {
-    /// The orbit frames `frame_000`, `frame_001`, … for `poses`.
-    pub fn orbit(camera: &PinholeCamera, poses: &[Pose]) -> Vec<FrameSpec> {
-        poses
-            .iter()
-            .enumerate()
-            .map(|(k, pose)| FrameSpec { name: format!("frame_{k:03}"), camera: *camera, pose: *pose, target: None })
-            .collect()
-    }
-
-    /// A split's views, named after their images, with the images as targets when loaded.
-    pub fn from_split(data: SplitData) -> Vec<FrameSpec> {
-        data.views.into_iter().map(|v| FrameSpec { name: v.name, camera: v.camera, pose: v.pose, target: v.image }).collect()
-    }
-}
 
 /// Where and what to write.
 #[derive(Debug, Clone, PartialEq)]
@@ -85,7 +40,7 @@ pub struct FrameOutput {
 pub struct FramePlan {
     /// The part of the frames this process renders. The whole render ([`Shard::WHOLE`]) writes
     /// the GIF, metrics and contact sheet at once; a part leaves them to a merge
-    /// ([`crate::io::merge::merge_shards`]).
+    /// ([`super::merge::merge_shards`]).
     pub shard: Shard,
     /// Keep frames an earlier run finished: a frame whose PNG and depth map (and `.npy` when
     /// asked for) exist is not rendered again (with ground truth, its metrics must also be on
@@ -99,45 +54,6 @@ impl Default for FramePlan {
     /// The whole render in one process, from scratch, `orbit.gif` at [`GIF_DELAY_MS`].
     fn default() -> Self {
         FramePlan { shard: Shard::WHOLE, skip_existing: false, gif: GifSpec { file: GIF_FILE.into(), delay_ms: GIF_DELAY_MS } }
-    }
-}
-
-/// What [`render_frames`] wrote.
-#[derive(Debug, Clone, PartialEq)]
-pub struct FramesReport {
-    /// Number of frames this process was given (all of them, or its shard's).
-    pub frames: usize,
-    /// Of those, frames an earlier run had finished (kept with `skip_existing`).
-    pub skipped: usize,
-    /// Metrics (also in `metrics.json`) when every frame had ground truth and the render is
-    /// whole (a shard's metrics come with the merge).
-    pub metrics: Option<EvalReport>,
-    /// The GIF, when asked for and the render is whole.
-    pub gif: Option<PathBuf>,
-}
-
-impl FramesReport {
-    /// What was written into `out` by the render of `shard` (or a merge: [`Shard::WHOLE`]), as
-    /// the binaries print it: the frames (and how many were kept), then for a shard how to
-    /// merge, else the metrics and the GIF.
-    pub fn summary(&self, out: &Path, shard: Shard) -> String {
-        let kept = if self.skipped > 0 { format!(" ({} kept from an earlier run)", self.skipped) } else { String::new() };
-        if !shard.is_whole() {
-            return format!(
-                "shard {shard}: {} frames and depth maps in {}{kept}\nonce every shard is done, assemble them with --merge --out {}",
-                self.frames,
-                out.display(),
-                out.display()
-            );
-        }
-        let mut lines = vec![format!("{} frames and depth maps in {}{kept}", self.frames, out.display())];
-        if let Some(m) = &self.metrics {
-            lines.push(format!("PSNR {:.2} dB, SSIM {:.4} over {} views: {}", m.psnr_mean, m.ssim_mean, m.per_image.len(), out.join(METRICS_FILE).display()));
-        }
-        if let Some(gif) = &self.gif {
-            lines.push(format!("animation: {}", gif.display()));
-        }
-        lines.join("\n")
     }
 }
 
@@ -279,46 +195,13 @@ pub fn save_frame(image: &RenderedImage, dir: &Path, name: &str, depth_range: (f
     Ok(depth)
 }
 
-/// `[H, W, 5]` little-endian float32 `.npy` (format 1.0) of r, g, b, depth, acc per pixel.
-pub fn npy_bytes(image: &RenderedImage) -> Vec<u8> {
-    let r = &image.rays;
-    let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({}, {}, 5), }}", image.height, image.width);
-    // Magic (6) + version (2) + length (2) + header + '\n' is a multiple of 64.
-    while (10 + header.len() + 1) % 64 != 0 {
-        header.push(' ');
-    }
-    header.push('\n');
-    let mut bytes = Vec::with_capacity(10 + header.len() + r.rgb.len() * 20);
-    bytes.extend_from_slice(b"\x93NUMPY\x01\x00");
-    bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
-    bytes.extend_from_slice(header.as_bytes());
-    for ((c, d), a) in r.rgb.iter().zip(&r.depth).zip(&r.acc) {
-        for v in [c[0], c[1], c[2], *d, *a] {
-            bytes.extend_from_slice(&v.to_le_bytes());
-        }
-    }
-    bytes
-}
-
-/// Write [`npy_bytes`] atomically.
-pub fn save_npy(path: &Path, image: &RenderedImage) -> Result<()> {
-    write_atomic(path, &npy_bytes(image))
-}
-
-/// Read back the `[H, W, 5]` float32 arrays [`save_npy`] writes: (height, width, values).
-pub fn load_npy(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
-    let array = crate::io::npy::read_npy(path)?;
-    let [h, w, 5] = array.shape[..] else {
-        return Err(Error::invalid(path, format!("shape {:?}: not the [H, W, 5] of a rendered frame", array.shape)));
-    };
-    // float32 files widen to f64 exactly and narrow back exactly.
-    Ok((h, w, array.data.iter().map(|&v| v as f32).collect()))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::camera::{PinholeCamera, Pose};
+    use crate::frames::spec::{METRICS_FILE, SHEET_FILE};
     use crate::render::RenderedRays;
+    use crate::render::metrics::EvalReport;
 
     fn image() -> RenderedImage {
         RenderedImage {
@@ -330,22 +213,6 @@ mod tests {
                 acc: vec![0.25; 6],
             },
         }
-    }
-
-    #[test]
-    fn npy_round_trip_keeps_layout_and_values() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("x.npy");
-        save_npy(&path, &image()).unwrap();
-        let bytes = std::fs::read(&path).unwrap();
-        assert_eq!((10 + u16::from_le_bytes([bytes[8], bytes[9]]) as usize) % 64, 0, "data is 64-byte aligned");
-        let (h, w, v) = load_npy(&path).unwrap();
-        assert_eq!((h, w, v.len()), (2, 3, 30));
-        // Pixel (row 1, column 2) = index 5: r = 0.5, depth = 7, acc = 0.25.
-        assert_eq!(&v[25..30], &[0.5, 0.5, 1.0, 7.0, 0.25]);
-        std::fs::write(&path, &bytes[..bytes.len() - 4]).unwrap();
-        let err = load_npy(&path).unwrap_err().to_string();
-        assert!(err.contains("x.npy") && err.contains("truncated"), "{err}");
     }
 
     #[test]

@@ -1,13 +1,13 @@
-//! Assembling a finished render from its parts' manifests ([`super::shard`]): the GIF from the
-//! frames' PNGs, `metrics.json` from the recorded metrics in frame order, the contact sheet from
-//! the recorded rows. A single process assembles its own render the same way, so a render split
+//! Assembling a finished render from its parts' manifests ([`super::manifest`]): the GIF from
+//! the frames' PNGs, `metrics.json` from the recorded metrics in frame order, the contact sheet
+//! from the recorded rows. A single process assembles its own render the same way, so a render split
 //! in parts and merged writes the same bytes as one process.
 //!
 //! Everything is read and checked before anything is written: a missing part, an unfinished
 //! frame or a missing file is an error naming it, and leaves the output directory as it was.
 
-use super::frames::{FramesReport, METRICS_FILE, SHEET_FILE, SHEET_VIEWS};
-use super::shard::{SHARDS_DIR, ShardManifest, read_manifests, sheet_row_path};
+use super::manifest::{ShardManifest, read_manifests, sheet_row_path};
+use super::spec::{FramesReport, METRICS_FILE, SHARDS_DIR, SHEET_FILE, SHEET_VIEWS};
 use crate::error::{Error, Result};
 use crate::io::image::{encode_gif_rgb8, load_rgb8, save_png_rgb8};
 use crate::io::atomic::write_atomic;
@@ -176,8 +176,8 @@ fn listed(names: &[impl AsRef<str>]) -> String {
 mod tests {
     use super::*;
     use crate::camera::{Intrinsics, PinholeCamera, Pose};
-    use crate::io::frames::{FrameOutput, FramePlan, FrameSpec, render_frames_with};
-    use crate::io::shard::Shard;
+    use crate::frames::spec::{FrameSpec, Shard};
+    use crate::frames::write::{FrameOutput, FramePlan, render_frames_with};
     use crate::render::{RenderedImage, RenderedRays};
     use std::collections::BTreeMap;
 
