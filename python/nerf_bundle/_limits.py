@@ -22,8 +22,6 @@ MAX_GRID_RESOLUTION = 512
 MAX_THREADS = 1_024
 #: Largest scene.json.
 MAX_JSON_BYTES = 67_108_864
-#: Deepest nesting of JSON arrays and objects (serde_json's recursion limit).
-MAX_JSON_DEPTH = 128
 #: Largest graph file (protobuf messages stop at 2 GiB).
 MAX_GRAPH_BYTES = 2_147_483_648
 #: Rays per network call unless told otherwise (fewer when a ray has many samples).

@@ -13,7 +13,7 @@ from typing import Any, Dict, List, Optional, Tuple
 import numpy as np
 
 from ._limits import (MAX_CHUNK, MAX_FRAME_PIXELS, MAX_FRAMES, MAX_GRAPH_BYTES, MAX_GRID_RESOLUTION, MAX_IMAGE_SIDE,  # noqa: F401
-                      MAX_JSON_BYTES, MAX_JSON_DEPTH, MAX_POINTS_PER_CALL, MAX_SAMPLES_PER_RAY, MAX_THREADS,
+                      MAX_JSON_BYTES, MAX_POINTS_PER_CALL, MAX_SAMPLES_PER_RAY, MAX_THREADS,
                       DEFAULT_MARCH_STEPS, READ_FORMATS)
 
 __all__ = ["BundleError"]
@@ -398,36 +398,26 @@ def check_scene(scene: Any, where: str) -> None:
 
 
 def _load_json(text: str, where: str) -> Any:
-    """JSON as serde_json reads it: no NaN or Infinity literals, no key twice in an object,
-    nested at most MAX_JSON_DEPTH deep."""
+    """JSON as serde_json reads it: no NaN or Infinity literals, no key twice in an object.
+    Nesting deeper than the parser's recursion allows is refused (serde_json stops at 128
+    levels in the fields it reads, which then have the wrong type anyway)."""
     def no_constant(name: str) -> Any:
         raise ValueError(f"{name} is not a JSON number")
 
     def no_duplicates(pairs: List[Tuple[str, Any]]) -> Dict[str, Any]:
         obj = dict(pairs)
         if len(obj) != len(pairs):
-            seen = set()
+            seen: set = set()
             key = next(k for k, _ in pairs if k in seen or seen.add(k))
             raise ValueError(f"duplicate key {_show(key)}")
         return obj
 
     try:
-        value = json.loads(text, parse_constant=no_constant, object_pairs_hook=no_duplicates)
+        return json.loads(text, parse_constant=no_constant, object_pairs_hook=no_duplicates)
     except RecursionError:
-        raise BundleError(f"{where}: not valid JSON: nested more than {MAX_JSON_DEPTH} deep") from None
+        raise BundleError(f"{where}: not valid JSON: arrays or objects nested too deeply") from None
     except ValueError as e:
         raise BundleError(f"{where}: not valid JSON: {e}") from None
-    # Depth without recursion: (value, depth) pairs still to look into.
-    stack = [(value, 1)]
-    while stack:
-        v, depth = stack.pop()
-        children = v.values() if isinstance(v, dict) else v if isinstance(v, list) else None
-        if children is None:
-            continue
-        if depth > MAX_JSON_DEPTH:
-            raise BundleError(f"{where}: not valid JSON: nested more than {MAX_JSON_DEPTH} deep")
-        stack.extend((c, depth + 1) for c in children if isinstance(c, (dict, list)))
-    return value
 
 
 def read_scene(path: str) -> Dict[str, Any]:

@@ -212,9 +212,9 @@ def test_every_field_is_checked_when_the_bundle_opens(tmp_path):
 
     deep = copy_bundle(SPHERES, tmp_path / "deep")
     scene = (deep / "scene.json").read_text()
-    for depth in (129, 100_000):
+    for depth, needle in ((200, "white_background: expected true or false, got an array"), (100_000, "not valid JSON: arrays or objects nested too deeply")):
         (deep / "scene.json").write_text(scene.replace('"white_background": true', '"white_background": ' + "[" * depth + "]" * depth))
-        refused(deep, "scene.json: not valid JSON: nested more than 128 deep")
+        refused(deep, f"scene.json: {needle}")
     (deep / "scene.json").write_text(scene[: len(scene) // 2])
     refused(deep, "scene.json: not valid JSON")
     (deep / "scene.json").write_text(scene.replace('"white_background": true', '"white_background": true, "white_background": false'))
