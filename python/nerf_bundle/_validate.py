@@ -124,7 +124,7 @@ class _Reader:
         try:
             x = float(v)
         except OverflowError:  # an integer beyond float64
-            x = math.copysign(math.inf, v)
+            x = math.inf if v > 0 else -math.inf
         with np.errstate(over="ignore"):
             return float(F32(x))
 
