@@ -272,3 +272,13 @@ def test_the_default_chunk_keeps_a_call_within_the_points_limit(tmp_path):
         b.check_chunk(4096)
     rays = b.render_rays(np.zeros((3, 3), np.float32) + [0, 0, 4], np.array([[0, 0, -1]] * 3, np.float32))
     assert rays.rgb.shape == (3, 3)
+
+
+def test_a_pose_of_huge_finite_numbers_renders(tmp_path):
+    """2^64 is finite as float32, but a ray's length then overflows: the marcher's block size
+    took int(inf) (found by the long fuzz run); such rays are now marched sample by sample."""
+    huge = edited_bundle(tmp_path / "huge", lambda j: j["poses"]["test"][0]["transform_matrix"][0].__setitem__(2, 2**64))
+    b = nerf_bundle.Bundle.open(huge, threads=1)
+    with np.errstate(over="ignore"):
+        frame = b.render(b.poses("test")[0], width=4)
+    assert frame.rgb.shape == (4, 4, 3)
