@@ -1,5 +1,6 @@
 //! A short seeded fuzz run of every parser of a user-supplied file (the long run is
-//! `cargo run --release --example fuzz -- --minutes 10`): no input may panic or take seconds.
+//! `cargo run --release --example fuzz -- --minutes 10`): no input may panic or take seconds,
+//! and every error names the file.
 
 mod fuzzing;
 
@@ -24,6 +25,10 @@ fn every_parser_survives_a_short_seeded_fuzz_run() {
         assert!(report.execs > report.seeds, "{}: no mutated input ran", def.name);
         if report.crashes > 0 || report.slow > 0 {
             failures.push(format!("{}: {} crashes {:?}, {} slow", def.name, report.crashes, report.unique_crashes, report.slow));
+        }
+        // Every refusal names the file it refuses (the user must know which one to fix).
+        if report.unnamed_errors > 0 {
+            failures.push(format!("{}: {} errors not naming the file, e.g. {:?}", def.name, report.unnamed_errors, report.unnamed_examples));
         }
     }
     assert!(failures.is_empty(), "fuzzing found:\n{}", failures.join("\n"));

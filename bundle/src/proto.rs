@@ -167,6 +167,21 @@ pub struct TensorProto {
     /// Description.
     #[prost(string, tag = "12")]
     pub doc_string: String,
+    /// Where the data lies when not in this file (`location`, `offset`, `length`); bundles
+    /// never use it ([`crate::graph::decode_model`] refuses it).
+    #[prost(message, repeated, tag = "13")]
+    pub external_data: Vec<StringStringEntryProto>,
+    /// [`data_location`]: in this message, or in [`external_data`](Self::external_data).
+    #[prost(int32, tag = "14")]
+    pub data_location: i32,
+}
+
+/// `TensorProto.DataLocation` values.
+pub mod data_location {
+    /// The data is in the tensor's own fields.
+    pub const DEFAULT: i32 = 0;
+    /// The data is in another file, named by `external_data`.
+    pub const EXTERNAL: i32 = 1;
 }
 
 /// `TensorProto.DataType` values.
@@ -181,6 +196,8 @@ pub mod data_type {
     pub const INT64: i32 = 7;
     /// BOOL.
     pub const BOOL: i32 = 9;
+    /// DOUBLE (f64).
+    pub const DOUBLE: i32 = 11;
 }
 
 /// `ValueInfoProto`: a named, typed graph input/output.

@@ -202,7 +202,8 @@ impl SceneDescription {
     /// Everything a renderer relies on, checked before it allocates or opens anything:
     /// the format, the camera and sampling within [`nerf_core::io::limits`], file names that are
     /// plain names inside the bundle, at most [`MAX_FRAMES`] poses, pose names that are plain
-    /// file names (they name output files), a grid resolution within the limit.
+    /// file names (they name output files), finite poses, a grid resolution within the limit.
+    /// (`python/nerf_bundle/_validate.py` makes the same checks.)
     pub fn check(&self, path: &Path) -> nerf_core::Result<()> {
         let at = |field| Origin::Field(path, field);
         if !READ_FORMATS.contains(&self.format.as_str()) {
@@ -236,6 +237,13 @@ impl SceneDescription {
         }
         for (k, pose) in self.poses.test.iter().enumerate() {
             limits::check_plain_file_name(&pose.name, Origin::Field(path, &format!("poses.test[{k}].name")))?;
+        }
+        // A number past f32's range reads as infinite.
+        let finite = |m: &[[f32; 4]; 4]| m.iter().flatten().all(|v| v.is_finite());
+        let test = self.poses.test.iter().map(|p| &p.transform_matrix).enumerate().map(|(k, m)| (format!("poses.test[{k}].transform_matrix"), m));
+        let orbit = self.poses.orbit.iter().enumerate().map(|(k, m)| (format!("poses.orbit[{k}]"), m));
+        if let Some((field, _)) = test.chain(orbit).find(|(_, m)| !finite(m)) {
+            return Err(Origin::Field(path, &field).error("has a non-finite entry"));
         }
         if let Some(o) = &self.occupancy {
             limits::check_plain_file_name(&o.file, at("occupancy.file"))?;
@@ -306,6 +314,36 @@ mod tests {
         s.occupancy = None;
         s.graphs = [(Role::Field, "field.onnx".into())].into();
         assert!(s.check(path).unwrap_err().to_string().contains("occupancy"));
+    }
+
+    #[test]
+    fn poses_past_f32_range_are_refused() {
+        let path = Path::new("b/scene.json");
+        let mut s = scene("mlp", 0);
+        s.graphs = [(Role::Coarse, "coarse.onnx".into())].into();
+        s.poses.orbit = vec![[[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 4.0], [0.0, 0.0, 0.0, 1.0]]; 2];
+        s.poses.test = vec![NamedPose { name: "r_0".into(), transform_matrix: s.poses.orbit[0] }];
+        s.check(path).unwrap();
+        // As JSON: 1e39 is a finite number there, infinite as f32.
+        let mut v = serde_json::to_value(&s).unwrap();
+        v["poses"]["orbit"][1][2][3] = serde_json::json!(1e39);
+        let far: SceneDescription = serde_json::from_value(v).unwrap();
+        assert_eq!(far.check(path).unwrap_err().to_string(), "b/scene.json: poses.orbit[1]: has a non-finite entry");
+        s.poses.test[0].transform_matrix[0][0] = f32::NAN;
+        assert_eq!(s.check(path).unwrap_err().to_string(), "b/scene.json: poses.test[0].transform_matrix: has a non-finite entry");
+    }
+
+    #[test]
+    fn deeply_nested_json_is_an_error_not_a_stack_overflow() {
+        let nested = |depth: usize| format!("{}{}", "[".repeat(depth), "]".repeat(depth));
+        let text = serde_json::to_string(&scene("mlp", 0)).unwrap();
+        // In a field it reads (placement.orbit is buffered as a tree): serde_json's limit.
+        let deep = text.replacen('{', &format!("{{\"placement\":{{\"orbit\":{}}},", nested(100_000)), 1);
+        assert!(serde_json::from_str::<SceneDescription>(&deep).unwrap_err().to_string().contains("recursion limit exceeded"));
+        // In a field it does not know, skipped without recursing (the Python package refuses
+        // this past its parser's recursion limit: the one difference).
+        let unknown = text.replacen('{', &format!("{{\"x\":{},", nested(100_000)), 1);
+        assert_eq!(serde_json::from_str::<SceneDescription>(&unknown).unwrap(), scene("mlp", 0));
     }
 
     #[test]

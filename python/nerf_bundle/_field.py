@@ -11,10 +11,11 @@ from typing import Optional, Sequence, Tuple
 
 import numpy as np
 
+from ._limits import POINTS_PER_RUN
+from ._onnx import check_graph_bytes
 from ._validate import BundleError
 
 F32 = np.float32
-POINTS_PER_RUN = 2048
 MIN_POINTS_PER_WORKER = 256
 
 
@@ -38,6 +39,11 @@ class Graph:
         try:
             with open(path, "rb") as f:
                 model = f.read()
+        except OSError as e:
+            raise BundleError(f"{path}: cannot read the graph: {e.strerror}") from None
+        # Before onnxruntime sees it: it would follow external data out of the bundle.
+        check_graph_bytes(path, model)
+        try:
             first = ort.InferenceSession(model, opts, providers=providers)
         except Exception as e:  # onnxruntime raises its own exception types
             raise BundleError(f"{path}: cannot load the graph (truncated, not an ONNX model, or not following the graph "

@@ -141,7 +141,8 @@ def occupied_samples(grid: Grid, o: np.ndarray, d: np.ndarray, near: np.float32,
     # for lego-ngp's 1024 steps); none (every sample tested) for long intervals.
     step_length = float(interval) * float(norm.max(initial=0.0))
     bsize, pad = 1, 0
-    for size in (BLOCK, BLOCK // 2, BLOCK // 4, 2):
+    # Rays too long for float32 (a pose of huge but finite numbers): every sample tested.
+    for size in (BLOCK, BLOCK // 2, BLOCK // 4, 2) if np.isfinite(step_length) else ():
         pad = int(np.ceil(0.5 * size * step_length / cell)) + 1
         if pad <= 3:
             bsize = size

@@ -9,15 +9,14 @@ from typing import Any, Dict, List, Optional, Sequence, Tuple
 import numpy as np
 
 from . import _render as R
-from ._field import POINTS_PER_RUN, Graph
-from ._validate import (MAX_CHUNK_SAMPLES, MAX_FRAMES, MAX_GRAPH_BYTES, MAX_IMAGE_SIDE, MAX_FRAME_PIXELS, MAX_THREADS,
-                        bounded_file, bundle_file, check_count, check_pose, graph_files, is_bounded,
-                        read_grid, read_scene)
+from ._field import Graph
+from ._limits import (DEFAULT_CHUNK, DEFAULT_MARCH_STEPS, MAX_FRAMES, MAX_FRAME_PIXELS, MAX_GRAPH_BYTES, MAX_IMAGE_SIDE,
+                      MAX_POINTS_PER_CALL, MAX_THREADS, POINTS_PER_RUN)
+from ._validate import (bounded_file, bundle_file, check_chunk, check_count, check_grid_matches, check_pose, graph_files,
+                        is_bounded, read_grid, read_scene)
 from .camera import Camera, ndc_rays, reference_orbit
 
 F32 = np.float32
-#: Rays per batch (nerf-render's ``--chunk`` default): memory is bounded by it.
-DEFAULT_CHUNK = 4096
 
 
 @dataclass
@@ -83,7 +82,7 @@ class Bundle:
         self.near, self.far = F32(s["near"]), F32(s["far"])
         self.n_coarse, self.n_fine, self.lindisp = int(s["n_coarse"]), int(s["n_fine"]), bool(s.get("lindisp", False))
         self.ndc = s.get("ndc")
-        self.march_steps = int(scene.get("march_steps", 256))
+        self.march_steps = int(scene.get("march_steps", DEFAULT_MARCH_STEPS))
         self.white_background = bool(scene["white_background"])
 
     @classmethod
@@ -99,6 +98,7 @@ class Bundle:
         occupancy.bin (nerf-render ``--dense``)."""
         path = os.fspath(path)
         workers = check_count(threads if threads is not None else (os.cpu_count() or 1), MAX_THREADS, "threads", "threads")
+        points_per_run = check_count(points_per_run, MAX_POINTS_PER_CALL, "points_per_run", "points")
         scene = read_scene(path)
         graphs: Dict[str, Graph] = {}
         for role, (key, name) in graph_files(scene).items():
@@ -108,6 +108,7 @@ class Bundle:
         grid = None
         if occ and skip_empty_space:
             density, bound, threshold = read_grid(bounded_file(bundle_file(path, occ["file"], "occupancy.file"), MAX_GRAPH_BYTES, "occupancy.file"))
+            check_grid_matches(os.path.join(path, "scene.json"), scene, density.shape[0], bound)
             grid = R.Grid((density > threshold).reshape(-1), density.shape[0], bound)
         elif is_bounded(scene):
             grid = R.Grid(np.ones(1, bool), 1, F32(occ["bound"]))
@@ -184,12 +185,21 @@ class Bundle:
         """Wall time spent in onnxruntime calls so far (all graphs)."""
         return sum(g.seconds for g in self.graphs.values())
 
-    def _check_chunk(self, chunk: int) -> int:
-        per_ray = max(self.n_coarse + self.n_fine, self.march_steps)
-        chunk = check_count(chunk, MAX_CHUNK_SAMPLES, "chunk", "rays")
-        if chunk * per_ray > MAX_CHUNK_SAMPLES:
-            raise ValueError(f"chunk: {chunk} rays × {per_ray} samples is more than the limit of {MAX_CHUNK_SAMPLES} samples")
-        return chunk
+    @property
+    def samples_per_ray(self) -> int:
+        """The most samples one ray may send to the field: n_coarse + n_fine, or march_steps."""
+        return max(self.n_coarse + self.n_fine, self.march_steps)
+
+    @property
+    def default_chunk(self) -> int:
+        """Rays per batch unless told otherwise (nerf-render's ``default_chunk``): DEFAULT_CHUNK,
+        fewer when a batch's samples would pass the points limit."""
+        return max(1, min(DEFAULT_CHUNK, MAX_POINTS_PER_CALL // max(self.samples_per_ray, 1)))
+
+    def check_chunk(self, chunk: Optional[int], what: str = "chunk") -> int:
+        """``chunk`` rays per batch (None: :attr:`default_chunk`) within the limits (ValueError
+        naming ``what`` otherwise)."""
+        return self.default_chunk if chunk is None else check_chunk(chunk, self.samples_per_ray, what)
 
     def _render_batch(self, o: np.ndarray, d: np.ndarray, view: np.ndarray) -> R.Marched:
         """nerf-render's ``render_rays`` for one batch of (already NDC-warped) rays."""
@@ -212,10 +222,10 @@ class Bundle:
         return R.march_front_to_back(self._graph("fine"), o, d, viewdirs, R.dense_packed(t_all, d), min_t,
                                      self.white_background, seg)
 
-    def render_rays(self, origins: np.ndarray, directions: np.ndarray, *, chunk: int = DEFAULT_CHUNK) -> Rays:
+    def render_rays(self, origins: np.ndarray, directions: np.ndarray, *, chunk: Optional[int] = None) -> Rays:
         """Render world rays ``origins``, ``directions`` [N, 3] (directions not normalised: t is
         along them; NDC-warped first for a forward-facing bundle, as nerf-render does)."""
-        chunk = self._check_chunk(chunk)
+        chunk = self.check_chunk(chunk)
         o = np.asarray(origins, F32).reshape(-1, 3)
         d = np.asarray(directions, F32).reshape(-1, 3)
         parts = [self._render_chunk(o[s:s + chunk], d[s:s + chunk]) for s in range(0, len(o), chunk)]
@@ -231,11 +241,12 @@ class Bundle:
         return self._render_batch(o, d, view)
 
     def render(self, c2w: np.ndarray, width: Optional[int] = None, height: Optional[int] = None, *,
-               chunk: int = DEFAULT_CHUNK) -> Frame:
+               chunk: Optional[int] = None) -> Frame:
         """Render the view from camera-to-world ``c2w`` [4, 4] (or 3×4) at the bundle's
         resolution, or at ``width`` (× ``height``, default keeping the aspect) with the camera
-        rescaled as nerf-render's ``--width``/``--height``. ``chunk`` rays per batch."""
-        chunk = self._check_chunk(chunk)
+        rescaled as nerf-render's ``--width``/``--height``. ``chunk`` rays per batch (default
+        :attr:`default_chunk`)."""
+        chunk = self.check_chunk(chunk)
         c2w = check_pose(c2w, "c2w", "pose")
         cam = self.camera_at(width, height)
         start, field_start = time.perf_counter(), self.field_seconds

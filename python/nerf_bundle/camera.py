@@ -7,6 +7,8 @@ from typing import Any, Dict, Optional, Tuple
 
 import numpy as np
 
+from ._validate import pinhole
+
 F32 = np.float32
 
 __all__ = ["Camera", "ndc_rays"]
@@ -31,10 +33,9 @@ class Camera:
     def from_scene(cls, cam: Dict[str, Any]) -> "Camera":
         """scene.json's camera; bundles with ``focal`` alone get fx = fy = focal, the principal
         point at the centre and integer pixel centres."""
-        fx = cam.get("fx", cam.get("focal"))
-        return cls(int(cam["width"]), int(cam["height"]), F32(fx), F32(cam.get("fy", fx)),
-                   F32(cam.get("cx", 0.5 * cam["width"])), F32(cam.get("cy", 0.5 * cam["height"])),
-                   cam.get("pixel_center", "integer"), cam.get("distortion"))
+        c = pinhole(cam)
+        return cls(int(c["width"]), int(c["height"]), F32(c["fx"]), F32(c["fy"]), F32(c["cx"]), F32(c["cy"]),
+                   c["pixel_center"], c["distortion"])
 
     def resized(self, width: int, height: Optional[int] = None) -> "Camera":
         """The same camera at ``width``×``height``: focal lengths and principal point scale with

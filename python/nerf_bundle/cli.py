@@ -17,7 +17,7 @@ from typing import List, Optional
 import numpy as np
 
 from ._validate import BundleError
-from .bundle import DEFAULT_CHUNK, Bundle
+from .bundle import Bundle
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -36,7 +36,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--height", type=int, help="render at this height (needs --width)")
     r.add_argument("--npy", action="store_true", help="also write <name>.npy: float32 [H, W, 5] = r, g, b, depth, acc")
     r.add_argument("--threads", type=int, help="onnxruntime sessions side by side (default: one per core)")
-    r.add_argument("--chunk", type=int, default=DEFAULT_CHUNK, help="rays per batch")
+    r.add_argument("--chunk", type=int, help="rays per batch (default: 4096, fewer when the bundle's rays have many samples)")
     r.add_argument("--dense", action="store_true", help="ignore occupancy.bin (as nerf-render --dense)")
     return p
 
@@ -91,6 +91,7 @@ def main(argv: Optional[List[str]] = None) -> int:
             print("error: nothing to render: no poses", file=sys.stderr)
             return 1
         cam = bundle.camera_at(a.width, a.height)
+        chunk = bundle.check_chunk(a.chunk, "--chunk")
     except BundleError as e:
         print(f"error: {e}", file=sys.stderr)
         return 1
@@ -102,7 +103,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     os.makedirs(a.out, exist_ok=True)
     start = time.perf_counter()
     for k, (pose, name) in enumerate(zip(poses, names)):
-        frame = bundle.render(pose, a.width, a.height, chunk=a.chunk)
+        frame = bundle.render(pose, a.width, a.height, chunk=chunk)
         if have_pil:
             frame.to_pil().save(os.path.join(a.out, f"{name}.png"))
         if a.npy:

@@ -347,20 +347,50 @@ fn python_consumer_refuses_untrusted_bundles() {
     }
 }
 
-/// The Python package states the limits of nerf_core::io::limits; they must not drift apart.
+/// The Python package's table of limits and defaults (python/nerf_bundle/_limits.py) holds
+/// exactly the Rust constants it needs, by name, with the same values: a value changed on
+/// either side, a constant the package needs missing there, or a name there that Rust does
+/// not know fails here.
 #[test]
 fn python_limits_match_the_core() {
     use nerf_core::io::limits::*;
-    let script = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../python/nerf_bundle/_validate.py")).unwrap();
-    let value = |name: &str| -> u64 {
-        let line = script.lines().find(|l| l.starts_with(&format!("{name} = "))).unwrap_or_else(|| panic!("_validate.py has no {name}"));
-        line[name.len() + 3..].replace('_', "").trim().parse().unwrap_or_else(|e| panic!("{line}: {e}"))
-    };
-    assert_eq!(value("MAX_IMAGE_SIDE"), MAX_IMAGE_SIDE as u64);
-    assert_eq!(value("MAX_FRAME_PIXELS"), MAX_FRAME_PIXELS);
-    assert_eq!(value("MAX_FRAMES"), MAX_FRAMES as u64);
-    assert_eq!(value("MAX_SAMPLES_PER_RAY"), MAX_SAMPLES_PER_RAY as u64);
-    assert_eq!(value("MAX_GRID_RESOLUTION"), MAX_GRID_RESOLUTION as u64);
-    assert_eq!(value("MAX_JSON_BYTES"), MAX_JSON_BYTES);
-    assert_eq!(value("MAX_GRAPH_BYTES"), nerf_bundle::graph::MAX_GRAPH_BYTES);
+    let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("../python/nerf_bundle/_limits.py");
+    let script = std::fs::read_to_string(&file).unwrap();
+    let int = |v: u64| v.to_string();
+    let rust: std::collections::BTreeMap<&str, String> = [
+        ("MAX_IMAGE_SIDE", int(MAX_IMAGE_SIDE as u64)),
+        ("MAX_FRAME_PIXELS", int(MAX_FRAME_PIXELS)),
+        ("MAX_FRAMES", int(MAX_FRAMES as u64)),
+        ("MAX_SAMPLES_PER_RAY", int(MAX_SAMPLES_PER_RAY as u64)),
+        ("MAX_CHUNK", int(MAX_CHUNK as u64)),
+        ("MAX_POINTS_PER_CALL", int(MAX_POINTS_PER_CALL as u64)),
+        ("MAX_GRID_RESOLUTION", int(MAX_GRID_RESOLUTION as u64)),
+        ("MAX_THREADS", int(MAX_THREADS as u64)),
+        ("MAX_JSON_BYTES", int(MAX_JSON_BYTES)),
+        ("MAX_GRAPH_BYTES", int(nerf_bundle::graph::MAX_GRAPH_BYTES)),
+        ("DEFAULT_CHUNK", int(nerf_runtime::scene::DEFAULT_CHUNK as u64)),
+        ("DEFAULT_MARCH_STEPS", int(nerf_core::render::DEFAULT_MARCH_STEPS as u64)),
+        ("POINTS_PER_RUN", int(nerf_runtime::network::POINTS_PER_RUN as u64)),
+        ("READ_FORMATS", format!("{:?}", nerf_bundle::scene::READ_FORMATS)),
+    ]
+    .into();
+    // `NAME = value` lines: integers (digits, `_`) or a tuple of strings, shown as Rust shows a list.
+    let python: std::collections::BTreeMap<&str, String> = script
+        .lines()
+        .filter_map(|l| l.split_once(" = ").filter(|(name, _)| !name.is_empty() && name.chars().all(|c| c.is_ascii_uppercase() || c == '_')))
+        .map(|(name, value)| {
+            let value = value.trim();
+            let shown = match value.strip_prefix('(').and_then(|v| v.strip_suffix(')')) {
+                Some(items) => format!("[{}]", items.split(',').map(str::trim).filter(|s| !s.is_empty()).collect::<Vec<_>>().join(", ")),
+                None => value.replace('_', "").parse::<u64>().map_or_else(|e| panic!("{}: {name} = {value}: {e}", file.display()), int),
+            };
+            (name, shown)
+        })
+        .collect();
+    let missing: Vec<&&str> = rust.keys().filter(|k| !python.contains_key(*k)).collect();
+    let unknown: Vec<&&str> = python.keys().filter(|k| !rust.contains_key(*k)).collect();
+    assert!(missing.is_empty() && unknown.is_empty(), "{}: missing {missing:?}, unknown to Rust {unknown:?}", file.display());
+    for (name, value) in &rust {
+        assert_eq!(&python[name], value, "{}: {name}", file.display());
+    }
 }

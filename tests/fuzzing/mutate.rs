@@ -126,7 +126,8 @@ fn interesting_string(rng: &mut Rng) -> String {
 /// A byte-level mutation in place (`seeds` for splicing).
 pub fn mutate_bytes(rng: &mut Rng, data: &mut Vec<u8>, seeds: &[Vec<u8>]) {
     let len = data.len();
-    let at = |rng: &mut Rng| rng.below(len.max(1));
+    // A third of the time within the first 32 bytes, where binary formats keep their headers.
+    let at = |rng: &mut Rng| if rng.below(3) == 0 { rng.below(len.clamp(1, 32)) } else { rng.below(len.max(1)) };
     match rng.below(11) {
         0 if len > 0 => {
             let i = at(rng);
@@ -238,7 +239,20 @@ pub fn mutate_json_text(rng: &mut Rng, data: &[u8]) -> Option<Vec<u8>> {
     for (placeholder, json, _) in SPECIAL_FLOATS {
         text = text.replace(&format!("\"{placeholder}\""), json);
     }
+    for depth in NESTING_DEPTHS {
+        text = text.replace(&format!("\"{}\"", nested_placeholder(depth)), &format!("{}{}", "[".repeat(depth), "]".repeat(depth)));
+    }
     Some(text.into_bytes())
+}
+
+/// Depths of the nested arrays a node may become: around serde_json's recursion limit (128)
+/// and far past it (a recursive parser would overflow its stack).
+const NESTING_DEPTHS: [usize; 5] = [2, 127, 128, 1000, 100_000];
+
+/// The placeholder for `depth` nested empty arrays, swapped in after serialising (a tree that
+/// deep would overflow the serialiser's stack).
+fn nested_placeholder(depth: usize) -> String {
+    format!("__fuzz_nested_{depth}__")
 }
 
 /// A tree mutation of a TOML document (through the same tree as JSON), or `None` when `data`
@@ -294,7 +308,7 @@ fn mutate_tree(rng: &mut Rng, root: &mut Value) {
         return;
     }
     let pointer = pointers[rng.below(pointers.len())].clone();
-    let action = rng.below(7);
+    let action = rng.below(8);
     if action == 0 {
         // Remove the node from its parent (a missing key, a shorter array).
         let (parent, last) = pointer.rsplit_once('/').expect("pointers start with /");
@@ -314,6 +328,7 @@ fn mutate_tree(rng: &mut Rng, root: &mut Value) {
         1 => *node = interesting_number(rng),
         2 => *node = Value::from(interesting_string(rng)),
         3 => *node = pick(rng, &[Value::Null, Value::Bool(true), Value::Array(vec![]), Value::Object(Default::default()), Value::from("")]),
+        7 => *node = Value::from(nested_placeholder(pick(rng, &NESTING_DEPTHS))),
         4 => {
             if let Some(x) = node.as_f64() {
                 let y = pick(rng, &[x + 1.0, x - 1.0, -x, x * 1024.0, x / 1024.0, x.trunc()]);
@@ -377,7 +392,20 @@ pub fn mutate_onnx(rng: &mut Rng, data: &[u8]) -> Option<Vec<u8>> {
             }
             let k = rng.below(graph.initializer.len());
             let t = &mut graph.initializer[k];
-            match rng.below(7) {
+            match rng.below(8) {
+                7 => {
+                    // The data moved to another file (ONNX external data): the location flag,
+                    // the entries naming the file, or both.
+                    let entry = |key: &str, value: String| nerf_export::proto::StringStringEntryProto { key: key.into(), value };
+                    if rng.below(3) != 0 {
+                        t.data_location = 1;
+                    }
+                    if rng.below(3) != 0 {
+                        t.external_data.push(entry("location", interesting_string(rng)));
+                        t.external_data.push(entry("length", t.raw_data.len().to_string()));
+                        t.raw_data.clear();
+                    }
+                }
                 0 if !t.dims.is_empty() => {
                     let d = rng.below(t.dims.len());
                     t.dims[d] = pick(rng, &INTERESTING_INTS);

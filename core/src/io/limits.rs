@@ -6,7 +6,9 @@
 //! allocated, and every file name read from a file must be a plain name inside its directory.
 //! The bounds are far above anything a CPU renders in reasonable time; they exist so that a
 //! wrong or hostile number gives an error at once instead of an out-of-memory kill or a render
-//! that never ends. `tests/python/render_rays.py` applies the same limits (a test compares them).
+//! that never ends. The Python package reads bundles within the same limits: its table,
+//! `python/nerf_bundle/_limits.py`, is checked against these constants both ways
+//! (`runtime/tests/cli.rs`, `python_limits_match_the_core`).
 
 use crate::camera::PinholeCamera;
 use crate::error::{Error, Result};
