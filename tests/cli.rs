@@ -66,6 +66,65 @@ fn eval_and_render_write_named_outputs() {
     assert!(test.join("r_1.png").exists() && test.join("r_1_depth.png").exists());
 }
 
+/// `nerf demo` (the README's first command) end to end in a temporary folder, with a 0.2-minute
+/// budget: the scene, a run with its checkpoint and curve, the evaluation and the orbit it
+/// prints, agreeing with each other. (≈ 2 min on 2 cores, most of it the 40 orbit frames,
+/// rendered whatever the budget.)
+#[test]
+fn demo_writes_a_trained_run_its_evaluation_and_an_orbit() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("demo");
+    let (ok, text) = nerf(&["demo", "--minutes", "0.2", "--out", s(&out)]);
+    assert!(ok, "{text}");
+    println!("{text}");
+    let number_after = |label: &str| -> f64 {
+        let at = text.find(label).unwrap_or_else(|| panic!("no {label:?} in:\n{text}")) + label.len();
+        text[at..].split_whitespace().next().and_then(|w| w.parse().ok()).unwrap_or_else(|| panic!("no number after {label:?} in:\n{text}"))
+    };
+    let steps = number_after("trained ") as usize;
+    let printed_psnr = number_after("val PSNR ");
+
+    // The run: its latest checkpoint is the last step trained, and the curve's last row
+    // validated there.
+    let run = out.join("run");
+    let latest = std::fs::read_to_string(run.join("checkpoints/latest")).unwrap();
+    assert_eq!(latest.trim(), format!("step-{steps:07}"));
+    assert!(run.join("checkpoints").join(latest.trim()).join("model.bpk").is_file());
+    let curve = nerf::plot::curve::read_curve(&run.join("curve.csv")).unwrap();
+    let last = curve.last().unwrap();
+    assert!(steps >= 1 && last.step == steps, "printed {steps} steps, the curve ends at {}", last.step);
+    let recorded = last.val_psnr.expect("the curve's last row has a val PSNR") as f64;
+    // However few steps the budget allowed (13 on a busy 2-core machine: 6.3 dB, below a grey
+    // frame's 7.1), above an empty black frame's 1.4 dB.
+    assert!(recorded > 4.0, "val PSNR {recorded} dB");
+
+    // The evaluation of the scene's 8 val views: what the demo printed, and view 0 as the
+    // training's validation measured it.
+    let metrics: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("eval/metrics.json")).unwrap()).unwrap();
+    let per_image = metrics["per_image"].as_array().unwrap();
+    assert_eq!(per_image.len(), 8);
+    let psnr_mean = metrics["psnr_mean"].as_f64().unwrap();
+    assert!((psnr_mean - printed_psnr).abs() <= 0.006, "printed {printed_psnr} dB, metrics.json {psnr_mean} dB");
+    let r0 = per_image[0]["psnr"].as_f64().unwrap();
+    assert!((r0 - recorded).abs() < 0.002, "eval: r_0 at {r0:.4} dB, training's validation of it {recorded:.3} dB");
+    for k in 0..8 {
+        assert_eq!(image::open(out.join(format!("eval/r_{k}.png"))).unwrap().width(), 64);
+        assert!(out.join(format!("eval/r_{k}_depth.png")).is_file());
+    }
+
+    // The orbit: 40 frames and the GIF of them.
+    let gif = out.join("orbit/orbit.gif");
+    let gif = std::fs::File::open(&gif).unwrap_or_else(|e| panic!("{}: {e}", gif.display()));
+    let decoder = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(gif)).unwrap();
+    use image::AnimationDecoder;
+    let frames = decoder.into_frames().collect_frames().unwrap();
+    assert_eq!(frames.len(), nerf_core::camera::ORBIT_FRAMES);
+    assert_eq!(frames[0].buffer().dimensions(), (64, 64));
+    let first = image::open(out.join("orbit/frame_000.png")).unwrap().to_rgb8();
+    assert!(first.pixels().any(|p| p.0 != first.get_pixel(0, 0).0), "the orbit's first frame is one flat colour");
+    assert!(out.join("orbit/frame_039.png").is_file() && out.join("orbit/frame_039_depth.png").is_file());
+}
+
 #[test]
 fn bad_inputs_give_clear_errors() {
     let dir = tempfile::tempdir().unwrap();
