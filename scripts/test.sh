@@ -8,8 +8,9 @@ cd "$(dirname "$0")/.."
 bash scripts/setup.sh   # numpy, onnx, onnxruntime for the graph checks (idempotent)
 . scripts/env.sh
 cargo test --release --workspace "$@"
-# The browser viewer: unit tests (vitest) and, in headless chromium, the pages served by
-# nerf-render --serve against nerf-render's own frames (viewer/tests/browser.test.mjs).
-(cd viewer && npm run --silent test:unit && npm run --silent test:browser)
+# The browser viewer: its types (tsc; vite builds without checking them), unit tests (vitest)
+# and, in headless chromium, the pages served by nerf-render --serve against nerf-render's own
+# frames (viewer/tests/browser.test.mjs).
+(cd viewer && npm run --silent typecheck && npm run --silent test:unit && npm run --silent test:browser)
 # The Python package against nerf-render's frames, its bad-bundle refusals, and its wheel.
 "$NERF_PYTHON" -m pytest -q python/tests

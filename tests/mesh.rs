@@ -1,7 +1,8 @@
 //! `nerf mesh` end to end on the generated scene, whose surfaces are known exactly: a tiny
 //! hash-grid run's mesh, carved by its training views, lies on the spheres and the plinth to
 //! within a lattice cell at the 95th percentile (through burn, and through onnxruntime from its
-//! bundle given the same views), is a PLY that reads back, and bad input is refused with
+//! bundle given the same views), carving takes away vertices that lie off the true surfaces
+//! and keeps those on them, the mesh is a PLY that reads back, and bad input is refused with
 //! nothing written.
 //!
 //! Only vertices above the plinth's bottom face (z > −1) are measured: every camera is above
@@ -14,7 +15,8 @@ use common::{nerf, s, small_scene, tiny_ngp};
 use glam::Vec3;
 use nerf::train::{TrainOptions, train};
 use nerf_core::dataset::{SyntheticSceneConfig, generate_scene, surface_distance};
-use nerf_core::mesh::ply::{PlyMesh, read_ply};
+use nerf_core::mesh::ply::{PlyMesh, PlyVertex, read_ply};
+use std::collections::HashSet;
 use std::path::Path;
 
 /// Training steps of the tiny run (≈ 30 s on 2 cores).
@@ -30,6 +32,20 @@ fn distances(mesh: &PlyMesh) -> (f32, f32, f32) {
     let mean = d.iter().sum::<f32>() / d.len() as f32;
     let at = |q: f32| d[(q * (d.len() - 1) as f32).round() as usize];
     (mean, at(0.5), at(0.95))
+}
+
+/// The vertices of `plain` that `carved` (the same field's mesh, carved) no longer has, and those
+/// it keeps. Carving only fills lattice nodes, and marching cubes puts a vertex on an edge from
+/// the edge's two densities alone, so a kept vertex is at the same position to the bit.
+fn carved_away<'a>(plain: &'a PlyMesh, carved: &PlyMesh) -> (Vec<&'a PlyVertex>, Vec<&'a PlyVertex>) {
+    let key = |v: &PlyVertex| v.position.map(f32::to_bits);
+    let carved: HashSet<_> = carved.vertices.iter().map(key).collect();
+    plain.vertices.iter().partition(|v| !carved.contains(&key(v)))
+}
+
+/// The mean distance of `vertices` to the scene's true surfaces (NaN for none).
+fn mean_distance(vertices: &[&PlyVertex]) -> f32 {
+    vertices.iter().map(|v| surface_distance(Vec3::from_array(v.position))).sum::<f32>() / vertices.len() as f32
 }
 
 fn mesh(args: &[&str], out: &Path) -> PlyMesh {
@@ -65,11 +81,19 @@ fn a_trained_run_meshes_onto_the_true_surfaces_through_burn_and_onnxruntime() {
     let (mean, median, p95) = distances(&burn);
     println!("burn: {} vertices; distance to the true surfaces (z > −1): mean {mean:.4}, median {median:.4}, 95th percentile {p95:.4} (cell {cell:.4})", burn.vertices.len());
     assert!(mean < cell && median < 0.75 * cell, "mean {mean}, median {median}, cell {cell}");
-    // Within a cell at the 95th percentile (0.090 for a cell of 0.094 when measured). Carving
-    // takes away surfaces no view saw (the hull under the plinth becomes one closed face) and
-    // does not push the rest out.
+    // Within a cell at the 95th percentile (0.090 for a cell of 0.094 when measured), and
+    // carving does not push the surfaces out.
     assert!(p95 < cell && p95 <= plain_p95 * 1.02, "95th percentile {p95} (not carved {plain_p95}), cell {cell}");
-    assert!(burn.vertices.len() < plain.vertices.len(), "carving kept {} of {} vertices", burn.vertices.len(), plain.vertices.len());
+    // Carving takes away surfaces no view saw, mostly the hull's inner walls under the plinth
+    // (whose closing face is as far off as they were: the distances of all vertices hardly
+    // change), and keeps what the views saw: the vertices it removes lie off the true surfaces,
+    // those it keeps on them. Measured: 1,290 of 3,107 removed, 1.72 cells off on average
+    // (54% of them more than a cell), the kept 0.51 (8%).
+    let (removed, kept) = carved_away(&plain, &burn);
+    let (removed_mean, kept_mean) = (mean_distance(&removed) / cell, mean_distance(&kept) / cell);
+    println!("carving removed {} of {} vertices, {removed_mean:.2} cells off the true surfaces on average; kept {kept_mean:.2}", removed.len(), plain.vertices.len());
+    assert!(removed.len() * 5 >= plain.vertices.len(), "carving removed {} of {} vertices", removed.len(), plain.vertices.len());
+    assert!(removed_mean > 1.2 && kept_mean < 0.75, "the removed vertices are {removed_mean:.2} cells off the true surfaces on average, the kept {kept_mean:.2}");
     // Normals are unit; the red sphere's cap (albedo 0.9, 0.2, 0.15, lit from above) is red.
     assert!(burn.vertices.iter().all(|v| (Vec3::from_array(v.normal).length() - 1.0).abs() < 1e-4));
     let cap: Vec<[u8; 3]> = burn.vertices.iter().filter(|v| v.position[2] > 0.2 && Vec3::from_array(v.position).length() < 0.8).map(|v| v.color).collect();

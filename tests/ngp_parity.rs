@@ -2,6 +2,9 @@
 //! and both MLPs inside) computes what [`NgpField`] computes on 12,000 random points, within
 //! 1e-5 (σ = exp(raw) relative to max(1, σ)), with σ well above 1 somewhere.
 
+mod common;
+
+use common::max_difference;
 use nerf::bench::random_points;
 use nerf::field::ngp::NgpField;
 use nerf_core::Rng;
@@ -51,8 +54,8 @@ fn parity(grid: HashGridConfig, ops: HashOps, opset: i64) {
     let (points, dirs) = random_points(12_000, 8);
     let ort_out = ort.run(&points, &dirs).unwrap();
     let (burn_rgb, burn_sigma) = field.forward(&points, &dirs);
-    let d_rgb = burn_rgb.iter().flatten().zip(ort_out.rgb.iter().flatten()).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
-    let d_sigma = burn_sigma.iter().zip(&ort_out.sigma).map(|(a, b)| (a - b).abs() / a.abs().max(1.0)).fold(0.0, f32::max);
+    let d_rgb = max_difference("rgb", burn_rgb.as_flattened(), ort_out.rgb.as_flattened(), |_| 1.0);
+    let d_sigma = max_difference("σ", &burn_sigma, &ort_out.sigma, |a| a.abs().max(1.0));
     let max_sigma = burn_sigma.iter().copied().fold(0.0, f32::max);
     println!("ngp field ({ops:?}): max |Δrgb| {d_rgb:.2e}, max |Δσ|/max(1, σ) {d_sigma:.2e} (σ up to {max_sigma:.1})");
     assert!(d_rgb <= 1e-5 && d_sigma <= 1e-5, "max |Δrgb| {d_rgb:e}, relative |Δσ| {d_sigma:e}");

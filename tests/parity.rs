@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{lego_dir, nerf, nerf_render, s, tiny_config, trained_run};
+use common::{lego_dir, max_difference, nerf, nerf_render, s, tiny_config, trained_run};
 use nerf::bench::random_points;
 use nerf::field::mlp::NerfMlp;
 use nerf::inference::{tensor_vec3, vec3_tensor};
@@ -28,8 +28,8 @@ fn network_difference(net: &NerfMlp, dir: &Path) -> (f32, f32, f32) {
     let (rgb, sigma) = net.forward(vec3_tensor(&points, &device), vec3_tensor(&dirs, &device));
     let burn_rgb = tensor_vec3(rgb);
     let burn_sigma: Vec<f32> = sigma.into_data().try_to_vec::<f32>().unwrap().iter().map(|s| s.max(0.0)).collect();
-    let d_rgb = burn_rgb.iter().flatten().zip(ort_out.rgb.iter().flatten()).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
-    let d_sigma = burn_sigma.iter().zip(&ort_out.sigma).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
+    let d_rgb = max_difference("rgb", burn_rgb.as_flattened(), ort_out.rgb.as_flattened(), |_| 1.0);
+    let d_sigma = max_difference("σ", &burn_sigma, &ort_out.sigma, |_| 1.0);
     (d_rgb, d_sigma, burn_sigma.iter().copied().fold(0.0, f32::max))
 }
 

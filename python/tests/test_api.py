@@ -1,4 +1,4 @@
-"""The Python API: poses, camera, raw field values, rays vs frames."""
+"""The Python API: poses, camera, raw field values against onnxruntime run whole, frames and rays against nerf-render."""
 from __future__ import annotations
 
 import numpy as np
@@ -37,7 +37,11 @@ def test_camera_resize_matches_nerf_render_rounding(spheres):
     assert wide.resized(101).height == (101 * 200 + 150) // 300
 
 
-def test_field_and_render_rays_agree_with_frames(spheres):
+def test_render_and_render_rays_match_nerf_render(spheres, nerf_render):
+    """Both paths against nerf-render's own frame of the view: they share ``_render_chunk``, so
+    comparing them with each other would miss a bug in it."""
+    native = nerf_render(MODELS / "spheres", "--split", "test", "--width", "32")
+    assert native.shape == (32, 32, 5) and native[..., 4].max() > 0.5, "the view sees the scene"
     pose = spheres.poses("test")[0]
     frame = spheres.render(pose, 32)
     assert frame.rgb.shape == (32, 32, 3) and frame.depth.shape == (32, 32) and frame.acc.shape == (32, 32)
@@ -45,12 +49,30 @@ def test_field_and_render_rays_agree_with_frames(spheres):
     cam = spheres.camera_at(32)
     i, j = np.meshgrid(np.arange(32), np.arange(32))
     o, d = cam.rays(pose, i.ravel(), j.ravel())
+    # Another chunk: onnxruntime sees other batch sizes (ulp-level differences).
     rays = spheres.render_rays(o, d, chunk=77)
-    # (ulp-level differences: onnxruntime sees other batch sizes with another chunk)
-    np.testing.assert_allclose(rays.rgb.reshape(32, 32, 3), frame.rgb, atol=1e-6)
-    np.testing.assert_allclose(rays.acc.reshape(32, 32), frame.acc, atol=1e-6)
-    rgb, sigma = spheres.field(np.zeros((5, 3)), np.tile([0, 0, 1.0], (5, 1)))
-    assert rgb.shape == (5, 3) and sigma.shape == (5,)
+    assert rays.rgb.shape == (32 * 32, 3) and rays.depth.shape == (32 * 32,) and rays.acc.shape == (32 * 32,)
+    ray_frame = np.concatenate([rays.rgb, rays.depth[:, None], rays.acc[:, None]], axis=1).reshape(32, 32, 5)
+    for what, got in [("render", frame.raw), ("render_rays", ray_frame)]:
+        diff = np.abs(got - native).max(axis=(0, 1))
+        assert diff.max() <= 1e-4, f"{what}: max |Δ| r g b depth acc against nerf-render {diff}"
+
+
+def test_field_values_match_one_onnxruntime_session(spheres):
+    """``field`` splits points over sessions and pieces: the same values as the graph run whole."""
+    import onnxruntime as ort
+
+    rng = np.random.default_rng(3)
+    points = rng.uniform(-1.5, 1.5, (3000, 3)).astype(np.float32)
+    dirs = rng.normal(size=(3000, 3)).astype(np.float32)
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    rgb, sigma = spheres.field(points, dirs)
+    assert rgb.shape == (3000, 3) and sigma.shape == (3000,)
+    session = ort.InferenceSession(spheres.graphs["fine"].path, providers=["CPUExecutionProvider"])
+    want_rgb, want_sigma = session.run(["rgb", "sigma"], {"points": points, "viewdirs": dirs})
+    np.testing.assert_allclose(rgb, want_rgb, atol=1e-6)
+    np.testing.assert_allclose(sigma, want_sigma.reshape(-1), atol=1e-5, rtol=1e-6)
+    assert sigma.max() > 1.0, "no point inside the scene: the comparison would be lenient"
 
 
 def test_frame_images(spheres):

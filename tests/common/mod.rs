@@ -99,3 +99,11 @@ pub fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
+/// The largest `|a − b| / scale(a)` over two outputs of the same points, failing the test when
+/// their lengths differ or they are empty: `zip` alone would compare a short or empty output as
+/// no difference at all. `what` names the comparison in the failure.
+pub fn max_difference(what: &str, a: &[f32], b: &[f32], scale: impl Fn(f32) -> f32) -> f32 {
+    assert_eq!(a.len(), b.len(), "{what}: {} values against {}", a.len(), b.len());
+    assert!(!a.is_empty(), "{what}: no values to compare");
+    a.iter().zip(b).map(|(x, y)| (x - y).abs() / scale(*x)).fold(0.0, f32::max)
+}
