@@ -47,22 +47,13 @@ pub fn load_npy(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::render::RenderedRays;
+    use crate::frames::write::tests::image;
 
     #[test]
     fn npy_round_trip_keeps_layout_and_values() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("x.npy");
-        // 3×2 pixels: pixel k has r = 0.1·k, depth 2 + k.
-        let image = RenderedImage {
-            width: 3,
-            height: 2,
-            rays: RenderedRays {
-                rgb: (0..6).map(|k| [k as f32 * 0.1, 0.5, 1.0]).collect(),
-                depth: (0..6).map(|k| 2.0 + k as f32).collect(),
-                acc: vec![0.25; 6],
-            },
-        };
+        let image = image();
         save_npy(&path, &image).unwrap();
         let bytes = std::fs::read(&path).unwrap();
         assert_eq!((10 + u16::from_le_bytes([bytes[8], bytes[9]]) as usize) % 64, 0, "data is 64-byte aligned");

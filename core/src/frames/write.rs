@@ -196,14 +196,15 @@ pub fn save_frame(image: &RenderedImage, dir: &Path, name: &str, depth_range: (f
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
     use crate::camera::{PinholeCamera, Pose};
     use crate::frames::spec::{METRICS_FILE, SHEET_FILE};
     use crate::render::RenderedRays;
     use crate::render::metrics::EvalReport;
 
-    fn image() -> RenderedImage {
+    /// 3×2 pixels: pixel k has r = 0.1·k, depth 2 + k (also the raw frame's test image).
+    pub(in crate::frames) fn image() -> RenderedImage {
         RenderedImage {
             width: 3,
             height: 2,
