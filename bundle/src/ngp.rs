@@ -34,6 +34,9 @@ pub const TABLE_KEY: &str = "nerf.grid_table";
 /// The hash-grid features in a graph written by the compiler: `[N, L·F]`, level-major, the
 /// input of the density MLP (`nerf-render` cuts the graph here).
 pub const FEATURES_TENSOR: &str = "grid.features";
+/// The degree-4 harmonics of `viewdirs` in such a graph: `[N, 16]`, part of the colour MLP's
+/// input (`nerf-render` cuts the graph here too).
+pub const SH_TENSOR: &str = "sh.output";
 
 /// How a lookup table's values are stored in a graph (a hash grid's table; networks' weights
 /// always stay float32).
@@ -151,48 +154,52 @@ pub fn read_ngp(model: &ModelProto) -> Result<PlainNgp, String> {
     Ok(plain)
 }
 
-/// The part of a hash-grid graph after its encoding: the graph's own nodes that compute `rgb`
-/// and `sigma` from [`FEATURES_TENSOR`] (`[N, width]`) and `viewdirs`, with their initializers
-/// (the MLPs, the harmonics of `viewdirs`, `Exp` and `Sigmoid`). Cut from the bundle's graph
-/// rather than compiled again, so it is the head the other consumers run, node for node; an
-/// error where the graph has no such cut (a graph written before the features were named).
+/// The part of a hash-grid graph after its encodings: the graph's own nodes that compute `rgb`
+/// and `sigma` from [`FEATURES_TENSOR`] (`[N, width]`) and [`SH_TENSOR`] (`[N, 16]`), the
+/// graph's inputs in that order, with their initializers (the MLPs, `Exp` and `Sigmoid`). Cut
+/// from the bundle's graph rather than compiled again, so it is the head the other consumers
+/// run, node for node; an error where the graph has no such cut (written before the
+/// encodings' outputs were named).
 pub fn head_graph(model: &ModelProto, width: usize) -> Result<ModelProto, String> {
     use crate::proto::{TensorShapeProto, TypeProto, ValueInfoProto, data_type, tensor_shape_proto, type_proto};
     use std::collections::HashSet;
     let graph = model.graph.as_ref().ok_or("the model has no graph")?;
-    if !graph.node.iter().any(|n| n.output.iter().any(|o| o == FEATURES_TENSOR)) {
-        return Err(format!("no node computes {FEATURES_TENSOR}"));
+    let cuts = [(FEATURES_TENSOR, width, "Hash-grid features, float32 [N, L·F], level-major."), (SH_TENSOR, nerf_core::field::ngp::spherical_harmonics::SH4_DIM, "Degree-4 spherical harmonics of the view directions, float32 [N, 16].")];
+    for (cut, _, _) in cuts {
+        if !graph.node.iter().any(|n| n.output.iter().any(|o| o == cut)) {
+            return Err(format!("no node computes {cut}"));
+        }
     }
-    // Walk back from the outputs, stopping at the features.
+    let is_cut = |t: &str| cuts.iter().any(|(c, _, _)| *c == t);
+    // Walk back from the outputs, stopping at the cuts.
     let mut needed: HashSet<&str> = graph.output.iter().map(|o| o.name.as_str()).collect();
     let mut keep = vec![false; graph.node.len()];
     for (k, node) in graph.node.iter().enumerate().rev() {
         if node.output.iter().any(|o| needed.contains(o.as_str())) {
             keep[k] = true;
-            needed.extend(node.input.iter().map(String::as_str).filter(|i| !i.is_empty() && *i != FEATURES_TENSOR));
+            needed.extend(node.input.iter().map(String::as_str).filter(|i| !i.is_empty() && !is_cut(i)));
         }
     }
-    if needed.contains("points") {
-        return Err(format!("the outputs depend on points other than through {FEATURES_TENSOR}"));
+    if let Some(input) = graph.input.iter().find(|i| needed.contains(i.name.as_str())) {
+        return Err(format!("the outputs depend on {} other than through {FEATURES_TENSOR} and {SH_TENSOR}", input.name));
     }
-    let viewdirs = graph.input.iter().find(|i| i.name == "viewdirs").ok_or("the graph has no input viewdirs")?;
     use tensor_shape_proto::{Dimension, dimension::Value};
-    let features = ValueInfoProto {
-        name: FEATURES_TENSOR.into(),
+    let input = |(name, width, doc): (&str, usize, &str)| ValueInfoProto {
+        name: name.into(),
         r#type: Some(TypeProto {
             value: Some(type_proto::Value::TensorType(type_proto::Tensor {
                 elem_type: data_type::FLOAT,
                 shape: Some(TensorShapeProto { dim: vec![Dimension { value: Some(Value::DimParam("N".into())) }, Dimension { value: Some(Value::DimValue(width as i64)) }] }),
             })),
         }),
-        doc_string: "Hash-grid features, float32 [N, L·F], level-major.".into(),
+        doc_string: doc.into(),
     };
     let head = GraphProto {
         node: graph.node.iter().zip(&keep).filter(|(_, k)| **k).map(|(n, _)| n.clone()).collect(),
         name: format!("{}.head", graph.name),
         initializer: graph.initializer.iter().filter(|t| needed.contains(t.name.as_str())).cloned().collect(),
-        doc_string: format!("The part of {} after its hash-grid encoding.", graph.name),
-        input: vec![features, viewdirs.clone()],
+        doc_string: format!("The part of {} after its encodings.", graph.name),
+        input: cuts.map(input).to_vec(),
         output: graph.output.clone(),
         value_info: vec![],
     };

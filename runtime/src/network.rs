@@ -19,7 +19,9 @@ use crate::environment::environment;
 use crate::error::{Result, RuntimeError};
 use nerf_core::field::FieldOutput;
 use nerf_bundle::graph::{MAX_GRAPH_BYTES, check_contract, check_initializers, decode_model, metadata};
-use nerf_bundle::ngp::{FEATURES_TENSOR, FIELD_KEY, head_graph, read_ngp};
+use nerf_bundle::ngp::{FEATURES_TENSOR, FIELD_KEY, SH_TENSOR, head_graph, read_ngp};
+use nerf_core::field::ngp::spherical_harmonics::{SH4_DIM, sh4};
+use rayon::prelude::*;
 use nerf_core::field::ngp::hash_grid::{GridBound, HashGrid};
 use prost::Message;
 use ort::session::Session;
@@ -61,8 +63,8 @@ impl Default for Threading {
 /// Where a hash-grid graph's encoding is evaluated.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Encoding {
-    /// The core's Rust encoding (the one training uses) and only the graph's head in
-    /// onnxruntime, for graphs that can be cut there ([`nerf_bundle::ngp::head_graph`]);
+    /// The core's Rust encodings (the ones training uses: the hash grid of the points, the
+    /// harmonics of the view directions) and only the graph's head in onnxruntime, for graphs that can be cut there ([`nerf_bundle::ngp::head_graph`]);
     /// others run whole. onnxruntime's `Gather` of the table's rows is the floor of the whole
     /// graph on a CPU, the Rust encoding reads the same rows at 2–3× the speed.
     #[default]
@@ -71,7 +73,7 @@ pub enum Encoding {
     Graph,
 }
 
-/// The hash grid of a split graph, evaluated before its head.
+/// The hash grid of a split graph, evaluated (with the harmonics) before its head.
 struct RustEncoder {
     grid: HashGrid,
     bound: GridBound,
@@ -156,22 +158,29 @@ impl OrtNetwork {
         self.evaluated += n;
         let Some(encoder) = &self.encoder else {
             let start = std::time::Instant::now();
-            let out = self.run_sessions(Input { name: "points", values: points.as_flattened(), width: 3 }, viewdirs);
+            let inputs = [Input { name: "points", values: points.as_flattened(), width: 3 }, Input { name: "viewdirs", values: viewdirs.as_flattened(), width: 3 }];
+            let out = self.run_sessions(inputs, n);
             self.seconds += start.elapsed().as_secs_f64();
             return out;
         };
         let width = encoder.grid.output_dim();
-        let mut features = vec![0.0f32; n.min(ENCODE_BLOCK) * width];
+        let block = n.min(ENCODE_BLOCK);
+        let (mut unit, mut features, mut sh) = (vec![[0.0f32; 3]; block], vec![0.0f32; block * width], vec![0.0f32; block * SH4_DIM]);
         let mut out = FieldOutput { rgb: Vec::with_capacity(n), sigma: Vec::with_capacity(n) };
         for (points, viewdirs) in points.chunks(ENCODE_BLOCK).zip(viewdirs.chunks(ENCODE_BLOCK)) {
             let start = std::time::Instant::now();
+            let m = points.len();
             let encoder = self.encoder.as_ref().expect("split");
-            let unit: Vec<[f32; 3]> = points.iter().map(|&p| encoder.bound.to_unit(p)).collect();
-            let features = &mut features[..points.len() * width];
-            encoder.grid.forward_into(&unit, features);
+            let (unit, features, sh) = (&mut unit[..m], &mut features[..m * width], &mut sh[..m * SH4_DIM]);
+            unit.iter_mut().zip(points).for_each(|(u, &p)| *u = encoder.bound.to_unit(p));
+            encoder.grid.forward_into(unit, features);
+            sh.par_chunks_mut(SH4_DIM * 1024).zip(viewdirs.par_chunks(1024)).for_each(|(sh, dirs)| {
+                sh.chunks_exact_mut(SH4_DIM).zip(dirs).for_each(|(row, &d)| row.copy_from_slice(&sh4(d)));
+            });
             let encoded = std::time::Instant::now();
             self.encoding_seconds += (encoded - start).as_secs_f64();
-            let part = self.run_sessions(Input { name: FEATURES_TENSOR, values: features, width }, viewdirs)?;
+            let inputs = [Input { name: FEATURES_TENSOR, values: features, width }, Input { name: SH_TENSOR, values: sh, width: SH4_DIM }];
+            let part = self.run_sessions(inputs, m)?;
             self.seconds += encoded.elapsed().as_secs_f64();
             out.rgb.extend(part.rgb);
             out.sigma.extend(part.sigma);
@@ -179,13 +188,12 @@ impl OrtNetwork {
         Ok(out)
     }
 
-    /// The sessions on `input` (one row per point) and `viewdirs`, split across the workers.
-    fn run_sessions(&mut self, input: Input, viewdirs: &[[f32; 3]]) -> Result<FieldOutput> {
-        let n = viewdirs.len();
+    /// The sessions on `inputs` (`n` rows each), split across the workers.
+    fn run_sessions(&mut self, inputs: [Input; 2], n: usize) -> Result<FieldOutput> {
         let workers = self.sessions.len().min(n.div_ceil(MIN_POINTS_PER_WORKER)).max(1);
         let (path, piece) = (self.path.as_path(), self.points_per_run);
         if workers == 1 {
-            return run_pieces(&mut self.sessions[0], path, input, viewdirs, piece);
+            return run_pieces(&mut self.sessions[0], path, inputs, piece);
         }
         // Equal contiguous shares, one per worker, outputs concatenated in order.
         let share = n.div_ceil(workers);
@@ -193,8 +201,9 @@ impl OrtNetwork {
             let handles: Vec<_> = self
                 .sessions
                 .iter_mut()
-                .zip(input.values.chunks(share * input.width).zip(viewdirs.chunks(share)))
-                .map(|(session, (v, d))| s.spawn(move || run_pieces(session, path, Input { values: v, ..input }, d, piece)))
+                .take(workers)
+                .enumerate()
+                .map(|(k, session)| s.spawn(move || run_pieces(session, path, inputs.map(|i| i.rows(k * share, share)), piece)))
                 .collect();
             handles.into_iter().map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e))).collect::<Vec<_>>()
         });
@@ -224,12 +233,25 @@ fn split(path: &Path, model: nerf_bundle::proto::ModelProto, bytes: Vec<u8>) -> 
     }
 }
 
-/// A session's first input: `width` values per point.
+/// A session input: `width` values per point.
 #[derive(Clone, Copy)]
 struct Input<'a> {
     name: &'a str,
     values: &'a [f32],
     width: usize,
+}
+
+impl<'a> Input<'a> {
+    /// Rows `start..start + count` (fewer at the end).
+    fn rows(self, start: usize, count: usize) -> Self {
+        let rows = self.values.len() / self.width;
+        let (a, b) = (start.min(rows), (start + count).min(rows));
+        Input { values: &self.values[a * self.width..b * self.width], ..self }
+    }
+
+    fn len(&self) -> usize {
+        self.values.len() / self.width
+    }
 }
 
 /// Initializers of at least [`SHARED_BYTES`] (float32 or float16, checked sizes) as values the
@@ -255,14 +277,16 @@ fn shared_initializers(model: &nerf_bundle::proto::ModelProto) -> ort::Result<Ve
 const SHARED_BYTES: usize = 1 << 20;
 
 /// Evaluate `points` on one session, `piece` points per onnxruntime call.
-fn run_pieces(session: &mut Session, path: &Path, input: Input, viewdirs: &[[f32; 3]], piece: usize) -> Result<FieldOutput> {
+fn run_pieces(session: &mut Session, path: &Path, inputs: [Input; 2], piece: usize) -> Result<FieldOutput> {
     let ort_err = |e: &dyn std::fmt::Display| RuntimeError::Ort { path: path.to_path_buf(), message: e.to_string() };
-    let mut out = FieldOutput { rgb: Vec::with_capacity(viewdirs.len()), sigma: Vec::with_capacity(viewdirs.len()) };
-    for (values, viewdirs) in input.values.chunks(piece * input.width).zip(viewdirs.chunks(piece)) {
-        let n = viewdirs.len();
-        let p = TensorRef::from_array_view(([n, input.width], values)).map_err(|e| ort_err(&e))?;
-        let d = TensorRef::from_array_view(([n, 3], viewdirs.as_flattened())).map_err(|e| ort_err(&e))?;
-        let outputs = session.run(ort::inputs![input.name => p, "viewdirs" => d]).map_err(|e| ort_err(&e))?;
+    let rows = inputs[0].len();
+    let mut out = FieldOutput { rgb: Vec::with_capacity(rows), sigma: Vec::with_capacity(rows) };
+    for start in (0..rows).step_by(piece) {
+        let [a, b] = inputs.map(|i| i.rows(start, piece));
+        let n = a.len();
+        let ta = TensorRef::from_array_view(([n, a.width], a.values)).map_err(|e| ort_err(&e))?;
+        let tb = TensorRef::from_array_view(([n, b.width], b.values)).map_err(|e| ort_err(&e))?;
+        let outputs = session.run(ort::inputs![a.name => ta, b.name => tb]).map_err(|e| ort_err(&e))?;
         let column = |name: &str, cols: usize| -> Result<&[f32]> {
             let value = outputs.get(name).ok_or_else(|| RuntimeError::bundle(path, format!("no output {name}")))?;
             let (shape, data) = value.try_extract_tensor::<f32>().map_err(|e| ort_err(&e))?;
