@@ -14,6 +14,12 @@
 //! and 591 → 96 MB, as activations are bounded by the piece, not the chunk. Tables of 1 MiB and
 //! more are given to every session as one shared value (a 20-minute lego hash-grid bundle:
 //! 225 MB peak with two workers, 176 MB with one; 224 MB before, with one two-thread session).
+//!
+//! # Hash-grid graphs
+//! By default ([`Encoding::Rust`]) a hash-grid graph is cut after its encodings
+//! ([`nerf_bundle::ngp::head_graph`]): the core evaluates the hash grid and the harmonics (on
+//! all cores, [`ENCODE_BLOCK`] points at a time) and the sessions run the MLPs on them. The
+//! pixels are those of the whole graph (docs/rendering.md gives the measurements).
 
 use crate::environment::environment;
 use crate::error::{Result, RuntimeError};
