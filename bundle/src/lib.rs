@@ -7,6 +7,7 @@
 #![warn(missing_docs)]
 
 pub mod graph;
+pub mod ngp;
 pub mod proto;
 pub mod scene;
 

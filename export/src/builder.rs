@@ -3,9 +3,10 @@
 //! its graph with.
 
 use crate::proto::*;
-use nerf_bundle::graph::{CONTRACT_INPUTS, CONTRACT_OUTPUTS, float_initializer};
+use nerf_bundle::graph::{CONTRACT_INPUTS, CONTRACT_OUTPUTS};
 use nerf_bundle::scene::{CAMERA_CONVENTION, SceneDescription};
 use nerf_core::field::Role;
+pub use nerf_bundle::ngp::read_dense_layers;
 use nerf_core::field::DenseLayer;
 
 /// Opsets this compiler writes (`Gemm`, `Unsqueeze`-with-axes-input, `Slice`, `Reshape` are
@@ -139,23 +140,6 @@ impl Builder {
             None => linear,
         }
     }
-}
-
-/// The dense layers of shapes `(name, in, out)` that [`Builder::dense`] stored in `graph`
-/// (`<name>.weight` `[in, out]`, `<name>.bias` `[out]`), each size checked.
-pub fn read_dense_layers(graph: &GraphProto, shapes: Vec<(String, usize, usize)>) -> Result<Vec<DenseLayer>, String> {
-    shapes
-        .into_iter()
-        .map(|(name, in_dim, out_dim)| {
-            Ok(DenseLayer {
-                weight: float_initializer(graph, &format!("{name}.weight"), &[in_dim, out_dim])?,
-                bias: float_initializer(graph, &format!("{name}.bias"), &[out_dim])?,
-                name,
-                in_dim,
-                out_dim,
-            })
-        })
-        .collect()
 }
 
 /// An attribute holding a list of integers.

@@ -1,21 +1,7 @@
 //! What a user chooses when compiling a field: the opset, portable operators only, and the
 //! precision of lookup tables. Each kind applies what concerns it.
 
-use serde::{Deserialize, Serialize};
-
-/// How a lookup table's values are stored in a graph (a hash grid's table; networks' weights
-/// always stay float32).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum TablePrecision {
-    /// float32: the trained values exactly.
-    #[default]
-    F32,
-    /// float16: half the size; values rounded to 11 significant bits, widened to float32
-    /// right after the lookup (trained tables hold values of order 1e-4–1, well inside
-    /// float16's range).
-    F16,
-}
+pub use nerf_bundle::ngp::TablePrecision;
 
 /// How to compile a field's graphs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

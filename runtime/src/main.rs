@@ -97,6 +97,10 @@ struct Cli {
     /// hash-grid field marches every interval of its box).
     #[arg(long)]
     dense: bool,
+    /// Run a hash-grid bundle's whole graph in onnxruntime, as other consumers do (default: the
+    /// hash encoding in Rust, only the MLPs in onnxruntime; same pixels, faster on a CPU).
+    #[arg(long)]
+    whole_graph: bool,
     /// Also write <name>.npy per frame: float32 [H, W, 5] = r, g, b, depth, acc.
     #[arg(long)]
     npy: bool,
@@ -169,7 +173,7 @@ fn run(cli: Cli) -> Result<()> {
         limits::check_count(n, limits::MAX_THREADS, "threads", Origin::Option("--threads"))?;
         rayon::ThreadPoolBuilder::new().num_threads(n).build_global()?;
     }
-    let options = OpenOptions { threads: cli.threads, points_per_run: cli.points_per_run, chunk: cli.chunk, skip_empty_space: !cli.dense };
+    let options = OpenOptions { threads: cli.threads, points_per_run: cli.points_per_run, chunk: cli.chunk, skip_empty_space: !cli.dense, whole_graph: cli.whole_graph };
     let mut scene = OrtScene::open(&bundle, &options)?;
     let transform = scene.description.placement.as_ref().map_or_else(SceneTransform::identity, |p| p.transform);
     let mut gif = cli.orbit.then(|| FramePlan::default().gif);
@@ -229,11 +233,12 @@ fn run(cli: Cli) -> Result<()> {
     let seconds = start.elapsed().as_secs_f64();
     let n = report.frames - report.skipped;
     println!(
-        "{n} frames rendered at {}×{} in {seconds:.1} s ({:.2} s per frame, {})",
+        "{n} frames rendered at {}×{} in {seconds:.1} s ({:.2} s per frame, {}{})",
         first.width,
         first.height,
         seconds / n.max(1) as f64,
         if scene.occupancy.is_some() { "empty space skipped" } else { "dense sampling" },
+        if scene.field.graphs.iter().any(|(_, g)| g.encoding() == nerf_runtime::network::Encoding::Rust) { ", hash encoding in Rust" } else { "" },
     );
     println!("{}", report.summary(&out, plan.shard));
     Ok(())

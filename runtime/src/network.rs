@@ -14,11 +14,22 @@
 //! and 591 → 96 MB, as activations are bounded by the piece, not the chunk. Tables of 1 MiB and
 //! more are given to every session as one shared value (a 20-minute lego hash-grid bundle:
 //! 225 MB peak with two workers, 176 MB with one; 224 MB before, with one two-thread session).
+//!
+//! # Hash-grid graphs
+//! By default ([`Encoding::Rust`]) a hash-grid graph is cut after its encodings
+//! ([`nerf_bundle::ngp::head_graph`]): the core evaluates the hash grid and the harmonics (on
+//! all cores, [`ENCODE_BLOCK`] points at a time) and the sessions run the MLPs on them. The
+//! pixels are those of the whole graph (docs/rendering.md gives the measurements).
 
 use crate::environment::environment;
 use crate::error::{Result, RuntimeError};
 use nerf_core::field::FieldOutput;
-use nerf_bundle::graph::{MAX_GRAPH_BYTES, check_contract, check_initializers, decode_model};
+use nerf_bundle::graph::{MAX_GRAPH_BYTES, check_contract, check_initializers, decode_model, metadata};
+use nerf_bundle::ngp::{FEATURES_TENSOR, FIELD_KEY, SH_TENSOR, head_graph, read_ngp};
+use nerf_core::field::ngp::spherical_harmonics::{SH4_DIM, sh4};
+use rayon::prelude::*;
+use nerf_core::field::ngp::hash_grid::{GridBound, HashGrid};
+use prost::Message;
 use ort::session::Session;
 use ort::value::{DynValue, Tensor, TensorRef};
 use std::sync::Arc;
@@ -55,26 +66,53 @@ impl Default for Threading {
     }
 }
 
+/// Where a hash-grid graph's encoding is evaluated.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Encoding {
+    /// The core's Rust encodings (the ones training uses: the hash grid of the points, the
+    /// harmonics of the view directions) and only the graph's head in onnxruntime, for graphs that can be cut there ([`nerf_bundle::ngp::head_graph`]);
+    /// others run whole. onnxruntime's `Gather` of the table's rows is the floor of the whole
+    /// graph on a CPU, the Rust encoding reads the same rows at 2–3× the speed.
+    #[default]
+    Rust,
+    /// The whole graph in onnxruntime, as every other consumer runs it.
+    Graph,
+}
+
+/// The hash grid of a split graph, evaluated (with the harmonics) before its head.
+struct RustEncoder {
+    grid: HashGrid,
+    bound: GridBound,
+}
+
+/// Points encoded at a time on the split path: the features of a block (8 MiB at 32 per point)
+/// are computed on all cores, then the head's sessions run on them.
+const ENCODE_BLOCK: usize = 1 << 16;
+
 /// A graph loaded into onnxruntime.
 pub struct OrtNetwork {
     sessions: Vec<Session>,
+    /// Set when the hash encoding runs in Rust and the sessions hold the graph's head.
+    encoder: Option<RustEncoder>,
     points_per_run: usize,
     path: PathBuf,
     /// Points evaluated so far (for benchmarks: how much work skipping saves).
     pub evaluated: usize,
     /// Seconds spent in onnxruntime so far (for benchmarks: the graph's share of a frame).
     pub seconds: f64,
+    /// Seconds spent in the Rust encoding so far (split graphs only).
+    pub encoding_seconds: f64,
 }
 
 impl OrtNetwork {
-    /// Load `path`, checking it decodes and follows the contract before onnxruntime sees it.
-    /// `threads`: workers (`None`: one per core), see [`Threading`].
+    /// Load `path`, checking it decodes and follows the contract before onnxruntime sees it,
+    /// whole ([`Encoding::Graph`]). `threads`: workers (`None`: one per core), see [`Threading`].
     pub fn load(path: &Path, threads: Option<usize>) -> Result<Self> {
-        Self::load_with(path, Threading::new(threads))
+        Self::load_with(path, Threading::new(threads), Encoding::Graph)
     }
 
-    /// [`OrtNetwork::load`] with the piece size too.
-    pub fn load_with(path: &Path, threading: Threading) -> Result<Self> {
+    /// [`OrtNetwork::load`] with the piece size and where a hash grid is encoded.
+    pub fn load_with(path: &Path, threading: Threading, encoding: Encoding) -> Result<Self> {
         let bytes = nerf_core::io::limits::read_bounded(path, MAX_GRAPH_BYTES)
             .map_err(|e| RuntimeError::bundle(path, format!("cannot read the graph: {e}")))?;
         let model = decode_model(path, &bytes)?;
@@ -82,6 +120,10 @@ impl OrtNetwork {
         // Tables and weights the size their shapes say, before onnxruntime indexes into them.
         check_initializers(&model).map_err(|e| RuntimeError::bundle(path, e))?;
         let ort_err = |e: &dyn std::fmt::Display| RuntimeError::Ort { path: path.to_path_buf(), message: e.to_string() };
+        let (model, bytes, encoder) = match encoding {
+            Encoding::Rust if metadata(&model, FIELD_KEY) == Some("ngp") => split(path, model, bytes)?,
+            _ => (model, bytes, None),
+        };
         // The library first: ort's own calls (a tensor for the shared tables) would otherwise
         // load it themselves and panic where it is missing.
         let environment = environment()?;
@@ -99,7 +141,12 @@ impl OrtNetwork {
                 builder.commit_from_memory(&bytes).map_err(|e| ort_err(&e))
             })
             .collect::<Result<Vec<_>>>()?;
-        Ok(OrtNetwork { sessions, points_per_run: threading.points_per_run.max(1), path: path.to_path_buf(), evaluated: 0, seconds: 0.0 })
+        Ok(OrtNetwork { sessions, encoder, points_per_run: threading.points_per_run.max(1), path: path.to_path_buf(), evaluated: 0, seconds: 0.0, encoding_seconds: 0.0 })
+    }
+
+    /// Where this graph's encoding runs ([`Encoding::Graph`] for graphs that are not split).
+    pub fn encoding(&self) -> Encoding {
+        if self.encoder.is_some() { Encoding::Rust } else { Encoding::Graph }
     }
 
     /// The graph file.
@@ -115,33 +162,101 @@ impl OrtNetwork {
             return Ok(FieldOutput::default());
         }
         self.evaluated += n;
-        let start = std::time::Instant::now();
+        let Some(encoder) = &self.encoder else {
+            let start = std::time::Instant::now();
+            let inputs = [Input { name: "points", values: points.as_flattened(), width: 3 }, Input { name: "viewdirs", values: viewdirs.as_flattened(), width: 3 }];
+            let out = self.run_sessions(inputs, n);
+            self.seconds += start.elapsed().as_secs_f64();
+            return out;
+        };
+        let width = encoder.grid.output_dim();
+        let block = n.min(ENCODE_BLOCK);
+        let (mut unit, mut features, mut sh) = (vec![[0.0f32; 3]; block], vec![0.0f32; block * width], vec![0.0f32; block * SH4_DIM]);
+        let mut out = FieldOutput { rgb: Vec::with_capacity(n), sigma: Vec::with_capacity(n) };
+        for (points, viewdirs) in points.chunks(ENCODE_BLOCK).zip(viewdirs.chunks(ENCODE_BLOCK)) {
+            let start = std::time::Instant::now();
+            let m = points.len();
+            let encoder = self.encoder.as_ref().expect("split");
+            let (unit, features, sh) = (&mut unit[..m], &mut features[..m * width], &mut sh[..m * SH4_DIM]);
+            unit.iter_mut().zip(points).for_each(|(u, &p)| *u = encoder.bound.to_unit(p));
+            encoder.grid.forward_into(unit, features);
+            sh.par_chunks_mut(SH4_DIM * 1024).zip(viewdirs.par_chunks(1024)).for_each(|(sh, dirs)| {
+                sh.chunks_exact_mut(SH4_DIM).zip(dirs).for_each(|(row, &d)| row.copy_from_slice(&sh4(d)));
+            });
+            let encoded = std::time::Instant::now();
+            self.encoding_seconds += (encoded - start).as_secs_f64();
+            let inputs = [Input { name: FEATURES_TENSOR, values: features, width }, Input { name: SH_TENSOR, values: sh, width: SH4_DIM }];
+            let part = self.run_sessions(inputs, m)?;
+            self.seconds += encoded.elapsed().as_secs_f64();
+            out.rgb.extend(part.rgb);
+            out.sigma.extend(part.sigma);
+        }
+        Ok(out)
+    }
+
+    /// The sessions on `inputs` (`n` rows each), split across the workers.
+    fn run_sessions(&mut self, inputs: [Input; 2], n: usize) -> Result<FieldOutput> {
         let workers = self.sessions.len().min(n.div_ceil(MIN_POINTS_PER_WORKER)).max(1);
         let (path, piece) = (self.path.as_path(), self.points_per_run);
-        let out = if workers == 1 {
-            run_pieces(&mut self.sessions[0], path, points, viewdirs, piece)?
-        } else {
-            // Equal contiguous shares, one per worker, outputs concatenated in order.
-            let share = n.div_ceil(workers);
-            let parts = std::thread::scope(|s| {
-                let handles: Vec<_> = self
-                    .sessions
-                    .iter_mut()
-                    .zip(points.chunks(share).zip(viewdirs.chunks(share)))
-                    .map(|(session, (p, d))| s.spawn(move || run_pieces(session, path, p, d, piece)))
-                    .collect();
-                handles.into_iter().map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e))).collect::<Vec<_>>()
-            });
-            let mut out = FieldOutput { rgb: Vec::with_capacity(n), sigma: Vec::with_capacity(n) };
-            for part in parts {
-                let part = part?;
-                out.rgb.extend(part.rgb);
-                out.sigma.extend(part.sigma);
-            }
-            out
-        };
-        self.seconds += start.elapsed().as_secs_f64();
+        if workers == 1 {
+            return run_pieces(&mut self.sessions[0], path, inputs, piece);
+        }
+        // Equal contiguous shares, one per worker, outputs concatenated in order.
+        let share = n.div_ceil(workers);
+        let parts = std::thread::scope(|s| {
+            let handles: Vec<_> = self
+                .sessions
+                .iter_mut()
+                .take(workers)
+                .enumerate()
+                .map(|(k, session)| s.spawn(move || run_pieces(session, path, inputs.map(|i| i.rows(k * share, share)), piece)))
+                .collect();
+            handles.into_iter().map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e))).collect::<Vec<_>>()
+        });
+        let mut out = FieldOutput { rgb: Vec::with_capacity(n), sigma: Vec::with_capacity(n) };
+        for part in parts {
+            let part = part?;
+            out.rgb.extend(part.rgb);
+            out.sigma.extend(part.sigma);
+        }
         Ok(out)
+    }
+}
+
+/// A hash-grid graph split for [`Encoding::Rust`]: its head (checked like any graph) and the
+/// encoder, or the graph unchanged where it cannot be cut (written before the features were
+/// named) — it then runs whole, as before.
+#[allow(clippy::type_complexity)]
+fn split(path: &Path, model: nerf_bundle::proto::ModelProto, bytes: Vec<u8>) -> Result<(nerf_bundle::proto::ModelProto, Vec<u8>, Option<RustEncoder>)> {
+    let plain = read_ngp(&model).map_err(|e| RuntimeError::bundle(path, e))?;
+    let grid = HashGrid::from_params(plain.spec.grid, plain.table).map_err(|e| RuntimeError::bundle(path, e.to_string()))?;
+    match head_graph(&model, grid.output_dim()) {
+        Ok(head) => {
+            let bytes = head.encode_to_vec();
+            Ok((head, bytes, Some(RustEncoder { grid, bound: plain.spec.bound })))
+        }
+        Err(_) => Ok((model, bytes, None)),
+    }
+}
+
+/// A session input: `width` values per point.
+#[derive(Clone, Copy)]
+struct Input<'a> {
+    name: &'a str,
+    values: &'a [f32],
+    width: usize,
+}
+
+impl<'a> Input<'a> {
+    /// Rows `start..start + count` (fewer at the end).
+    fn rows(self, start: usize, count: usize) -> Self {
+        let rows = self.values.len() / self.width;
+        let (a, b) = (start.min(rows), (start + count).min(rows));
+        Input { values: &self.values[a * self.width..b * self.width], ..self }
+    }
+
+    fn len(&self) -> usize {
+        self.values.len() / self.width
     }
 }
 
@@ -168,14 +283,16 @@ fn shared_initializers(model: &nerf_bundle::proto::ModelProto) -> ort::Result<Ve
 const SHARED_BYTES: usize = 1 << 20;
 
 /// Evaluate `points` on one session, `piece` points per onnxruntime call.
-fn run_pieces(session: &mut Session, path: &Path, points: &[[f32; 3]], viewdirs: &[[f32; 3]], piece: usize) -> Result<FieldOutput> {
+fn run_pieces(session: &mut Session, path: &Path, inputs: [Input; 2], piece: usize) -> Result<FieldOutput> {
     let ort_err = |e: &dyn std::fmt::Display| RuntimeError::Ort { path: path.to_path_buf(), message: e.to_string() };
-    let mut out = FieldOutput { rgb: Vec::with_capacity(points.len()), sigma: Vec::with_capacity(points.len()) };
-    for (points, viewdirs) in points.chunks(piece).zip(viewdirs.chunks(piece)) {
-        let n = points.len();
-        let p = TensorRef::from_array_view(([n, 3], points.as_flattened())).map_err(|e| ort_err(&e))?;
-        let d = TensorRef::from_array_view(([n, 3], viewdirs.as_flattened())).map_err(|e| ort_err(&e))?;
-        let outputs = session.run(ort::inputs!["points" => p, "viewdirs" => d]).map_err(|e| ort_err(&e))?;
+    let rows = inputs[0].len();
+    let mut out = FieldOutput { rgb: Vec::with_capacity(rows), sigma: Vec::with_capacity(rows) };
+    for start in (0..rows).step_by(piece) {
+        let [a, b] = inputs.map(|i| i.rows(start, piece));
+        let n = a.len();
+        let ta = TensorRef::from_array_view(([n, a.width], a.values)).map_err(|e| ort_err(&e))?;
+        let tb = TensorRef::from_array_view(([n, b.width], b.values)).map_err(|e| ort_err(&e))?;
+        let outputs = session.run(ort::inputs![a.name => ta, b.name => tb]).map_err(|e| ort_err(&e))?;
         let column = |name: &str, cols: usize| -> Result<&[f32]> {
             let value = outputs.get(name).ok_or_else(|| RuntimeError::bundle(path, format!("no output {name}")))?;
             let (shape, data) = value.try_extract_tensor::<f32>().map_err(|e| ort_err(&e))?;

@@ -3,7 +3,7 @@
 
 use crate::error::{Result, RuntimeError};
 use crate::field::OrtField;
-use crate::network::{OrtNetwork, POINTS_PER_RUN, Threading};
+use crate::network::{Encoding, OrtNetwork, POINTS_PER_RUN, Threading};
 use nerf_core::PinholeCamera;
 use nerf_core::camera::Pose;
 use nerf_core::io::limits::{self, Origin};
@@ -41,11 +41,14 @@ pub struct OpenOptions {
     /// Use the bundle's occupancy grid (when it has one) to skip empty space, and stop
     /// marching rays whose transmittance is below 1e-4 (early termination).
     pub skip_empty_space: bool,
+    /// Run a hash-grid graph whole in onnxruntime instead of its encoding in Rust and its head
+    /// in onnxruntime ([`crate::network::Encoding`]).
+    pub whole_graph: bool,
 }
 
 impl Default for OpenOptions {
     fn default() -> Self {
-        OpenOptions { threads: None, points_per_run: POINTS_PER_RUN, chunk: None, skip_empty_space: true }
+        OpenOptions { threads: None, points_per_run: POINTS_PER_RUN, chunk: None, skip_empty_space: true, whole_graph: false }
     }
 }
 
@@ -84,10 +87,11 @@ impl OrtScene {
         }
         limits::check_count(options.points_per_run, limits::MAX_POINTS_PER_CALL, "points per run", Origin::Option("--points-per-run"))?;
         let threading = Threading { points_per_run: options.points_per_run, ..Threading::new(options.threads) };
+        let encoding = if options.whole_graph { Encoding::Graph } else { Encoding::Rust };
         let graphs = description
             .graph_files()
             .iter()
-            .map(|g| Ok((g.role, OrtNetwork::load_with(&bundle_file(dir, g.file, g.key)?, threading)?)))
+            .map(|g| Ok((g.role, OrtNetwork::load_with(&bundle_file(dir, g.file, g.key)?, threading, encoding)?)))
             .collect::<Result<Vec<_>>>()?;
         let occupancy = if options.skip_empty_space { read_occupancy(dir, &description)? } else { None };
         // A bounded field's box is its grid's (scene.json checks it has one).

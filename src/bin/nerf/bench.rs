@@ -192,16 +192,16 @@ pub fn run(options: &BenchOptions, progress: bool) -> Result<()> {
             Some(d) => {
                 let b = super::ngp_bench::bench_ngp_render(ngp_bundle.as_deref(), ngp_steps, d, progress)?;
                 println!("\nhash-grid field: {} ({}), val {} at {}×{}, {:.1} points per ray", b.bundle, b.trained, b.view, b.width, b.height, b.points_per_ray);
-                println!("{:<20} {:>10} {:>14} {:>9} {:>11} {:>11} {:>9} {:>15}", "", "s / frame", "onnxruntime s", "ort/burn", "PSNR", "vs burn", "graph MB", "graph points/s");
-                println!("{:<20} {:>10.2} {:>14} {:>9} {:>8.2} dB {:>11} {:>9} {:>15}", "burn", b.burn_s, "", "", b.burn_psnr_db, "", "", "");
+                let db = |v: f32| if v.is_finite() { format!("{v:.1} dB") } else { "identical".into() };
+                println!("{:<27} {:>10} {:>14} {:>10} {:>9} {:>11} {:>11} {:>11} {:>9} {:>15}", "", "s / frame", "onnxruntime s", "encoding s", "ort/burn", "PSNR", "vs burn", "vs whole", "graph MB", "graph points/s");
+                println!("{:<27} {:>10.2} {:>14} {:>10} {:>9} {:>8.2} dB {:>11} {:>11} {:>9} {:>15}", "burn", b.burn_s, "", "", "", b.burn_psnr_db, "", "", "", "");
                 for l in &b.lowerings {
-                    let vs = if l.psnr_vs_burn_db.is_finite() { format!("{:.1} dB", l.psnr_vs_burn_db) } else { "identical".into() };
                     println!(
-                        "{:<20} {:>10.2} {:>14.2} {:>9.2} {:>8.2} dB {:>11} {:>9.1} {:>15.0}",
-                        l.lowering, l.seconds, l.onnxruntime_s, l.ratio_to_burn, l.psnr_db, vs, l.graph_mb, l.graph_points_per_s
+                        "{:<27} {:>10.2} {:>14.2} {:>10.2} {:>9.2} {:>8.2} dB {:>11} {:>11} {:>9.1} {:>15.0}",
+                        l.lowering, l.seconds, l.onnxruntime_s, l.encoding_s, l.ratio_to_burn, l.psnr_db, db(l.psnr_vs_burn_db), l.psnr_vs_whole_graph_db.map_or(String::new(), db), l.graph_mb, l.graph_points_per_s
                     );
                 }
-                println!("{:<20} {:>10} {:>14} {:>9} {:>11} {:>11} {:>9} {:>15.0}", "floor (gather + sum)", "", "", "", "", "", "", b.floor_points_per_s);
+                println!("{:<27} {:>10} {:>14} {:>10} {:>9} {:>11} {:>11} {:>11} {:>9} {:>15.0}", "floor (gather + sum)", "", "", "", "", "", "", "", "", b.floor_points_per_s);
                 report.insert("ngp_frame_s".into(), b.lowerings[0].seconds.into());
                 report.insert("ngp".into(), serde_json::to_value(b)?);
             }

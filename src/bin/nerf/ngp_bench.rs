@@ -1,6 +1,8 @@
 //! `nerf bench --only ngp-render`: one lego val view of a hash-grid field at full resolution,
 //! through burn and through onnxruntime with each lowering, the field graphs' points/s, and
-//! the floor (a graph that only gathers the same table rows and sums them), in one run.
+//! the floor (a graph that only gathers the same table rows and sums them), in one run. Each
+//! lowering renders twice in nerf-render: the whole graph in onnxruntime, and split (the Rust
+//! hash encoding, the graph's head in onnxruntime; nerf-render's default).
 
 use anyhow::{Context, Result, anyhow, bail};
 use nerf::bench::{best_of, random_points, timed_frame};
@@ -15,7 +17,7 @@ use nerf_export::builder::{Builder, int_attribute, model_proto, value_info};
 use nerf_export::field::ngp::hash_grid::table::graph_levels;
 use nerf_export::proto::{GraphProto, data_type};
 use nerf_export::{Bundle, CompileOptions, TablePrecision, write_bundle};
-use nerf_runtime::network::POINTS_PER_RUN;
+use nerf_runtime::network::{Encoding, POINTS_PER_RUN};
 use nerf_runtime::{OpenOptions, OrtScene};
 use prost::Message;
 use std::path::Path;
@@ -26,12 +28,16 @@ const GRAPH_POINTS: usize = 1 << 16;
 /// One lowering's frame and graph speed.
 #[derive(Debug, serde::Serialize)]
 pub struct LoweringBench {
-    /// `bitwise`, `bitwise, f16 table` or `portable`.
+    /// `bitwise`, `bitwise, f16 table` or `portable`, with `, split` for the split path.
     pub lowering: String,
-    /// Seconds for the whole frame (rays, marching, onnxruntime, compositing).
+    /// Seconds for the whole frame (rays, marching, encoding, onnxruntime, compositing).
     pub seconds: f64,
     /// Of which in onnxruntime's session runs.
     pub onnxruntime_s: f64,
+    /// Of which in the Rust encoding (split path; 0 for the whole graph).
+    pub encoding_s: f64,
+    /// Split path: PSNR of this frame against the whole graph's (∞ when identical).
+    pub psnr_vs_whole_graph_db: Option<f32>,
     /// This frame's time over burn's.
     pub ratio_to_burn: f64,
     /// PSNR against the ground truth.
@@ -40,7 +46,8 @@ pub struct LoweringBench {
     pub psnr_vs_burn_db: f32,
     /// Size of `field.onnx`.
     pub graph_mb: f64,
-    /// The field graph alone: points/s at 65,536 random points in the box per call.
+    /// The field alone (split: encoding and head): points/s at 65,536 random points in the box
+    /// per call.
     pub graph_points_per_s: f64,
 }
 
@@ -119,26 +126,36 @@ pub fn bench_ngp_render(bundle: Option<&Path>, steps: usize, data: &Path, progre
     let mut opened = Some(first);
     for (name, options) in variants {
         let dir = temporary.path().join(name.replace([',', ' '], ""));
-        let mut ort = match opened.take() {
+        let whole = match opened.take() {
             Some(o) => o,
             None => compile(&plain, &scene, &occupancy, options, &dir)?,
         };
-        let (image, seconds) = timed_frame(progress, &format!("ngp frame ({name})"), k.num_pixels(), |p| ort.render(&k, &view.pose, p));
-        let image = image?;
-        let net = &mut ort.field.graphs[0].1;
-        let (onnxruntime_s, evaluated) = (net.seconds, net.evaluated);
-        points_per_ray = evaluated as f64 / k.num_pixels() as f64;
-        let graph_s = best_of(3, || net.run(&points, &dirs).map(|_| ()))?;
-        lowerings.push(LoweringBench {
-            lowering: name.to_string(),
-            seconds,
-            onnxruntime_s,
-            ratio_to_burn: seconds / burn_s,
-            psnr_db: psnr(&image.rays.rgb, truth),
-            psnr_vs_burn_db: psnr(&image.rays.rgb, &burn_image.rays.rgb),
-            graph_mb: std::fs::metadata(net.path())?.len() as f64 / 1e6,
-            graph_points_per_s: GRAPH_POINTS as f64 / graph_s,
-        });
+        let split = OrtScene::open(&dir, &OpenOptions::default())?;
+        if split.field.graphs[0].1.encoding() != Encoding::Rust {
+            bail!("{}: the graph could not be split", dir.display());
+        }
+        let mut whole_image = None;
+        for (mut ort, label) in [(whole, name.to_string()), (split, format!("{name}, split"))] {
+            let (image, seconds) = timed_frame(progress, &format!("ngp frame ({label})"), k.num_pixels(), |p| ort.render(&k, &view.pose, p));
+            let image = image?;
+            let net = &mut ort.field.graphs[0].1;
+            let (onnxruntime_s, encoding_s, evaluated) = (net.seconds, net.encoding_seconds, net.evaluated);
+            points_per_ray = evaluated as f64 / k.num_pixels() as f64;
+            let graph_s = best_of(3, || net.run(&points, &dirs).map(|_| ()))?;
+            lowerings.push(LoweringBench {
+                lowering: label,
+                seconds,
+                onnxruntime_s,
+                encoding_s,
+                psnr_vs_whole_graph_db: whole_image.as_ref().map(|w: &nerf_core::render::RenderedImage| psnr(&image.rays.rgb, &w.rays.rgb)),
+                ratio_to_burn: seconds / burn_s,
+                psnr_db: psnr(&image.rays.rgb, truth),
+                psnr_vs_burn_db: psnr(&image.rays.rgb, &burn_image.rays.rgb),
+                graph_mb: std::fs::metadata(net.path())?.len() as f64 / 1e6,
+                graph_points_per_s: GRAPH_POINTS as f64 / graph_s,
+            });
+            whole_image.get_or_insert(image);
+        }
     }
     let floor_points_per_s = floor(&plain, &points, temporary.path())?;
     Ok(NgpRenderBench {
@@ -155,11 +172,11 @@ pub fn bench_ngp_render(bundle: Option<&Path>, steps: usize, data: &Path, progre
     })
 }
 
-/// Compile `plain` as `options` ask into a bundle at `dir` and open it.
+/// Compile `plain` as `options` ask into a bundle at `dir` and open it, whole graph.
 fn compile(plain: &PlainNgp, scene: &nerf_bundle::scene::SceneDescription, occupancy: &Option<nerf_core::sample::occupancy::OccupancyGrid>, options: CompileOptions, dir: &Path) -> Result<OrtScene> {
     let bundle = Bundle { field: PlainField::Ngp(plain.clone()), scene: scene.clone(), occupancy: occupancy.clone() };
     write_bundle(dir, &bundle, &options)?;
-    Ok(OrtScene::open(dir, &OpenOptions::default())?)
+    Ok(OrtScene::open(dir, &OpenOptions { whole_graph: true, ..OpenOptions::default() })?)
 }
 
 /// Points/s of the floor graph on `points` (the rows their corners read, computed here), run as

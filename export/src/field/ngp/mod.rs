@@ -10,21 +10,17 @@
 use crate::ExportError;
 pub mod hash_grid;
 
-use crate::builder::{Builder, contract_inputs, contract_outputs, read_dense_layers, scene_metadata};
+use crate::builder::{Builder, contract_inputs, contract_outputs, scene_metadata};
 use nerf_bundle::scene::SceneDescription;
 use crate::field::CompileField;
 use nerf_core::field::{FieldKind, Role};
-use nerf_bundle::graph::{float_initializer, metadata};
-use hash_grid::table::{TABLE_KEY, TableFormat, TablePrecision, trained_table};
+use hash_grid::table::TablePrecision;
 use hash_grid::{HashOps, check_opset, lower_hash_grid, lower_sh4, model, slice};
 use crate::proto::*;
 use nerf_core::field::ngp::hash_grid::HashGrid;
-use nerf_core::field::ngp::{NgpSpec, PlainNgp};
+use nerf_core::field::ngp::PlainNgp;
 
-/// Metadata key naming the field kind.
-pub const FIELD_KEY: &str = "nerf.field";
-/// Metadata key holding the [`nerf_core::field::ngp::NgpSpec`] as JSON.
-pub const NGP_KEY: &str = "nerf.ngp";
+pub use nerf_bundle::ngp::{FIELD_KEY, NGP_KEY};
 
 /// Compile `field` into a model named `name`; `metadata` is added to the contract entries.
 pub fn compile_ngp(field: &PlainNgp, name: &str, opset: i64, ops: HashOps, precision: TablePrecision, metadata: &[(String, String)]) -> Result<ModelProto, ExportError> {
@@ -105,28 +101,4 @@ impl CompileField for PlainNgp {
     }
 }
 
-/// The field a graph written by [`compile_ngp`] holds: the spec from its metadata, the table
-/// and the layers from its initializers, every size checked against the spec (a truncated or
-/// resized table is an error, not a wrong lookup later).
-pub fn read_ngp(model: &ModelProto) -> Result<PlainNgp, String> {
-    let spec_json = metadata(model, NGP_KEY).ok_or_else(|| format!("no {NGP_KEY} metadata: not a hash-grid graph written by nerf export"))?;
-    let spec: NgpSpec = serde_json::from_str(spec_json).map_err(|e| format!("{NGP_KEY}: {e}"))?;
-    spec.validate().map_err(|e| format!("{NGP_KEY}: {e}"))?;
-    let graph = model.graph.as_ref().ok_or("the model has no graph")?;
-    let f = spec.grid.features_per_level;
-    // Graphs written before the table format was recorded hold the trained layout in float32.
-    let table = match metadata(model, TABLE_KEY) {
-        None => float_initializer(graph, "grid.table", &[spec.grid.total_entries().map_err(|e| e.to_string())?, f]),
-        Some(json) => {
-            let format: TableFormat = serde_json::from_str(json).map_err(|e| format!("{TABLE_KEY}: {e}"))?;
-            let levels = spec.grid.layout().map_err(|e| e.to_string())?;
-            let rows = hash_grid::table::graph_levels(&levels).1 as usize;
-            float_initializer(graph, "grid.table", &[rows, f]).and_then(|t| trained_table(&spec.grid, format, &t))
-        }
-    }
-    .map_err(|e| format!("hash table: {e}"))?;
-    let layers = read_dense_layers(graph, spec.layer_shapes())?;
-    let plain = PlainNgp { spec, table, layers };
-    plain.validate().map_err(|e| e.to_string())?;
-    Ok(plain)
-}
+pub use nerf_bundle::ngp::read_ngp;

@@ -254,7 +254,7 @@ pub(crate) fn lower_hash_grid(g: &mut Builder, input: &str, grid: &HashGrid, bou
     // [L, N, F] → [N, L, F] → [N, L·F], level-major per point as the Rust encoding.
     let point_major = g.node("Transpose", &[&summed], "grid.point_major", vec![ints_attribute("perm", &[1, 0, 2])]);
     let shape = g.i64_constant("grid.output_shape", &[0, l * f]);
-    Ok(g.node("Reshape", &[&point_major, &shape], "grid.features", vec![]))
+    Ok(g.node("Reshape", &[&point_major, &shape], nerf_bundle::ngp::FEATURES_TENSOR, vec![]))
 }
 
 #[cfg(test)]

@@ -56,5 +56,5 @@ pub(crate) fn lower_sh4(g: &mut Builder, input: &str) -> String {
     let o15 = cxp(g, 6, &x, &p15, "15");
     let all = [&c0, &o1, &o2, &o3, &o4, &o5, &o6, &o7, &o8, &o9, &o10, &o11, &o12, &o13, &o14, &o15];
     let all: Vec<&str> = all.iter().map(|s| s.as_str()).collect();
-    g.concat(&all, "sh.output")
+    g.concat(&all, nerf_bundle::ngp::SH_TENSOR)
 }

@@ -1,66 +1,11 @@
 //! The hash table as a graph stores it (`grid.table`, `[rows, F]`), and back.
 //!
-//! The trained table ([`HashGrid::params`]) holds the levels in order, each `entries` rows.
-//! The graph's table holds the same rows arranged for the lowering:
-//! - **hashed levels first**, level j of them at row `j·T`: the offset is a multiple of T, so
-//!   it is carried by the x term of the hash (`(j·T + a) ⊕ b ⊕ c = j·T + (a ⊕ b ⊕ c)` for
-//!   a, b, c < T = 2ᵏ) and costs no operation;
-//! - **dense levels after**, each padded to `res³ + res² + res + 1` rows whose row r holds the
-//!   trained row `r mod entries`: a corner at coordinate `res` (the +0.5 offset reaches it)
-//!   then needs no `Mod`, the wrap is in the table (≈ res² extra rows per dense level).
-//!
-//! Stored as float32, or float16 ([`TablePrecision::F16`]: half the bundle, cast to float32
-//! after the lookup). The layout and precision are recorded in the model's metadata
-//! ([`TABLE_KEY`]); graphs without it (written before) hold the trained layout in float32.
+//! The row layout and the reading back live in [`nerf_bundle::ngp`] (the renderer reads them
+//! too); writing the graph's table is here.
 
 use half::f16;
-use nerf_core::field::ngp::hash_grid::{HashGrid, HashGridConfig, LevelLayout};
-pub use crate::options::TablePrecision;
-use serde::{Deserialize, Serialize};
-
-/// Metadata key holding the [`TableFormat`] (JSON).
-pub const TABLE_KEY: &str = "nerf.grid_table";
-
-/// The table's format, as [`TABLE_KEY`] records it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub struct TableFormat {
-    /// 2: the arrangement of the module doc.
-    pub layout: u32,
-    /// How values are stored.
-    pub precision: TablePrecision,
-}
-
-/// The layout of this module.
-pub const LAYOUT: u32 = 2;
-
-/// One level's place in the graph's table.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct GraphLevel {
-    /// First row.
-    pub offset: u64,
-    /// Rows (T for a hashed level, the padded count for a dense one).
-    pub rows: u64,
-}
-
-/// Rows of a dense level in the graph: every `x + y·res + z·res²` for coordinates ≤ res.
-pub fn padded_dense_rows(level: &LevelLayout) -> u64 {
-    let r = level.resolution as u64;
-    r * r * r + r * r + r + 1
-}
-
-/// Each level's place in the graph's table (in level order), and the table's rows.
-pub fn graph_levels(levels: &[LevelLayout]) -> (Vec<GraphLevel>, u64) {
-    let mut places = vec![GraphLevel { offset: 0, rows: 0 }; levels.len()];
-    let mut next = 0u64;
-    for dense in [false, true] {
-        for (place, level) in places.iter_mut().zip(levels).filter(|(_, l)| l.dense == dense) {
-            let rows = if dense { padded_dense_rows(level) } else { level.entries as u64 };
-            *place = GraphLevel { offset: next, rows };
-            next += rows;
-        }
-    }
-    (places, next)
-}
+use nerf_core::field::ngp::hash_grid::HashGrid;
+pub use nerf_bundle::ngp::{GraphLevel, LAYOUT, TABLE_KEY, TableFormat, TablePrecision, graph_levels, padded_dense_rows, trained_table};
 
 /// The graph's table of `grid`, as float32 values `[rows, F]` (before any float16 rounding).
 pub fn graph_table(grid: &HashGrid) -> Vec<f32> {
@@ -78,24 +23,6 @@ pub fn graph_table(grid: &HashGrid) -> Vec<f32> {
     table
 }
 
-/// The trained table from a graph's table in `format`, or why it does not fit `config`.
-pub fn trained_table(config: &HashGridConfig, format: TableFormat, graph: &[f32]) -> Result<Vec<f32>, String> {
-    if format.layout != LAYOUT {
-        return Err(format!("{TABLE_KEY}: table layout {} is not known (this build reads layout {LAYOUT})", format.layout));
-    }
-    let levels = config.layout().map_err(|e| e.to_string())?;
-    let f = config.features_per_level;
-    let (places, rows) = graph_levels(&levels);
-    if graph.len() as u64 != rows * f as u64 {
-        return Err(format!("the table has {} values, the grid's layout needs {rows} rows × {f}", graph.len()));
-    }
-    let mut table = Vec::with_capacity(config.total_entries().map_err(|e| e.to_string())? * f);
-    for (level, place) in levels.iter().zip(&places) {
-        table.extend_from_slice(&graph[place.offset as usize * f..(place.offset as usize + level.entries as usize) * f]);
-    }
-    Ok(table)
-}
-
 /// float32 values as float16 bytes (round to nearest even).
 pub fn f16_bytes(values: &[f32]) -> Vec<u8> {
     values.iter().flat_map(|&v| f16::from_f32(v).to_le_bytes()).collect()
@@ -109,6 +36,7 @@ pub fn f16_values(bytes: &[u8]) -> Option<Vec<f32>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nerf_core::field::ngp::hash_grid::HashGridConfig;
 
     fn grid() -> HashGrid {
         // Scales 3, 4.6, 6.9, 10 → resolutions 4, 6, 8, 11; T = 2⁸: 64 and 216 rows dense,
