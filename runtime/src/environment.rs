@@ -148,7 +148,7 @@ pub fn place(builder: SessionBuilder, device: Device) -> Result<SessionBuilder> 
     builder.with_execution_providers([cuda]).map_err(|e| {
         RuntimeError::Library(format!(
             "--device {device}: onnxruntime's CUDA provider ({}) cannot run on GPU {id}: {e} (it needs an NVIDIA GPU with that index, its driver, \
-             and CUDA 13's runtime, cuBLAS and cuDNN 9 where the loader finds them, e.g. from PyTorch's cu130 wheels; --device cpu runs without)",
+             and CUDA 13's runtime, cuBLAS and cuDNN 9 where the dynamic loader finds them (LD_LIBRARY_PATH), e.g. from PyTorch's cu130 wheels; --device cpu runs without)",
             path.display()
         ))
     })
