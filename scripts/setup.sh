@@ -6,7 +6,18 @@
 # local Ray cluster), PyYAML (the Kubernetes manifests) and kubernetes-validate (Kubernetes'
 # OpenAPI schemas, offline: what `kubectl apply --dry-run=client` checks a Job against).
 # Everything lives under ~/.cache/nerf-rs (override with NERF_HOME).
+#
+# `--gpu` also installs onnxruntime-gpu (the CUDA 13 build, for `nerf-render --device cuda`)
+# into a second venv, $NERF_HOME/venv-gpu: it cannot share the first (same module name). Not
+# done by default (≈ 300 MB); CI never does it.
 set -euo pipefail
+GPU=0
+for arg in "$@"; do
+  case "$arg" in
+    --gpu) GPU=1 ;;
+    *) echo "usage: bash scripts/setup.sh [--gpu]  (unknown argument: $arg)" >&2; exit 2 ;;
+  esac
+done
 NERF_HOME="${NERF_HOME:-$HOME/.cache/nerf-rs}"
 VENV="$NERF_HOME/venv"
 STAMP="$VENV/.nerf-rs-requirements"
@@ -17,6 +28,18 @@ if [ ! -f "$STAMP" ] || [ "$(cat "$STAMP")" != "$REQUIREMENTS" ]; then
   "$PYTHON" -m venv "$VENV"
   "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check $REQUIREMENTS
   echo "$REQUIREMENTS" > "$STAMP"
+fi
+
+# The GPU build of onnxruntime, when asked: nerf-render --device cuda loads its library from here.
+if [ "$GPU" = 1 ]; then
+  GPU_VENV="$NERF_HOME/venv-gpu"
+  GPU_STAMP="$GPU_VENV/.nerf-rs-requirements"
+  GPU_REQUIREMENTS="numpy onnxruntime-gpu==1.31.1"
+  if [ ! -f "$GPU_STAMP" ] || [ "$(cat "$GPU_STAMP")" != "$GPU_REQUIREMENTS" ]; then
+    "${PYTHON:-python3}" -m venv "$GPU_VENV"
+    "$GPU_VENV/bin/python" -m pip install --quiet --disable-pip-version-check $GPU_REQUIREMENTS
+    echo "$GPU_REQUIREMENTS" > "$GPU_STAMP"
+  fi
 fi
 
 # The Python package, editable: python/ is used as it is.

@@ -22,7 +22,8 @@ use std::time::Instant;
     version,
     about = "Render a NeRF scene bundle (nerf export) through onnxruntime",
     after_help = "onnxruntime is loaded from $ORT_DYLIB_PATH, else from the wheel that scripts/setup.sh installs \
-                  under ~/.cache/nerf-rs/venv (override the root with $NERF_HOME)."
+                  under ~/.cache/nerf-rs/venv (override the root with $NERF_HOME); with --device cuda, first from \
+                  ~/.cache/nerf-rs/venv-gpu (scripts/setup.sh --gpu)."
 )]
 struct Cli {
     /// Bundle directory: scene.json, coarse.onnx and fine.onnx (NeRF MLPs) or field.onnx (a
@@ -101,6 +102,10 @@ struct Cli {
     /// hash encoding in Rust, only the MLPs in onnxruntime; same pixels, faster on a CPU).
     #[arg(long)]
     whole_graph: bool,
+    /// Where onnxruntime runs the graphs: cpu, or cuda / cuda:N (GPU N; needs the onnxruntime-gpu
+    /// library: `bash scripts/setup.sh --gpu`). On a GPU the whole graph runs there.
+    #[arg(long, default_value = "cpu", conflicts_with = "serve")]
+    device: nerf_runtime::environment::Device,
     /// Also write <name>.npy per frame: float32 [H, W, 5] = r, g, b, depth, acc.
     #[arg(long)]
     npy: bool,
@@ -173,7 +178,7 @@ fn run(cli: Cli) -> Result<()> {
         limits::check_count(n, limits::MAX_THREADS, "threads", Origin::Option("--threads"))?;
         rayon::ThreadPoolBuilder::new().num_threads(n).build_global()?;
     }
-    let options = OpenOptions { threads: cli.threads, points_per_run: cli.points_per_run, chunk: cli.chunk, skip_empty_space: !cli.dense, whole_graph: cli.whole_graph };
+    let options = OpenOptions { threads: cli.threads, points_per_run: cli.points_per_run, chunk: cli.chunk, skip_empty_space: !cli.dense, whole_graph: cli.whole_graph, device: cli.device };
     let mut scene = OrtScene::open(&bundle, &options)?;
     let transform = scene.description.placement.as_ref().map_or_else(SceneTransform::identity, |p| p.transform);
     let mut gif = cli.orbit.then(|| FramePlan::default().gif);
@@ -233,12 +238,13 @@ fn run(cli: Cli) -> Result<()> {
     let seconds = start.elapsed().as_secs_f64();
     let n = report.frames - report.skipped;
     println!(
-        "{n} frames rendered at {}×{} in {seconds:.1} s ({:.2} s per frame, {}{})",
+        "{n} frames rendered at {}×{} in {seconds:.1} s ({:.2} s per frame, {}{}{})",
         first.width,
         first.height,
         seconds / n.max(1) as f64,
         if scene.occupancy.is_some() { "empty space skipped" } else { "dense sampling" },
         if scene.field.graphs.iter().any(|(_, g)| g.encoding() == nerf_runtime::network::Encoding::Rust) { ", hash encoding in Rust" } else { "" },
+        if cli.device == nerf_runtime::environment::Device::Cpu { String::new() } else { format!(", on {}", cli.device) },
     );
     println!("{}", report.summary(&out, plan.shard));
     Ok(())

@@ -21,7 +21,7 @@
 //! all cores, [`ENCODE_BLOCK`] points at a time) and the sessions run the MLPs on them. The
 //! pixels are those of the whole graph (docs/rendering.md gives the measurements).
 
-use crate::environment::environment;
+use crate::environment::{Device, environment_for, place};
 use crate::error::{Result, RuntimeError};
 use nerf_core::field::FieldOutput;
 use nerf_bundle::graph::{MAX_GRAPH_BYTES, check_contract, check_initializers, decode_model, metadata};
@@ -43,6 +43,8 @@ pub struct Threading {
     /// The most points one session evaluates per onnxruntime call (≥ 1): bounds the graph's
     /// intermediates, so they stay in cache.
     pub points_per_run: usize,
+    /// Where the sessions run.
+    pub device: Device,
 }
 
 /// Default [`Threading::points_per_run`] (measured, module doc).
@@ -56,7 +58,7 @@ impl Threading {
     /// `threads` workers (`None`: one per core) with the default piece size.
     pub fn new(threads: Option<usize>) -> Self {
         let workers = threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())).max(1);
-        Threading { workers, points_per_run: POINTS_PER_RUN }
+        Threading { workers, points_per_run: POINTS_PER_RUN, device: Device::Cpu }
     }
 }
 
@@ -126,7 +128,16 @@ impl OrtNetwork {
         };
         // The library first: ort's own calls (a tensor for the shared tables) would otherwise
         // load it themselves and panic where it is missing.
-        let environment = environment()?;
+        let environment = environment_for(threading.device)?;
+        if threading.device != Device::Cpu && model.graph.as_ref().is_some_and(|g| g.node.iter().any(|n| n.op_type == "BitwiseXor")) {
+            // onnxruntime's CUDA provider has no BitwiseXor kernel (measured: 8.9 M points/s
+            // against 26–36 M for the portable lowering on an H200).
+            eprintln!(
+                "warning: {}: the bitwise lowering's BitwiseXor nodes run on the CPU, with copies to and from {} (a bundle exported with `nerf export --portable` runs wholly on the GPU)",
+                path.display(),
+                threading.device
+            );
+        }
         // The large tables once for all workers' sessions (onnxruntime uses a value given as an
         // initializer in place of the graph's copy, without copying it).
         let shared = if threading.workers > 1 { shared_initializers(&model).map_err(|e| ort_err(&e))? } else { vec![] };
@@ -134,7 +145,7 @@ impl OrtNetwork {
         let sessions = (0..threading.workers.max(1))
             .map(|_| {
                 let builder = Session::builder(environment).map_err(|e| ort_err(&e))?;
-                let mut builder = builder.with_intra_threads(1).map_err(|e| ort_err(&e))?;
+                let mut builder = place(builder.with_intra_threads(1).map_err(|e| ort_err(&e))?, threading.device)?;
                 for (name, value) in &shared {
                     builder = builder.with_initializer(name, value.clone()).map_err(|e| ort_err(&e))?;
                 }

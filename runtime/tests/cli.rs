@@ -394,3 +394,72 @@ fn python_limits_match_the_core() {
         assert_eq!(&python[name], value, "{}: {name}", file.display());
     }
 }
+
+/// `--device cuda[:N]` where onnxruntime is the CPU wheel's (as everywhere in CI): a clear
+/// error naming what is missing and how to get it, and nothing written.
+#[test]
+fn cuda_without_a_cuda_build_is_a_clear_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let ngp = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/lego-ngp");
+    let needles = ["not a CUDA build", "lack CUDAExecutionProvider", "setup.sh --gpu", "ORT_DYLIB_PATH"];
+    for (k, device) in ["cuda", "cuda:0"].into_iter().enumerate() {
+        let out = dir.path().join(format!("out{k}"));
+        expect_error(&["--bundle", s(&shipped_bundle()), "--split", "test", "--limit", "1", "--device", device, "--out", s(&out)], &[], &needles);
+        assert!(!out.exists(), "--device {device} wrote {}", out.display());
+    }
+    // The bitwise hash-grid lowering: a warning that its BitwiseXor stays on the CPU, then the error.
+    let out = dir.path().join("ngp");
+    expect_error(&["--bundle", s(&ngp), "--split", "test", "--limit", "1", "--device", "cuda", "--out", s(&out)], &[], &["BitwiseXor nodes run on the CPU", "--portable", needles[0]]);
+    assert!(!out.exists());
+    // Without $ORT_DYLIB_PATH and without $NERF_HOME/venv-gpu, the CPU wheel is found after
+    // venv-gpu, and refused the same way (its path named).
+    let home = std::env::var_os("NERF_HOME").map(PathBuf::from).unwrap_or_else(|| Path::new(&std::env::var_os("HOME").unwrap()).join(".cache/nerf-rs"));
+    let fake = dir.path().join("home");
+    std::fs::create_dir(&fake).unwrap();
+    std::os::unix::fs::symlink(home.join("venv"), fake.join("venv")).unwrap();
+    let out = dir.path().join("fallback");
+    let result = Command::new(env!("CARGO_BIN_EXE_nerf-render"))
+        .args(["--bundle", s(&shipped_bundle()), "--split", "test", "--device", "cuda", "--out", s(&out)])
+        .env_remove("ORT_DYLIB_PATH")
+        .env("NERF_HOME", &fake)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&result.stderr);
+    assert!(!result.status.success() && !text.contains("panicked"), "{text}");
+    for n in [needles[0], needles[2], &format!("{}/venv/lib/python3", fake.display())] {
+        assert!(text.contains(n), "should mention {n:?}:\n{text}");
+    }
+    assert!(!out.exists());
+}
+
+#[test]
+fn bad_device_strings_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    for device in ["gpu", "cuda:x", "cuda:-1", "cuda:", "cuda:+1"] {
+        let out = dir.path().join("out");
+        expect_error(&["--bundle", s(&shipped_bundle()), "--split", "test", "--device", device, "--out", s(&out)], &[], &["--device", "expected cpu, cuda or cuda:N"]);
+        assert!(!out.exists());
+    }
+}
+
+/// `--device cpu` is the default: the same bytes (PNG, depth, .npy), for an MLP bundle and a
+/// hash-grid one (whose encoding then runs in Rust).
+#[test]
+fn device_cpu_renders_the_same_bytes_as_no_flag() {
+    let dir = tempfile::tempdir().unwrap();
+    let ngp = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/lego-ngp");
+    for (k, bundle) in [shipped_bundle(), ngp].iter().enumerate() {
+        let (a, b) = (dir.path().join(format!("plain{k}")), dir.path().join(format!("cpu{k}")));
+        let common = ["--bundle", s(bundle), "--split", "test", "--limit", "1", "--width", "24", "--npy"];
+        let (ok, text) = nerf_render(&[&common[..], &["--out", s(&a)]].concat());
+        assert!(ok, "{text}");
+        let (ok, text) = nerf_render(&[&common[..], &["--device", "cpu", "--out", s(&b)]].concat());
+        assert!(ok, "{text}");
+        let mut names: Vec<_> = std::fs::read_dir(&a).unwrap().map(|e| e.unwrap().file_name()).filter(|n| !n.to_string_lossy().ends_with(".json")).collect();
+        names.sort();
+        assert!(names.iter().any(|n| n.to_string_lossy().ends_with(".npy")), "{names:?}");
+        for n in &names {
+            assert_eq!(std::fs::read(a.join(n)).unwrap(), std::fs::read(b.join(n)).unwrap(), "{n:?} differs with --device cpu");
+        }
+    }
+}
