@@ -333,6 +333,22 @@ mod tests {
         }
         let fast = assert_same_samples(&grid, &rays(list), 0.0, 6.0, 2048, "lattice rays");
         assert!(fast.t.len() > 10_000, "{} samples: the rays see occupied cells", fast.t.len());
+        // Rays along x hugging a plane y = const of the lattice, crossing it at a tiny slope
+        // inside the box, over stripes of cells occupied where j + k is even: rounding moves the
+        // computed samples across the plane up to tens of steps from where the exact line does.
+        let mut striped = OccupancyGrid::new(32, 1.0, 0.5);
+        striped.update(&(0..32 * 32 * 32).map(|c| if ((c / 32) % 32 + c % 32) % 2 == 0 { 1.0 } else { 0.0 }).collect::<Vec<_>>(), 1.0);
+        let list = (0..1000)
+            .map(|_| {
+                let plane = -1.0 + (1 + rng.below(31)) as f32 * cell;
+                let offset = (rng.uniform() - 0.5) * 6e-7;
+                let crossing = 1.2 + 1.6 * rng.uniform();
+                let z = -1.0 + (rng.below(32) as f32 + 0.5) * cell;
+                ([-2.0, plane + offset, z], [1.0, -offset / crossing, 0.0])
+            })
+            .collect();
+        let fast = assert_same_samples(&striped, &rays(list), 0.0, 6.0, 2048, "rays hugging a plane");
+        assert!(fast.t.len() > 100_000, "{} samples: the rays see occupied cells", fast.t.len());
     }
 
     #[test]
