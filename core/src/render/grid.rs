@@ -145,7 +145,8 @@ fn slab(o: [f64; 3], d: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> (f64, f64) {
 /// f32 error of a sample's position, and each jump stops one step short of the exit.
 fn march_ray(skipper: &Skipper, ray: &March, occupied: &mut impl FnMut([f32; 3]) -> bool, out: &mut Vec<f32>) {
     let finite = ray.origin.iter().chain(&ray.direction).chain([&ray.near, &ray.shift]).all(|v| v.is_finite());
-    if !finite || !(ray.interval > 0.0 && ray.interval.is_finite()) {
+    // A NaN interval fails `> 0` too.
+    if !finite || ray.interval.is_infinite() || ray.interval <= 0.0 || ray.interval.is_nan() {
         return march_ray_every_interval(ray, occupied, out);
     }
     let (o, d) = (ray.origin.map(f64::from), ray.direction.map(f64::from));
@@ -157,7 +158,8 @@ fn march_ray(skipper: &Skipper, ray: &March, occupied: &mut impl FnMut([f32; 3])
     let margin = 1e-3 * skipper.cell_side + 64.0 * f32::EPSILON as f64 * scale;
     let (lo, hi) = skipper.cell_box([0; 3], [r; 3], margin);
     let (enter, leave) = slab(o, d, lo, hi);
-    if !(enter <= leave) {
+    // Finite inputs: the slab's ends are numbers (±∞ at most), never NaN.
+    if enter > leave {
         return;
     }
     let (mut k, end) = (ray.step_at(enter, -1.0), ray.step_at(leave, 1.0));
@@ -234,8 +236,8 @@ mod tests {
     fn every_interval(grid: &OccupancyGrid, rays: &Rays, near: f32, far: f32, steps: usize, shifts: &[f32]) -> PackedSamples {
         let interval = (far - near) / steps as f32;
         let mut packed = PackedSamples { offsets: vec![0], ..PackedSamples::default() };
-        for r in 0..rays.len() {
-            let ray = March { origin: rays.origins[r], direction: rays.directions[r], near, interval, steps, shift: shifts[r] };
+        for (r, &shift) in shifts.iter().enumerate() {
+            let ray = March { origin: rays.origins[r], direction: rays.directions[r], near, interval, steps, shift };
             let before = packed.t.len();
             march_ray_every_interval(&ray, &mut |p| grid.is_occupied(p), &mut packed.t);
             let delta = interval * length(rays.directions[r]);
