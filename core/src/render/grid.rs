@@ -13,13 +13,16 @@ use rayon::prelude::*;
 /// interval's middle, kept only where it lies in an occupied cell; δ = the interval · ‖d‖.
 /// With `jitter` (training), each ray's samples move together by one uniform draw within their
 /// interval instead of sitting at the middles (drawn ray by ray in order: deterministic).
-/// Rays are marched in parallel, [`MARCH_RAYS_PER_TASK`] per task.
+/// Rays are marched in parallel, [`MARCH_RAYS_PER_TASK`] per task. Empty space is skipped a
+/// block or cell at a time ([`march_ray`]); the samples are exactly those of testing every
+/// interval ([`march_ray_every_interval`]).
 pub fn occupied_samples(grid: &OccupancyGrid, rays: &Rays, near: f32, far: f32, steps: usize, jitter: Option<&mut Rng>) -> PackedSamples {
     let interval = (far - near) / steps as f32;
     let shifts: Vec<f32> = match jitter {
         Some(rng) => (0..rays.len()).map(|_| rng.uniform()).collect(),
         None => vec![0.5; rays.len()],
     };
+    let skipper = Skipper::new(grid);
     let ray_list: Vec<usize> = (0..rays.len()).collect();
     // Per task: its rays' t values, and each ray's count.
     let parts: Vec<(Vec<f32>, Vec<usize>)> = ray_list
@@ -28,14 +31,9 @@ pub fn occupied_samples(grid: &OccupancyGrid, rays: &Rays, near: f32, far: f32, 
             let mut t_values = Vec::new();
             let mut counts = Vec::with_capacity(chunk.len());
             for &r in chunk {
-                let (o, d) = (rays.origins[r], rays.directions[r]);
                 let before = t_values.len();
-                for k in 0..steps {
-                    let t = near + (k as f32 + shifts[r]) * interval;
-                    if grid.is_occupied(point_at(o, d, t)) {
-                        t_values.push(t);
-                    }
-                }
+                let ray = March { origin: rays.origins[r], direction: rays.directions[r], near, interval, steps, shift: shifts[r] };
+                march_ray(&skipper, &ray, &mut |p| grid.is_occupied(p), &mut t_values);
                 counts.push(t_values.len() - before);
             }
             (t_values, counts)
@@ -54,6 +52,144 @@ pub fn occupied_samples(grid: &OccupancyGrid, rays: &Rays, near: f32, far: f32, 
         }
     }
     packed
+}
+
+/// One ray's marching: step `k` (0 ≤ k < `steps`) samples t = near + (k + shift) · interval.
+struct March {
+    origin: [f32; 3],
+    direction: [f32; 3],
+    near: f32,
+    interval: f32,
+    steps: usize,
+    shift: f32,
+}
+
+impl March {
+    fn t(&self, k: usize) -> f32 {
+        self.near + (k as f32 + self.shift) * self.interval
+    }
+
+    /// The first step whose (exact) t is at or after `t`, clamped to 0..=steps, moved by `by`.
+    fn step_at(&self, t: f64, by: f64) -> usize {
+        let k = ((t - self.near as f64) / self.interval as f64 - self.shift as f64).ceil() + by;
+        k.clamp(0.0, self.steps as f64) as usize
+    }
+}
+
+/// The reference marching: test every step (also used for rays the skipping does not handle:
+/// non-finite inputs, or a non-positive interval).
+fn march_ray_every_interval(ray: &March, occupied: &mut impl FnMut([f32; 3]) -> bool, out: &mut Vec<f32>) {
+    for k in 0..ray.steps {
+        let t = ray.t(k);
+        if occupied(point_at(ray.origin, ray.direction, t)) {
+            out.push(t);
+        }
+    }
+}
+
+/// Cells per side of a block of the coarse occupancy level that marching skips whole.
+const BLOCK: usize = 8;
+
+/// The grid's geometry and a coarse level over it: which [`BLOCK`]³ blocks hold an occupied cell.
+struct Skipper<'a> {
+    grid: &'a OccupancyGrid,
+    /// Blocks per axis.
+    blocks: usize,
+    block_occupied: Vec<bool>,
+    /// A cell's side in world units.
+    cell_side: f64,
+}
+
+impl<'a> Skipper<'a> {
+    fn new(grid: &'a OccupancyGrid) -> Self {
+        let r = grid.resolution();
+        let blocks = r.div_ceil(BLOCK);
+        let mut block_occupied = vec![false; blocks.pow(3)];
+        for c in (0..grid.len()).filter(|&c| grid.is_cell_occupied(c)) {
+            let (i, j, k) = (c / (r * r) / BLOCK, (c / r) % r / BLOCK, c % r / BLOCK);
+            block_occupied[(i * blocks + j) * blocks + k] = true;
+        }
+        Skipper { grid, blocks, block_occupied, cell_side: 2.0 * grid.bound() as f64 / r as f64 }
+    }
+
+    /// The world box of cells [lo, hi) per axis, grown by `margin` (shrunk where negative).
+    fn cell_box(&self, lo: [usize; 3], hi: [usize; 3], margin: f64) -> ([f64; 3], [f64; 3]) {
+        let b = self.grid.bound() as f64;
+        (lo.map(|i| -b + i as f64 * self.cell_side - margin), hi.map(|i| -b + i as f64 * self.cell_side + margin))
+    }
+}
+
+/// The t range over which the line o + t·d lies in the box [lo, hi] (empty: start > end).
+fn slab(o: [f64; 3], d: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> (f64, f64) {
+    let (mut start, mut end) = (f64::NEG_INFINITY, f64::INFINITY);
+    for a in 0..3 {
+        if d[a] == 0.0 {
+            // A zero component keeps that coordinate exactly o (o + t·0 rounds to o).
+            if o[a] < lo[a] || o[a] > hi[a] {
+                return (f64::INFINITY, f64::NEG_INFINITY);
+            }
+        } else {
+            let (u, v) = ((lo[a] - o[a]) / d[a], (hi[a] - o[a]) / d[a]);
+            start = start.max(u.min(v));
+            end = end.min(u.max(v));
+        }
+    }
+    (start, end)
+}
+
+/// Push the t of each of the ray's steps that `occupied` accepts, in order: exactly the samples
+/// of [`march_ray_every_interval`], testing far fewer steps. Steps before the grid's box and
+/// after it are not tested; at a step in an empty cell, the steps up to where the ray leaves
+/// that cell's empty block (or the cell) are skipped. Rounding cannot skip an occupied step:
+/// the boxes are grown (the grid's) or shrunk (an empty block's) by a margin far above the
+/// f32 error of a sample's position, and each jump stops one step short of the exit.
+fn march_ray(skipper: &Skipper, ray: &March, occupied: &mut impl FnMut([f32; 3]) -> bool, out: &mut Vec<f32>) {
+    let finite = ray.origin.iter().chain(&ray.direction).chain([&ray.near, &ray.shift]).all(|v| v.is_finite());
+    // A NaN interval fails `> 0` too.
+    if !finite || ray.interval.is_infinite() || ray.interval <= 0.0 || ray.interval.is_nan() {
+        return march_ray_every_interval(ray, occupied, out);
+    }
+    let (o, d) = (ray.origin.map(f64::from), ray.direction.map(f64::from));
+    let grid = skipper.grid;
+    let r = grid.resolution();
+    // The largest coordinate magnitude a sample reaches bounds its rounding error.
+    let t_max = ray.t(ray.steps).abs().max(ray.near.abs()) as f64;
+    let scale = (0..3).map(|a| o[a].abs() + t_max * d[a].abs()).fold(grid.bound() as f64, f64::max);
+    let margin = 1e-3 * skipper.cell_side + 64.0 * f32::EPSILON as f64 * scale;
+    let (lo, hi) = skipper.cell_box([0; 3], [r; 3], margin);
+    let (enter, leave) = slab(o, d, lo, hi);
+    // Finite inputs: the slab's ends are numbers (±∞ at most), never NaN.
+    if enter > leave {
+        return;
+    }
+    let (mut k, end) = (ray.step_at(enter, -1.0), ray.step_at(leave, 1.0));
+    while k < end {
+        let t = ray.t(k);
+        let p = point_at(ray.origin, ray.direction, t);
+        if occupied(p) {
+            out.push(t);
+            k += 1;
+            continue;
+        }
+        let next = match grid.cell(p) {
+            None => k + 1,
+            Some(c) => {
+                let cell = [c / (r * r), (c / r) % r, c % r];
+                let block = cell.map(|i| i / BLOCK);
+                let nb = skipper.blocks;
+                let (lo, hi) = if skipper.block_occupied[(block[0] * nb + block[1]) * nb + block[2]] {
+                    (cell, cell.map(|i| i + 1))
+                } else {
+                    (block.map(|i| i * BLOCK), block.map(|i| ((i + 1) * BLOCK).min(r)))
+                };
+                let (lo, hi) = skipper.cell_box(lo, hi, -margin);
+                let (enter, leave) = slab(o, d, lo, hi);
+                // Every step from this one to `leave` lies inside the shrunk box, so in the empty one.
+                if enter <= t as f64 && t as f64 <= leave { ray.step_at(leave, -1.0) } else { k + 1 }
+            }
+        };
+        k = next.max(k + 1);
+    }
 }
 
 /// Rays per parallel task of [`occupied_samples`].
@@ -94,6 +230,175 @@ mod tests {
                 sigma: points.iter().map(|p| if inside(p) { 200.0 } else { 0.0 }).collect(),
             })
         }
+    }
+
+    /// The per-interval loop's samples, packed as [`occupied_samples`] packs them.
+    fn every_interval(grid: &OccupancyGrid, rays: &Rays, near: f32, far: f32, steps: usize, shifts: &[f32]) -> PackedSamples {
+        let interval = (far - near) / steps as f32;
+        let mut packed = PackedSamples { offsets: vec![0], ..PackedSamples::default() };
+        for (r, &shift) in shifts.iter().enumerate() {
+            let ray = March { origin: rays.origins[r], direction: rays.directions[r], near, interval, steps, shift };
+            let before = packed.t.len();
+            march_ray_every_interval(&ray, &mut |p| grid.is_occupied(p), &mut packed.t);
+            let delta = interval * length(rays.directions[r]);
+            packed.delta.extend(std::iter::repeat_n(delta, packed.t.len() - before));
+            packed.offsets.push(packed.t.len());
+        }
+        packed
+    }
+
+    /// Bound 1 and resolution 32 (cells of exactly 1/16, blocks of 1/2): occupied cells only in
+    /// about a third of the blocks, a tenth of those blocks' cells, so some blocks are empty and
+    /// the occupied ones are mostly empty cells.
+    fn sparse_grid(seed: u64) -> OccupancyGrid {
+        let mut rng = Rng::new(seed);
+        let r = 32;
+        let nb = r / BLOCK;
+        let chosen: Vec<bool> = (0..nb * nb * nb).map(|_| rng.uniform() < 0.35).collect();
+        let density: Vec<f32> = (0..r * r * r)
+            .map(|c| {
+                let (i, j, k) = (c / (r * r) / BLOCK, (c / r) % r / BLOCK, c % r / BLOCK);
+                let pick = rng.uniform() < 0.1;
+                if chosen[(i * nb + j) * nb + k] && pick { 1.0 } else { 0.0 }
+            })
+            .collect();
+        let mut grid = OccupancyGrid::new(r, 1.0, 0.5);
+        grid.update(&density, 1.0);
+        grid
+    }
+
+    /// Compare both marchings (unjittered and jittered), sample for sample, bit for bit.
+    fn assert_same_samples(grid: &OccupancyGrid, rays: &Rays, near: f32, far: f32, steps: usize, what: &str) -> PackedSamples {
+        let n = rays.len();
+        let fast = occupied_samples(grid, rays, near, far, steps, None);
+        assert!(fast == every_interval(grid, rays, near, far, steps, &vec![0.5; n]), "{what}: middles differ");
+        let jittered = occupied_samples(grid, rays, near, far, steps, Some(&mut Rng::new(11)));
+        let mut rng = Rng::new(11);
+        let shifts: Vec<f32> = (0..n).map(|_| rng.uniform()).collect();
+        let reference = every_interval(grid, rays, near, far, steps, &shifts);
+        for r in 0..n {
+            assert_eq!(&jittered.t[jittered.ray(r)], &reference.t[reference.ray(r)], "{what}: jittered ray {r} {:?} {:?}", rays.origins[r], rays.directions[r]);
+        }
+        assert!(jittered == reference, "{what}: jittered deltas or offsets differ");
+        fast
+    }
+
+    fn rays(list: Vec<([f32; 3], [f32; 3])>) -> Rays {
+        Rays { origins: list.iter().map(|r| r.0).collect(), directions: list.iter().map(|r| r.1).collect(), viewdirs: None }
+    }
+
+    #[test]
+    fn skipping_marches_the_same_samples_as_every_interval_on_random_rays() {
+        for seed in 0..3 {
+            let grid = sparse_grid(seed);
+            let mut rng = Rng::new(100 + seed);
+            let mut u = move || rng.uniform() * 2.0 - 1.0;
+            // From a sphere of radius 3 towards points in [−1.2, 1.2]³ (some miss the box);
+            // from inside the box too (near 0: the first samples may be occupied).
+            let list: Vec<_> = (0..1500)
+                .map(|i| {
+                    let target = [u() * 1.2, u() * 1.2, u() * 1.2];
+                    let origin = if i % 3 == 0 { [u() * 0.9, u() * 0.9, u() * 0.9] } else { [u() * 3.0, u() * 3.0, 3.0] };
+                    let scale = 0.5 + u().abs();
+                    (origin, std::array::from_fn(|a| (target[a] - origin[a]) * scale))
+                })
+                .collect();
+            let fast = assert_same_samples(&grid, &rays(list), 0.0, 6.0, 2048, &format!("seed {seed}"));
+            assert!(fast.t.len() > 5_000, "seed {seed}: {} samples: the rays see occupied cells", fast.t.len());
+        }
+    }
+
+    #[test]
+    fn skipping_marches_the_same_samples_on_rays_along_cell_faces_edges_and_corners() {
+        let grid = sparse_grid(7);
+        let cell = 1.0 / 16.0;
+        let mut list = Vec::new();
+        let mut rng = Rng::new(5);
+        for _ in 0..600 {
+            // A lattice point (a cell corner) and an axis-parallel, face-diagonal or body-diagonal
+            // direction through it: rays along faces and edges, through edges and corners.
+            let corner: [f32; 3] = std::array::from_fn(|_| -1.0 + rng.below(33) as f32 * cell);
+            let pattern = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 1.0, 0.0], [0.0, 1.0, -1.0], [1.0, -1.0, 1.0], [0.5, 1.0, 0.0], [1.0, 2.0, -1.0]];
+            let d = pattern[rng.below(pattern.len())].map(|v| v * (0.5 + rng.uniform()));
+            // Start 2 units back along the ray, so it crosses the box's outside first.
+            let origin: [f32; 3] = std::array::from_fn(|a| corner[a] - 2.0 * d[a]);
+            list.push((origin, d));
+            // The same line nudged off the lattice by one ulp and by a little more.
+            list.push((origin.map(|v| f32::from_bits(v.to_bits() + 1)), d));
+            list.push((origin.map(|v| v + 1e-6), d));
+        }
+        // Starting on a face inside the box, with near 0.
+        for _ in 0..200 {
+            let origin: [f32; 3] = std::array::from_fn(|_| -1.0 + (1 + rng.below(31)) as f32 * cell);
+            let d = [rng.uniform() - 0.5, 0.0, rng.uniform() - 0.5];
+            list.push((origin, d));
+        }
+        let fast = assert_same_samples(&grid, &rays(list), 0.0, 6.0, 2048, "lattice rays");
+        assert!(fast.t.len() > 10_000, "{} samples: the rays see occupied cells", fast.t.len());
+        // Rays along x hugging a plane y = const of the lattice, crossing it at a tiny slope
+        // inside the box, over stripes of cells occupied where j + k is even: rounding moves the
+        // computed samples across the plane up to tens of steps from where the exact line does.
+        let mut striped = OccupancyGrid::new(32, 1.0, 0.5);
+        striped.update(&(0..32 * 32 * 32).map(|c| if ((c / 32) % 32 + c % 32) % 2 == 0 { 1.0 } else { 0.0 }).collect::<Vec<_>>(), 1.0);
+        let list = (0..1000)
+            .map(|_| {
+                let plane = -1.0 + (1 + rng.below(31)) as f32 * cell;
+                let offset = (rng.uniform() - 0.5) * 6e-7;
+                let crossing = 1.2 + 1.6 * rng.uniform();
+                let z = -1.0 + (rng.below(32) as f32 + 0.5) * cell;
+                ([-2.0, plane + offset, z], [1.0, -offset / crossing, 0.0])
+            })
+            .collect();
+        let fast = assert_same_samples(&striped, &rays(list), 0.0, 6.0, 2048, "rays hugging a plane");
+        assert!(fast.t.len() > 100_000, "{} samples: the rays see occupied cells", fast.t.len());
+    }
+
+    #[test]
+    fn skipping_handles_rays_missing_the_box_and_degenerate_rays() {
+        let grid = sparse_grid(2);
+        let list = vec![
+            ([-3.0, 1.5, 0.0], [1.0, 0.0, 0.0]),         // parallel to the box, above it
+            ([-3.0, 1.0, 0.0], [1.0, 0.0, 0.0]),         // along its top face
+            ([3.0, 3.0, 3.0], [1.0, 1.0, 1.0]),          // away from it
+            ([-3.0, 0.1, 0.2], [0.0, 0.0, 0.0]),         // no direction
+            ([-3.0, 0.1, 0.2], [f32::NAN, 0.0, 0.0]),    // not a number
+            ([-3.0, 0.1, 0.2], [f32::INFINITY, 1.0, 0.0]),
+        ];
+        let fast = assert_same_samples(&grid, &rays(list), 0.0, 6.0, 512, "degenerate rays");
+        assert!(fast.t.is_empty());
+        // far < near (a negative interval) and near = far fall back to testing every interval.
+        // Along x through the centre of an occupied cell.
+        let c = (0..grid.len()).find(|&c| grid.is_cell_occupied(c)).unwrap();
+        let centre = |i: usize| -1.0 + (i as f32 + 0.5) / 16.0;
+        let one = rays(vec![([-2.0, centre((c / 32) % 32), centre(c % 32)], [1.0, 0.0, 0.0])]);
+        assert!(!every_interval(&grid, &one, 0.0, 6.0, 64, &[0.5]).t.is_empty(), "the ray sees the grid");
+        for (near, far) in [(6.0, 0.0), (2.0, 2.0)] {
+            assert!(occupied_samples(&grid, &one, near, far, 64, None) == every_interval(&grid, &one, near, far, 64, &[0.5]), "near {near} far {far}");
+        }
+    }
+
+    #[test]
+    fn skipping_tests_far_fewer_steps_on_a_mostly_empty_grid() {
+        // One occupied cell in a 64³ grid at the centre; rays through it from outside.
+        let r = 64;
+        let mut density = vec![0.0; r * r * r];
+        density[(32 * r + 32) * r + 32] = 1.0;
+        let mut grid = OccupancyGrid::new(r, 1.0, 0.5);
+        grid.update(&density, 1.0);
+        let skipper = Skipper::new(&grid);
+        let (steps, mut tested, mut samples) = (2048, 0, Vec::new());
+        for i in 0..100 {
+            let s = i as f32 / 100.0;
+            let ray = March { origin: [-3.0, 0.01 + 0.001 * s, 0.02], direction: [1.0, 0.0, 0.001 * s], near: 0.0, interval: 6.0 / steps as f32, steps, shift: s };
+            march_ray(&skipper, &ray, &mut |p| {
+                tested += 1;
+                grid.is_occupied(p)
+            }, &mut samples);
+        }
+        // Each ray has ~ 680 steps in the box: one occupied cell (~ 11 steps), 7 empty blocks and
+        // 7 empty cells of the occupied one, each skipped with 2 tests (the jump stops one short).
+        assert!(samples.len() >= 100 * 10, "{} samples", samples.len());
+        assert!(tested < 100 * 50, "{tested} occupancy tests for 100 rays of {steps} steps");
     }
 
     #[test]

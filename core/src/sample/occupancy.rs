@@ -135,7 +135,12 @@ impl OccupancyGrid {
 
     /// Whether `p` lies in an occupied cell.
     pub fn is_occupied(&self, p: [f32; 3]) -> bool {
-        self.cell(p).is_some_and(|c| self.density[c] > self.threshold)
+        self.cell(p).is_some_and(|c| self.is_cell_occupied(c))
+    }
+
+    /// Whether cell `cell` (an index as [`Self::cell`] returns) is occupied.
+    pub fn is_cell_occupied(&self, cell: usize) -> bool {
+        self.density[cell] > self.threshold
     }
 
     /// Indices of the points that lie in occupied cells, in order.
