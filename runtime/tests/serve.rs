@@ -26,6 +26,13 @@ impl Drop for Server {
     }
 }
 
+/// `nerf-render --bundle B --serve --port 0 --viewer V` and `more`.
+fn serve_command(bundle: &Path, viewer: &Path, more: &[&str]) -> Command {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_nerf-render"));
+    command.args(["--bundle", bundle.to_str().unwrap(), "--serve", "--port", "0", "--viewer", viewer.to_str().unwrap()]).args(more);
+    command
+}
+
 /// Start `nerf-render --serve --port 0` and read the address it prints.
 fn start(bundle: &Path, viewer: &Path) -> Server {
     start_with(bundle, viewer, &[])
@@ -33,9 +40,7 @@ fn start(bundle: &Path, viewer: &Path) -> Server {
 
 /// [`start`] with more options.
 fn start_with(bundle: &Path, viewer: &Path, more: &[&str]) -> Server {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_nerf-render"))
-        .args(["--bundle", bundle.to_str().unwrap(), "--serve", "--port", "0", "--viewer", viewer.to_str().unwrap()])
-        .args(more)
+    let mut child = serve_command(bundle, viewer, more)
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
         .spawn()
@@ -164,9 +169,7 @@ fn without_a_built_viewer_it_says_how_to_get_one() {
 /// Run `nerf-render --serve` expecting it to refuse: (stdout, stderr). Fails if it is still
 /// running after 30 s (serving).
 fn refused(bundle: &Path, viewer: &Path, more: &[&str]) -> (String, String) {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_nerf-render"))
-        .args(["--bundle", bundle.to_str().unwrap(), "--serve", "--port", "0", "--viewer", viewer.to_str().unwrap()])
-        .args(more)
+    let mut child = serve_command(bundle, viewer, more)
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
