@@ -84,8 +84,10 @@ struct Cli {
     /// intermediates in cache; measured fastest near the default).
     #[arg(long, default_value_t = POINTS_PER_RUN)]
     points_per_run: usize,
-    /// Rays per onnxruntime call: memory is bounded by this, not by the image size (default:
-    /// 4096, fewer for bundles whose rays march more than 1024 intervals).
+    /// Rays marched together, their samples evaluated in one field call per round (16 per ray
+    /// when marching, all of them on the dense path): memory is bounded by this, not by the
+    /// image size (default: 4096 on the CPU, 262,144 on a GPU; fewer where a call would pass
+    /// 4,194,304 points).
     #[arg(long)]
     chunk: Option<usize>,
     /// Render at this width (focal scales with it; height keeps the aspect unless given).

@@ -9,7 +9,7 @@ use nerf_core::PinholeCamera;
 use nerf_core::camera::Pose;
 use nerf_core::io::limits::{self, Origin};
 use nerf_core::sample::occupancy::{OccupancyGrid, marching_grid};
-use nerf_core::render::{RenderOptions, RenderedImage, render_image};
+use nerf_core::render::{MARCH_SEGMENT, RenderOptions, RenderedImage, render_image};
 use nerf_bundle::{SCENE_FILE, SceneDescription, bundle_file, read_occupancy, read_scene};
 use std::path::{Path, PathBuf};
 
@@ -21,9 +21,9 @@ use std::path::{Path, PathBuf};
 /// hash-grid lego frame: 5.54 s at 1024 rays, 5.05 s at 4096).
 pub const DEFAULT_CHUNK: usize = 4096;
 
-/// The chunk a bundle renders with unless told otherwise: [`DEFAULT_CHUNK`] rays, fewer when
-/// `samples_per_ray` would take a call past [`limits::MAX_POINTS_PER_CALL`] (a field marched in
-/// 2048 intervals: 2048 rays).
+/// The chunk a bundle renders with on the CPU unless told otherwise: [`DEFAULT_CHUNK`] rays,
+/// fewer when `samples_per_ray` per call (the dense path's all, marching's
+/// [`MARCH_SEGMENT`]) would take a call past [`limits::MAX_POINTS_PER_CALL`].
 pub fn default_chunk(samples_per_ray: usize) -> usize {
     DEFAULT_CHUNK.min(limits::MAX_POINTS_PER_CALL / samples_per_ray.max(1)).max(1)
 }
@@ -49,6 +49,10 @@ pub struct OpenOptions {
     /// is a CPU optimisation) on pieces of [`GPU_POINTS_PER_RUN`] points at least.
     pub device: Device,
 }
+
+/// Rays per field call on a GPU unless told otherwise: a whole 400×400 frame marches in one
+/// batch (its first round 2.56 M points), as large batches keep a GPU busy.
+pub const GPU_CHUNK: usize = 1 << 18;
 
 /// The smallest piece a GPU session evaluates per call: small pieces keep a CPU's cache warm,
 /// a GPU wants large batches (measured on an H200: 26–36 M points/s from 65,536 points a call).
@@ -81,13 +85,19 @@ impl OrtScene {
             return Err(RuntimeError::bundle(dir, "no such bundle directory (write one with `nerf export --run <run> --out <dir>`)"));
         }
         let description = read_scene(dir)?;
+        let occupancy = if options.skip_empty_space { read_occupancy(dir, &description)? } else { None };
+        // A bounded field's box is its grid's (scene.json checks it has one).
+        let bounded = description.is_bounded().then(|| description.occupancy.as_ref().map(|o| o.bound)).flatten();
+        let occupancy = marching_grid(occupancy, bounded);
+        // Marching evaluates at most MARCH_SEGMENT samples per ray per call, the dense path all.
         let s = &description.sampling;
-        let samples_per_ray = (s.n_coarse + s.n_fine).max(description.march_steps);
+        let samples_per_ray = if occupancy.is_some() { MARCH_SEGMENT } else { s.n_coarse + s.n_fine };
         let chunk = match options.chunk {
             Some(chunk) => {
                 limits::check_chunk(chunk, samples_per_ray, Origin::Option("--chunk"))?;
                 chunk
             }
+            None if options.device != Device::Cpu => GPU_CHUNK.min(limits::MAX_POINTS_PER_CALL / samples_per_ray.max(1)).max(1),
             None => default_chunk(samples_per_ray),
         };
         if let Some(n) = options.threads {
@@ -106,10 +116,6 @@ impl OrtScene {
             .iter()
             .map(|g| Ok((g.role, OrtNetwork::load_with(&bundle_file(dir, g.file, g.key)?, threading, encoding)?)))
             .collect::<Result<Vec<_>>>()?;
-        let occupancy = if options.skip_empty_space { read_occupancy(dir, &description)? } else { None };
-        // A bounded field's box is its grid's (scene.json checks it has one).
-        let bounded = description.is_bounded().then(|| description.occupancy.as_ref().map(|o| o.bound)).flatten();
-        let occupancy = marching_grid(occupancy, bounded);
         let mut render_options =
             RenderOptions::new(description.sampling.clone(), description.white_background, chunk, options.skip_empty_space);
         render_options.march_steps = description.march_steps;

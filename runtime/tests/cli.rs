@@ -203,9 +203,9 @@ fn broken_bundles_give_clear_errors() {
     assert!(!out.exists(), "no output is written for a bundle that cannot be opened");
 }
 
-/// The default preset's bundles march 2048 intervals: with no `--chunk`, `nerf-render` takes
-/// as few rays per call as keep a call within the points limit and renders; a `--chunk` given
-/// that passes the limit is still refused.
+/// The default preset's bundles march 2048 intervals: marching takes at most 16 samples per
+/// ray per call, so the default chunk renders them; a `--chunk` whose 16 samples a ray pass
+/// the points limit is still refused.
 #[test]
 fn a_bundle_marching_2048_intervals_renders_with_the_default_chunk() {
     let dir = tempfile::tempdir().unwrap();
@@ -214,7 +214,7 @@ fn a_bundle_marching_2048_intervals_renders_with_the_default_chunk() {
     let (ok, text) = nerf_render(&["--bundle", s(&bundle), "--orbit", "--frames", "1", "--out", s(&out)]);
     assert!(ok && out.join("frame_000.png").is_file(), "{text}");
     let refused_out = dir.path().join("refused");
-    refused(&["--bundle", s(&bundle), "--orbit", "--frames", "1", "--chunk", "4096", "--out", s(&refused_out)], &refused_out, &["--chunk: 4096 rays × 2048 samples"]);
+    refused(&["--bundle", s(&bundle), "--orbit", "--frames", "1", "--chunk", "524288", "--out", s(&refused_out)], &refused_out, &["--chunk: 524288 rays × 16 samples"]);
 }
 
 /// A copy of the shipped bundle whose `scene.json` went through `edit`.
@@ -305,7 +305,7 @@ fn untrusted_bundles_are_refused() {
         ("--width", "100000000", "--width/--height: 100000000×100000000 pixels"),
         ("--frames", "100000000", "--frames: 100000000 frames is more than the limit of 10000"),
         ("--chunk", "1000000000", "--chunk: 1000000000 rays is more than the limit"),
-        ("--chunk", "100000", "--chunk: 100000 rays × 256 samples"),
+        ("--chunk", "300000", "--chunk: 300000 rays × 16 samples"),
         ("--threads", "100000", "--threads: 100000 threads is more than the limit of 1024"),
         ("--threads", "0", "--threads: must be at least 1"),
     ] {

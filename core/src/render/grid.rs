@@ -1,10 +1,12 @@
 //! Empty-space skipping at render time: march through an occupancy grid's occupied cells.
 
-use super::packed::{PackedSamples, march_front_to_back};
-use super::RenderOptions;
+use super::packed::PackedSamples;
+#[cfg(doc)]
+use super::packed::march_front_to_back;
+use super::{MARCH_SEGMENT, RenderOptions};
 use crate::field::{Field, Stage};
 use crate::camera::{Rays, length, point_at};
-use super::compositing::RayOutput;
+use super::compositing::{RayAccumulator, RayOutput, alpha_from_density};
 use crate::sample::occupancy::OccupancyGrid;
 use crate::rng::Rng;
 use rayon::prelude::*;
@@ -55,6 +57,7 @@ pub fn occupied_samples(grid: &OccupancyGrid, rays: &Rays, near: f32, far: f32, 
 }
 
 /// One ray's marching: step `k` (0 ≤ k < `steps`) samples t = near + (k + shift) · interval.
+#[derive(Clone, Copy)]
 struct March {
     origin: [f32; 3],
     direction: [f32; 3],
@@ -76,8 +79,8 @@ impl March {
     }
 }
 
-/// The reference marching: test every step (also used for rays the skipping does not handle:
-/// non-finite inputs, or a non-positive interval).
+/// The reference marching: test every step (what [`RayMarch`] must equal).
+#[cfg(test)]
 fn march_ray_every_interval(ray: &March, occupied: &mut impl FnMut([f32; 3]) -> bool, out: &mut Vec<f32>) {
     for k in 0..ray.steps {
         let t = ray.t(k);
@@ -91,7 +94,8 @@ fn march_ray_every_interval(ray: &March, occupied: &mut impl FnMut([f32; 3]) -> 
 const BLOCK: usize = 8;
 
 /// The grid's geometry and a coarse level over it: which [`BLOCK`]³ blocks hold an occupied cell.
-struct Skipper<'a> {
+/// Made once per grid ([`Skipper::new`] reads every cell) and shared by every batch of rays.
+pub struct Skipper<'a> {
     grid: &'a OccupancyGrid,
     /// Blocks per axis.
     blocks: usize,
@@ -101,7 +105,8 @@ struct Skipper<'a> {
 }
 
 impl<'a> Skipper<'a> {
-    fn new(grid: &'a OccupancyGrid) -> Self {
+    /// The coarse level over `grid`.
+    pub fn new(grid: &'a OccupancyGrid) -> Self {
         let r = grid.resolution();
         let blocks = r.div_ceil(BLOCK);
         let mut block_occupied = vec![false; blocks.pow(3)];
@@ -137,81 +142,198 @@ fn slab(o: [f64; 3], d: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> (f64, f64) {
     (start, end)
 }
 
-/// Push the t of each of the ray's steps that `occupied` accepts, in order: exactly the samples
-/// of [`march_ray_every_interval`], testing far fewer steps. Steps before the grid's box and
-/// after it are not tested; at a step in an empty cell, the steps up to where the ray leaves
-/// that cell's empty block (or the cell) are skipped. Rounding cannot skip an occupied step:
-/// the boxes are grown (the grid's) or shrunk (an empty block's) by a margin far above the
-/// f32 error of a sample's position, and each jump stops one step short of the exit.
-fn march_ray(skipper: &Skipper, ray: &March, occupied: &mut impl FnMut([f32; 3]) -> bool, out: &mut Vec<f32>) {
-    let finite = ray.origin.iter().chain(&ray.direction).chain([&ray.near, &ray.shift]).all(|v| v.is_finite());
-    // A NaN interval fails `> 0` too.
-    if !finite || ray.interval.is_infinite() || ray.interval <= 0.0 || ray.interval.is_nan() {
-        return march_ray_every_interval(ray, occupied, out);
-    }
-    let (o, d) = (ray.origin.map(f64::from), ray.direction.map(f64::from));
-    let grid = skipper.grid;
-    let r = grid.resolution();
-    // The largest coordinate magnitude a sample reaches bounds its rounding error.
-    let t_max = ray.t(ray.steps).abs().max(ray.near.abs()) as f64;
-    let scale = (0..3).map(|a| o[a].abs() + t_max * d[a].abs()).fold(grid.bound() as f64, f64::max);
-    let margin = 1e-3 * skipper.cell_side + 64.0 * f32::EPSILON as f64 * scale;
-    let (lo, hi) = skipper.cell_box([0; 3], [r; 3], margin);
-    let (enter, leave) = slab(o, d, lo, hi);
-    // Finite inputs: the slab's ends are numbers (±∞ at most), never NaN.
-    if enter > leave {
-        return;
-    }
-    let (mut k, end) = (ray.step_at(enter, -1.0), ray.step_at(leave, 1.0));
-    while k < end {
-        let t = ray.t(k);
-        let p = point_at(ray.origin, ray.direction, t);
-        if occupied(p) {
-            out.push(t);
-            k += 1;
-            continue;
+/// One ray's marching, resumable: [`RayMarch::advance`] emits its next occupied samples, in
+/// order, exactly those of [`march_ray_every_interval`], testing far fewer steps. Steps before
+/// the grid's box and after it are not tested; at a step in an empty cell, the steps up to where
+/// the ray leaves that cell's empty block (or the cell) are skipped. Rounding cannot skip an
+/// occupied step: the boxes are grown (the grid's) or shrunk (an empty block's) by a margin far
+/// above the f32 error of a sample's position, and each jump stops one step short of the exit.
+struct RayMarch {
+    ray: March,
+    o: [f64; 3],
+    d: [f64; 3],
+    margin: f64,
+    /// The next step to test, and the step after the last that can be occupied.
+    k: usize,
+    end: usize,
+    /// Test every step (rays the skipping does not handle: non-finite inputs, or a
+    /// non-positive interval).
+    every: bool,
+}
+
+impl RayMarch {
+    fn new(skipper: &Skipper, ray: March) -> Self {
+        let finite = ray.origin.iter().chain(&ray.direction).chain([&ray.near, &ray.shift]).all(|v| v.is_finite());
+        let (o, d) = (ray.origin.map(f64::from), ray.direction.map(f64::from));
+        // A NaN interval fails `> 0` too.
+        if !finite || ray.interval.is_infinite() || ray.interval <= 0.0 || ray.interval.is_nan() {
+            return RayMarch { end: ray.steps, ray, o, d, margin: 0.0, k: 0, every: true };
         }
-        let next = match grid.cell(p) {
-            None => k + 1,
-            Some(c) => {
-                let cell = [c / (r * r), (c / r) % r, c % r];
-                let block = cell.map(|i| i / BLOCK);
-                let nb = skipper.blocks;
-                let (lo, hi) = if skipper.block_occupied[(block[0] * nb + block[1]) * nb + block[2]] {
-                    (cell, cell.map(|i| i + 1))
-                } else {
-                    (block.map(|i| i * BLOCK), block.map(|i| ((i + 1) * BLOCK).min(r)))
-                };
-                let (lo, hi) = skipper.cell_box(lo, hi, -margin);
-                let (enter, leave) = slab(o, d, lo, hi);
-                // Every step from this one to `leave` lies inside the shrunk box, so in the empty one.
-                if enter <= t as f64 && t as f64 <= leave { ray.step_at(leave, -1.0) } else { k + 1 }
-            }
-        };
-        k = next.max(k + 1);
+        let grid = skipper.grid;
+        let r = grid.resolution();
+        // The largest coordinate magnitude a sample reaches bounds its rounding error.
+        let t_max = ray.t(ray.steps).abs().max(ray.near.abs()) as f64;
+        let scale = (0..3).map(|a| o[a].abs() + t_max * d[a].abs()).fold(grid.bound() as f64, f64::max);
+        let margin = 1e-3 * skipper.cell_side + 64.0 * f32::EPSILON as f64 * scale;
+        let (lo, hi) = skipper.cell_box([0; 3], [r; 3], margin);
+        let (enter, leave) = slab(o, d, lo, hi);
+        // Finite inputs: the slab's ends are numbers (±∞ at most), never NaN.
+        let (k, end) = if enter > leave { (0, 0) } else { (ray.step_at(enter, -1.0), ray.step_at(leave, 1.0)) };
+        RayMarch { ray, o, d, margin, k, end, every: false }
     }
+
+    /// Whether every step has been marched.
+    fn finished(&self) -> bool {
+        self.k >= self.end
+    }
+
+    /// Emit (t, point) for the ray's next steps that `occupied` accepts, at most `max` of them;
+    /// returns how many.
+    fn advance(&mut self, skipper: &Skipper, max: usize, occupied: &mut impl FnMut([f32; 3]) -> bool, emit: &mut impl FnMut(f32, [f32; 3])) -> usize {
+        let (ray, grid, r) = (&self.ray, skipper.grid, skipper.grid.resolution());
+        let mut emitted = 0;
+        while self.k < self.end && emitted < max {
+            let k = self.k;
+            let t = ray.t(k);
+            let p = point_at(ray.origin, ray.direction, t);
+            if occupied(p) {
+                emit(t, p);
+                emitted += 1;
+                self.k += 1;
+                continue;
+            }
+            let next = match grid.cell(p) {
+                Some(c) if !self.every => {
+                    let cell = [c / (r * r), (c / r) % r, c % r];
+                    let block = cell.map(|i| i / BLOCK);
+                    let nb = skipper.blocks;
+                    let (lo, hi) = if skipper.block_occupied[(block[0] * nb + block[1]) * nb + block[2]] {
+                        (cell, cell.map(|i| i + 1))
+                    } else {
+                        (block.map(|i| i * BLOCK), block.map(|i| ((i + 1) * BLOCK).min(r)))
+                    };
+                    let (lo, hi) = skipper.cell_box(lo, hi, -self.margin);
+                    let (enter, leave) = slab(self.o, self.d, lo, hi);
+                    // Every step from this one to `leave` lies inside the shrunk box, so in the empty one.
+                    if enter <= t as f64 && t as f64 <= leave { ray.step_at(leave, -1.0) } else { k + 1 }
+                }
+                _ => k + 1,
+            };
+            self.k = next.max(k + 1);
+        }
+        emitted
+    }
+}
+
+/// Push the t of each of the ray's steps that `occupied` accepts, in order ([`RayMarch`]).
+fn march_ray(skipper: &Skipper, ray: &March, occupied: &mut impl FnMut([f32; 3]) -> bool, out: &mut Vec<f32>) {
+    RayMarch::new(skipper, *ray).advance(skipper, usize::MAX, occupied, &mut |t, _| out.push(t));
 }
 
 /// Rays per parallel task of [`occupied_samples`].
 const MARCH_RAYS_PER_TASK: usize = 256;
 
+/// Rays per parallel task of [`render_rays`]' rounds.
+const ROUND_RAYS_PER_TASK: usize = 512;
+
+/// A ray still marching in [`render_rays`]: its index, its marching and its compositing.
+struct LiveRay {
+    r: usize,
+    march: RayMarch,
+    ray: RayAccumulator,
+}
+
+/// One task's share of a round: its rays' next samples, packed ray by ray.
+#[derive(Default)]
+struct RoundPart {
+    points: Vec<[f32; 3]>,
+    dirs: Vec<[f32; 3]>,
+    t: Vec<f32>,
+    counts: Vec<u8>,
+}
+
 /// Render `rays` by marching through the grid's occupied cells with the last stage's network
-/// (fine if there is one): [`occupied_samples`] with `options.march_steps` intervals, evaluated
-/// front to back and packed, each ray stopping once its transmittance is below
-/// `options.min_transmittance`. Unevaluated intervals are empty (σ = 0). Compositing is the
-/// reference one (exclusive product of 1 − α + 1e-10, white background as rgb + 1 − acc).
+/// (fine if there is one), as [`render_rays_in`] does.
 pub fn render_rays<F: Field>(field: &mut F, grid: &OccupancyGrid, rays: &Rays, options: &RenderOptions) -> Result<Vec<RayOutput>, F::Error> {
+    render_rays_in(field, &Skipper::new(grid), rays, options)
+}
+
+/// Render `rays` through `skipper`'s grid: the samples of [`occupied_samples`] with
+/// `options.march_steps` intervals, evaluated front to back in rounds. Each round marches every
+/// live ray only as far as its next [`MARCH_SEGMENT`] occupied samples, evaluates all of them in
+/// one field call, composites them, and drops the rays whose transmittance fell below
+/// `options.min_transmittance` or that ran out of steps: a ray that stops early never marches
+/// the rest, and the field calls are those of [`march_front_to_back`] over the precomputed
+/// samples, point for point. Compositing is the reference one (exclusive product of
+/// 1 − α + 1e-10, white background as rgb + 1 − acc).
+pub fn render_rays_in<F: Field>(field: &mut F, skipper: &Skipper, rays: &Rays, options: &RenderOptions) -> Result<Vec<RayOutput>, F::Error> {
     let s = &options.sampling;
     let stage = if s.n_fine > 0 { Stage::Fine } else { Stage::Coarse };
-    let samples = occupied_samples(grid, rays, s.near, s.far, options.march_steps.max(1), None);
+    let steps = options.march_steps.max(1);
+    let interval = (s.far - s.near) / steps as f32;
     let min_transmittance = options.min_transmittance.unwrap_or(0.0);
-    let marched = march_front_to_back(field, stage, rays, &rays.view_directions(), &samples, min_transmittance, options.white_background)?;
-    Ok(marched.rays)
+    let viewdirs = rays.view_directions();
+    let mut outputs = vec![RayAccumulator::default().finish(options.white_background); rays.len()];
+    let mut live: Vec<LiveRay> = (0..rays.len())
+        .into_par_iter()
+        .with_min_len(ROUND_RAYS_PER_TASK)
+        .map(|r| {
+            let ray = March { origin: rays.origins[r], direction: rays.directions[r], near: s.near, interval, steps, shift: 0.5 };
+            LiveRay { r, march: RayMarch::new(skipper, ray), ray: RayAccumulator::default() }
+        })
+        .filter(|l| !l.march.finished())
+        .collect();
+    let (mut points, mut dirs) = (Vec::new(), Vec::new());
+    while !live.is_empty() {
+        let parts: Vec<RoundPart> = live
+            .par_chunks_mut(ROUND_RAYS_PER_TASK)
+            .map(|chunk| {
+                let mut part = RoundPart { counts: Vec::with_capacity(chunk.len()), ..RoundPart::default() };
+                for l in chunk.iter_mut() {
+                    let n = l.march.advance(skipper, MARCH_SEGMENT, &mut |p| skipper.grid.is_occupied(p), &mut |t, p| {
+                        part.t.push(t);
+                        part.points.push(p);
+                    });
+                    part.dirs.extend(std::iter::repeat_n(viewdirs[l.r], n));
+                    part.counts.push(n as u8);
+                }
+                part
+            })
+            .collect();
+        points.clear();
+        dirs.clear();
+        for part in &parts {
+            points.extend_from_slice(&part.points);
+            dirs.extend_from_slice(&part.dirs);
+        }
+        let out = field.evaluate(stage, &points, &dirs)?;
+        let starts: Vec<usize> = parts.iter().scan(0, |at, p| Some(std::mem::replace(at, *at + p.t.len()))).collect();
+        live.par_chunks_mut(ROUND_RAYS_PER_TASK).zip(&parts).zip(starts).for_each(|((chunk, part), start)| {
+            let mut i = 0;
+            for (l, &n) in chunk.iter_mut().zip(&part.counts) {
+                let delta = interval * length(rays.directions[l.r]);
+                for _ in 0..n {
+                    let alpha = alpha_from_density(out.sigma[start + i], delta);
+                    l.ray.add(alpha, out.rgb[start + i], part.t[i]);
+                    i += 1;
+                }
+            }
+        });
+        live.retain(|l| {
+            let more = l.ray.transmittance() >= min_transmittance && !l.march.finished();
+            if !more {
+                outputs[l.r] = l.ray.finish(options.white_background);
+            }
+            more
+        });
+    }
+    Ok(outputs)
 }
 
 #[cfg(test)]
 mod tests {
     use super::super::{DEFAULT_MARCH_STEPS, render_image};
+    use super::super::packed::march_front_to_back;
     use crate::field::FieldOutput;
     use super::*;
     use crate::camera::{Intrinsics, Pose};
@@ -436,6 +558,57 @@ mod tests {
         let mut again = Rng::new(3);
         let shift0 = again.uniform();
         assert_eq!(jittered.t[0], 1.0 + shift0);
+    }
+
+    /// A faint fog coloured as the ball, recording each call's points.
+    struct Recorded(Vec<Vec<[f32; 3]>>);
+
+    impl Field for Recorded {
+        type Error = std::convert::Infallible;
+        fn evaluate(&mut self, stage: Stage, points: &[[f32; 3]], dirs: &[[f32; 3]]) -> Result<FieldOutput, Self::Error> {
+            self.0.push(points.to_vec());
+            let mut out = Ball(0).evaluate(stage, points, dirs)?;
+            // A faint fog instead of the ball: rays take several rounds to stop.
+            out.sigma.iter_mut().for_each(|s| *s = 3.0);
+            Ok(out)
+        }
+    }
+
+    #[test]
+    fn rounds_make_the_same_calls_and_pixels_as_marching_every_sample_first() {
+        // The precomputed path: every sample first, then `march_front_to_back` over them.
+        // Half the cells occupied, at random.
+        let mut rng = Rng::new(9);
+        let mut grid = OccupancyGrid::new(32, 1.0, 0.5);
+        grid.update(&(0..grid.len()).map(|_| if rng.uniform() < 0.5 { 1.0 } else { 0.0 }).collect::<Vec<_>>(), 1.0);
+        let mut u = move || rng.uniform() * 2.0 - 1.0;
+        let list: Vec<_> = (0..1500)
+            .map(|_| {
+                let origin = [u() * 3.0, u() * 3.0, 3.0];
+                let target = [u() * 0.6, u() * 0.6, u() * 0.6];
+                (origin, std::array::from_fn(|a| target[a] - origin[a]))
+            })
+            .collect();
+        let rays = rays(list);
+        let sampling = SamplingConfig { near: 0.5, far: 6.0, n_coarse: 64, n_fine: 0, ..Default::default() };
+        for (min_transmittance, white_background) in [(Some(1e-4), true), (Some(0.3), false), (None, true)] {
+            let options = RenderOptions { sampling: sampling.clone(), white_background, chunk: 1500, min_transmittance, march_steps: 1024 };
+            let samples = occupied_samples(&grid, &rays, 0.5, 6.0, 1024, None);
+            let mut before = Recorded(Vec::new());
+            let expected = march_front_to_back(&mut before, Stage::Coarse, &rays, &rays.view_directions(), &samples, min_transmittance.unwrap_or(0.0), white_background).unwrap();
+            let mut after = Recorded(Vec::new());
+            let got = render_rays(&mut after, &grid, &rays, &options).unwrap();
+            assert_eq!(got, expected.rays, "{min_transmittance:?}: pixels");
+            // Rounds may end with a call of no points (rays whose last segment was full).
+            let calls: Vec<_> = after.0.into_iter().filter(|c| !c.is_empty()).collect();
+            assert!(calls == before.0, "{min_transmittance:?}: {} calls against {}", calls.len(), before.0.len());
+            if min_transmittance != Some(0.3) {
+                assert!(before.0.len() > 3 && samples.t.len() > 20_000, "the rays see occupied cells over several rounds: {} calls, {} samples", before.0.len(), samples.t.len());
+            } else {
+                let evaluated: usize = calls.iter().map(Vec::len).sum();
+                assert!(evaluated * 5 < samples.t.len() * 3, "stopping early: {evaluated} of {} samples evaluated", samples.t.len());
+            }
+        }
     }
 
     #[test]

@@ -112,8 +112,13 @@ pub fn render_rays<F: Field>(
     rays: &Rays,
     options: &RenderOptions,
 ) -> Result<Vec<RayOutput>, F::Error> {
-    match occupancy {
-        Some(grid) => grid::render_rays(field, grid, rays, options),
+    render_rays_in(field, occupancy.map(grid::Skipper::new).as_ref(), rays, options)
+}
+
+/// [`render_rays`] with the grid's coarse level made once by the caller.
+fn render_rays_in<F: Field>(field: &mut F, skipper: Option<&grid::Skipper>, rays: &Rays, options: &RenderOptions) -> Result<Vec<RayOutput>, F::Error> {
+    match skipper {
+        Some(skipper) => grid::render_rays_in(field, skipper, rays, options),
         None => dense::render_rays(field, rays, options, None).map(|c| c.rays),
     }
 }
@@ -134,6 +139,7 @@ pub fn render_image<F: Field>(
     let rows_per_chunk = (chunk / width.max(1)).max(1) as u32;
     let total = camera.num_pixels();
     let mut out = RenderedRays::default();
+    let skipper = occupancy.map(grid::Skipper::new);
     let mut row = 0;
     while row < camera.height {
         let end = (row + rows_per_chunk).min(camera.height);
@@ -141,7 +147,7 @@ pub fn render_image<F: Field>(
         let mut start = 0;
         while start < rays.len() {
             let stop = (start + chunk).min(rays.len());
-            out.append(&render_rays(field, occupancy, &rays.slice(start..stop), options)?);
+            out.append(&render_rays_in(field, skipper.as_ref(), &rays.slice(start..stop), options)?);
             progress(out.rgb.len(), total);
             start = stop;
         }
