@@ -1,7 +1,7 @@
 //! `nerf export`: a trained run → a scene bundle through the burn-free compiler
 //! ([`nerf_export`]).
 
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::evaluate::LoadedRun;
 use crate::field::TrainedField;
 use crate::config::TrainConfig;
@@ -12,7 +12,7 @@ use nerf_core::camera::{ORBIT_FRAMES, Pose};
 use nerf_core::dataset::{CaptureFormat, CaptureSplit};
 use nerf_core::frames::views::{Images, SplitChoice};
 use nerf_core::sample::occupancy::OccupancyGrid;
-use nerf_export::{Bundle, CompileField, CompileOptions, write_bundle};
+use nerf_export::{Bundle, CompileField, CompileOptions, TablePrecision, write_bundle};
 use std::path::Path;
 
 /// The test poses of the run's dataset, in the field's frame, when it is recorded and still there.
@@ -42,4 +42,29 @@ pub fn export_run(run: &Path, out: &Path, options: &CompileOptions) -> Result<Ve
     // A capture's placement; Blender scenes are used as they are.
     bundle.scene.placement = loaded.placement().filter(|p| p.format != CaptureFormat::Blender).cloned();
     Ok(write_bundle(out, &bundle, options)?)
+}
+
+/// The hash-grid field of the bundle at `dir` read back (its table and MLPs from `field.onnx`,
+/// its scene and grid as they are), with its table's precision, to compile again with other
+/// options: another lowering or table precision of the same field, the same pixels.
+pub fn ngp_bundle(dir: &Path) -> Result<(Bundle<nerf_core::field::PlainField>, TablePrecision)> {
+    let scene = nerf_bundle::read_scene(dir)?;
+    if scene.field != nerf_core::field::FieldKind::Ngp.name() {
+        let problem = format!("field {:?}: only hash-grid bundles (field \"ngp\") compile again from their graph; export the run instead (nerf export --run)", scene.field);
+        return Err(Error::Invalid { path: dir.join(nerf_bundle::SCENE_FILE), problem });
+    }
+    let graph = nerf_bundle::bundle_file(dir, scene.graph_files()[0].file, "graphs")?;
+    let model = nerf_bundle::read_model(&graph)?;
+    let invalid = |problem| Error::Invalid { path: graph.clone(), problem };
+    let plain = nerf_export::field::ngp::read_ngp(&model).map_err(invalid)?;
+    let precision = nerf_bundle::ngp::table_precision(&model).map_err(invalid)?;
+    let occupancy = nerf_bundle::read_occupancy(dir, &scene)?;
+    Ok((Bundle { field: nerf_core::field::PlainField::Ngp(plain), scene, occupancy }, precision))
+}
+
+/// Compile the hash-grid bundle at `bundle` again into `out` ([`ngp_bundle`]) as `options`
+/// ask, its table kept in its precision unless `tables` says otherwise.
+pub fn export_bundle(bundle: &Path, out: &Path, options: &CompileOptions, tables: Option<TablePrecision>) -> Result<Vec<WrittenFile>> {
+    let (read, precision) = ngp_bundle(bundle)?;
+    Ok(write_bundle(out, &read, &CompileOptions { tables: tables.unwrap_or(precision), ..options.clone() })?)
 }

@@ -115,6 +115,27 @@ fn ngp_trains_exports_and_renders_the_same_everywhere() {
     println!("nerf render vs nerf-render (portable, float16 table): {db:.1} dB");
     assert!(db >= 45.0, "burn vs the compact bundle: {db:.1} dB");
 
+    // Compiled again from the compact bundle (`export --bundle`): the bitwise lowering, its
+    // float16 table kept, the same field and the same frame through nerf-render, bit for bit.
+    let again = dir.path().join("again");
+    let (ok, text) = nerf(&["export", "--bundle", s(&compact), "--out", s(&again)]);
+    assert!(ok, "{text}");
+    let bitwise = ModelProto::decode(std::fs::read(again.join("field.onnx")).unwrap().as_slice()).unwrap();
+    assert!(bitwise.graph.as_ref().unwrap().node.iter().any(|n| n.op_type == "BitwiseXor"), "the default lowering");
+    assert_eq!(nerf_export::field::ngp::read_ngp(&bitwise).unwrap(), back);
+    assert_eq!(table_bytes(&bitwise), table_bytes(&small));
+    let frame = |bundle: &Path, out: &str| {
+        let out = dir.path().join(out);
+        let (ok, text) = nerf_render(&["--bundle", s(bundle), "--orbit", "--frames", "3", "--npy", "--whole-graph", "--out", s(&out)]);
+        assert!(ok, "{text}");
+        std::fs::read(out.join("frame_001.npy")).unwrap()
+    };
+    assert!(frame(&compact, "compact-frame") == frame(&again, "again-frame"), "the same pixels from either lowering");
+    // Only hash-grid bundles: an MLP bundle's field is not read back.
+    let (ok, text) = nerf(&["export", "--bundle", s(&PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("models/lego")), "--out", s(&dir.path().join("mlp"))]);
+    assert!(!ok && text.contains("models/lego/scene.json: field \"mlp\": only hash-grid bundles"), "{text}");
+    assert!(!dir.path().join("mlp").exists());
+
     // A table cut short is refused before onnxruntime indexes into it.
     let mut bad = model.clone();
     let table = bad.graph.as_mut().unwrap().initializer.iter_mut().find(|t| t.name == "grid.table").unwrap();

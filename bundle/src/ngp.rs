@@ -111,6 +111,14 @@ pub fn trained_table(config: &HashGridConfig, format: TableFormat, graph: &[f32]
     Ok(table)
 }
 
+/// How a hash-grid graph stores its table (float32 where the format is not recorded).
+pub fn table_precision(model: &ModelProto) -> Result<TablePrecision, String> {
+    match metadata(model, TABLE_KEY) {
+        None => Ok(TablePrecision::F32),
+        Some(json) => serde_json::from_str::<TableFormat>(json).map(|f| f.precision).map_err(|e| format!("{TABLE_KEY}: {e}")),
+    }
+}
+
 /// The dense layers of shapes `(name, in, out)` the compiler stored in `graph`
 /// (`<name>.weight` `[in, out]`, `<name>.bias` `[out]`), each size checked.
 pub fn read_dense_layers(graph: &GraphProto, shapes: Vec<(String, usize, usize)>) -> Result<Vec<DenseLayer>, String> {

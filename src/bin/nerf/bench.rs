@@ -13,12 +13,16 @@ use nerf::field::ngp::throughput::{SampleOrder, measure_throughput};
 use nerf_core::field::ngp::hash_grid::HashGridConfig;
 use nerf_core::render::metrics::psnr;
 use nerf_export::write_bundle;
+use nerf_runtime::environment::Device;
 use nerf_runtime::{OpenOptions, OrtNetwork, OrtScene};
 use std::path::{Path, PathBuf};
 
 /// Untimed steps before the hash-grid field's timed ones: past the occupancy grid's warm-up
 /// (64 steps) and a few updates, so the samples per ray are those of training.
 const NGP_WARMUP: usize = 150;
+
+/// The hash-grid bundle of `--only render` unless `--ngp-bundle` says otherwise.
+pub const DEFAULT_NGP_BUNDLE: &str = "models/lego-ngp";
 
 /// Where `nerf bench` looks for lego unless `--data` says otherwise.
 pub const DEFAULT_DATA: &str = "../shared/data/nerf_synthetic/lego";
@@ -54,10 +58,17 @@ pub struct BenchOptions {
     /// Trained bundle with an occupancy grid for the skipping measurement (lego).
     #[arg(long, default_value = "models/lego")]
     pub bundle: PathBuf,
-    /// Hash-grid bundle for the ngp-render measurement (lego). Default: train the ngp preset
-    /// on lego for --ngp-steps steps and export it.
+    /// Hash-grid bundle for the ngp-render measurement (lego; default: train the ngp preset
+    /// on lego for --ngp-steps steps and export it) and for `--only render`'s hash-grid
+    /// frames (default: models/lego-ngp).
     #[arg(long)]
     pub ngp_bundle: Option<PathBuf>,
+    /// Devices for the hash-grid frames of `--only render` (cpu, cuda, cuda:N; comma-separated).
+    #[arg(long, value_delimiter = ',', default_values_t = vec![Device::Cpu])]
+    pub device: Vec<Device>,
+    /// Timed renders per hash-grid frame of `--only render` (after one untimed).
+    #[arg(long, default_value_t = 2)]
+    pub repeats: usize,
     /// Training steps of the hash-grid field when no --ngp-bundle is given.
     #[arg(long, default_value_t = 400)]
     pub ngp_steps: usize,
@@ -81,7 +92,7 @@ pub struct BenchOptions {
 
 /// `nerf bench`: everything measured in one run, printed as tables (and JSON with `json`).
 pub fn run(options: &BenchOptions, progress: bool) -> Result<()> {
-    let BenchOptions { only, preset, data, downscale, steps, points, sizes, chunk, bundle, ngp_bundle, ngp_steps, views, march_steps, skip_threshold, pytorch, json } = options;
+    let BenchOptions { only, preset, data, downscale, steps, points, sizes, chunk, bundle, ngp_bundle, device, repeats, ngp_steps, views, march_steps, skip_threshold, pytorch, json } = options;
     let (downscale, steps, points, chunk, ngp_steps, views, march_steps, skip_threshold) = (*downscale, *steps, *points, *chunk, *ngp_steps, *views, *march_steps, *skip_threshold);
     let wanted = |p: BenchPart| only.is_empty() || only.contains(&p);
     let data = data.join("transforms_val.json").is_file().then_some(data.clone());
@@ -148,6 +159,17 @@ pub fn run(options: &BenchOptions, progress: bool) -> Result<()> {
             println!("{:<12} {:>9} {:>9.2} {:>11.1} dB", b.backend, format!("{}×{}", b.width, b.height), b.seconds, b.psnr_vs_burn_db);
         }
         report.insert("frames".into(), serde_json::to_value(results)?);
+        let ngp = ngp_bundle.clone().unwrap_or_else(|| PathBuf::from(DEFAULT_NGP_BUNDLE));
+        println!("\nhash-grid frames: {} test view 0 through nerf-render, best of {repeats} after one untimed; loop = frame − onnxruntime − encoding", ngp.display());
+        let frames = super::device_bench::bench_device_frames(&ngp, device, None, *repeats, progress)?;
+        println!("{:<8} {:<9} {:<12} {:>9} {:>13} {:>10} {:>8} {:>9} {:>12} {:>14}", "device", "lowering", "path", "frame s", "onnxruntime s", "encoding s", "loop s", "worst s", "points/px", "max |Δ| vs cpu");
+        for f in &frames {
+            println!(
+                "{:<8} {:<9} {:<12} {:>9.3} {:>13.3} {:>10.3} {:>8.3} {:>9.3} {:>12.1} {:>14.1e}",
+                f.device, f.lowering, f.path, f.seconds, f.onnxruntime_s, f.encoding_s, f.loop_s, f.worst_s, f.points_per_pixel, f.max_abs_vs_cpu
+            );
+        }
+        report.insert("device_frames".into(), serde_json::to_value(frames)?);
     }
     if wanted(BenchPart::Skip) {
         match &data {

@@ -1,6 +1,7 @@
 //! `nerf`: train, evaluate and render neural radiance fields on the CPU.
 
 mod bench;
+mod device_bench;
 mod ngp_bench;
 
 use anyhow::{Context, Result, bail};
@@ -196,10 +197,15 @@ enum Command {
         out: PathBuf,
     },
     /// Compile a trained run into an ONNX scene bundle: field.onnx (or coarse.onnx + fine.onnx), scene.json, occupancy.bin.
+    #[command(group(clap::ArgGroup::new("field").required(true).args(["run", "bundle"])))]
     Export {
         /// Run directory written by `nerf train`.
         #[arg(long)]
-        run: PathBuf,
+        run: Option<PathBuf>,
+        /// A hash-grid bundle to compile again (its field read back from field.onnx): another
+        /// lowering (`--portable`) or table precision of the same field, the same pixels.
+        #[arg(long)]
+        bundle: Option<PathBuf>,
         /// Bundle directory to write (replaced only once the new bundle is complete).
         #[arg(long)]
         out: PathBuf,
@@ -213,9 +219,10 @@ enum Command {
         #[arg(long)]
         portable: bool,
         /// Store the hash grid's table in float16: half the bundle, a PSNR cost well under
-        /// 0.05 dB (measured in docs/hash-grid.md).
-        #[arg(long, value_enum, default_value_t = Tables::F32)]
-        tables: Tables,
+        /// 0.05 dB (measured in docs/hash-grid.md). Default: f32 from a run, the bundle's own
+        /// from --bundle.
+        #[arg(long, value_enum)]
+        tables: Option<Tables>,
     },
     /// Mesh a trained run or a scene bundle: the surface where the density crosses --threshold,
     /// by marching cubes over the field's box, as a binary PLY (positions, normals, colours) in
@@ -313,7 +320,8 @@ enum BenchPart {
     Train,
     /// Network forward throughput.
     Mlp,
-    /// Frame times, burn and onnxruntime.
+    /// Frame times: the paper network in burn and onnxruntime, and a hash-grid bundle on each
+    /// `--device`, both lowerings, split into the field's and the loop's shares.
     Render,
     /// Empty-space skipping and early termination against the dense path (onnxruntime).
     Skip,
@@ -411,12 +419,17 @@ fn main() -> Result<()> {
             }
             println!("train with: nerf train --data {} --out <run-dir>", out.display());
         }
-        Command::Export { run, out, opset, portable, tables } => {
-            let tables = match tables {
+        Command::Export { run, bundle, out, opset, portable, tables } => {
+            let tables = tables.map(|t| match t {
                 Tables::F32 => nerf_export::TablePrecision::F32,
                 Tables::F16 => nerf_export::TablePrecision::F16,
+            });
+            let options = nerf_export::CompileOptions { opset, portable, tables: tables.unwrap_or_default() };
+            let files = match (run, bundle) {
+                (Some(run), _) => nerf::export::export_run(&run, &out, &options)?,
+                (None, Some(bundle)) => nerf::export::export_bundle(&bundle, &out, &options, tables)?,
+                (None, None) => unreachable!("clap requires --run or --bundle"),
             };
-            let files = nerf::export::export_run(&run, &out, &nerf_export::CompileOptions { opset, portable, tables })?;
             for f in &files {
                 println!("{:>10} bytes  {}", f.bytes, f.path.display());
             }

@@ -7,7 +7,6 @@
 use anyhow::{Context, Result, anyhow, bail};
 use nerf::bench::{best_of, random_points, timed_frame};
 use nerf::config::Preset;
-use nerf_bundle::{read_occupancy, read_scene};
 use nerf_core::dataset::{Split, load_split};
 use nerf_core::field::PlainField;
 use nerf_core::field::ngp::PlainNgp;
@@ -95,13 +94,9 @@ pub fn bench_ngp_render(bundle: Option<&Path>, steps: usize, data: &Path, progre
             (out, format!("ngp preset, {} steps here ({:.1} min)", summary.steps, summary.minutes))
         }
     };
-    let scene = read_scene(&bundle)?;
-    if scene.field != nerf_core::field::FieldKind::Ngp.name() {
-        bail!("{}: not a hash-grid bundle (scene.json field {:?})", bundle.display(), scene.field);
-    }
-    let graph = nerf_bundle::bundle_file(&bundle, scene.graph_files()[0].file, "graphs")?;
-    let plain = nerf_export::field::ngp::read_ngp(&nerf_bundle::read_model(&graph)?).map_err(|e| anyhow!("{}: {e}", graph.display()))?;
-    let occupancy = read_occupancy(&bundle, &scene)?;
+    let (read, _) = nerf::export::ngp_bundle(&bundle)?;
+    let nerf_core::field::PlainField::Ngp(plain) = read.field else { bail!("{}: not a hash-grid field", bundle.display()) };
+    let (scene, occupancy) = (read.scene, read.occupancy);
     let val = load_split(data, Split::Val, 1, true)?;
     let view = &val.views[0];
     let k = view.camera;
@@ -109,7 +104,7 @@ pub fn bench_ngp_render(bundle: Option<&Path>, steps: usize, data: &Path, progre
 
     // burn: the same field, marched through the same grid.
     let device = nerf::backend::cpu();
-    let field = nerf::field::ngp::NgpField::from_plain(&plain, &device).map_err(|e| anyhow!("{}: {e}", graph.display()))?;
+    let field = nerf::field::ngp::NgpField::from_plain(&plain, &device).map_err(|e| anyhow!("{}: {e}", bundle.display()))?;
     let field: &dyn nerf::field::TrainedField = &field;
     let first = compile(&plain, &scene, &occupancy, CompileOptions::default(), &temporary.path().join("bitwise"))?;
     let render_options = nerf_core::render::RenderOptions { chunk: 4096, ..first.options.clone() };
