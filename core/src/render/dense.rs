@@ -89,6 +89,7 @@ mod tests {
             chunk: 10,
             min_transmittance: None,
             march_steps: DEFAULT_MARCH_STEPS,
+            overlap: false,
         };
         let mut field = Slab { calls: vec![] };
         let img = render_image(&mut field, None, &k, &pose, &options, &mut |_, _| {}).unwrap();

@@ -4,7 +4,7 @@ use super::packed::PackedSamples;
 #[cfg(doc)]
 use super::packed::march_front_to_back;
 use super::{MARCH_SEGMENT, RenderOptions};
-use crate::field::{Field, Stage};
+use crate::field::{Field, FieldOutput, Stage};
 use crate::camera::{Rays, length, point_at};
 use super::compositing::{RayAccumulator, RayOutput, alpha_from_density};
 use crate::sample::occupancy::OccupancyGrid;
@@ -266,27 +266,92 @@ pub fn render_rays<F: Field>(field: &mut F, grid: &OccupancyGrid, rays: &Rays, o
 /// the rest, and the field calls are those of [`march_front_to_back`] over the precomputed
 /// samples, point for point. Compositing is the reference one (exclusive product of
 /// 1 − α + 1e-10, white background as rgb + 1 − acc).
+///
+/// With `options.overlap` the rays march as two halves taking turns: while the field evaluates
+/// one half's round (on a device, which leaves the CPU idle), the other half composites its last
+/// round and marches its next. The same samples and pixels; half the points per call.
 pub fn render_rays_in<F: Field>(field: &mut F, skipper: &Skipper, rays: &Rays, options: &RenderOptions) -> Result<Vec<RayOutput>, F::Error> {
     let s = &options.sampling;
     let stage = if s.n_fine > 0 { Stage::Fine } else { Stage::Coarse };
     let steps = options.march_steps.max(1);
-    let interval = (s.far - s.near) / steps as f32;
-    let min_transmittance = options.min_transmittance.unwrap_or(0.0);
-    let viewdirs = rays.view_directions();
+    let round = Round {
+        skipper,
+        rays,
+        viewdirs: rays.view_directions(),
+        interval: (s.far - s.near) / steps as f32,
+        min_transmittance: options.min_transmittance.unwrap_or(0.0),
+        white_background: options.white_background,
+    };
     let mut outputs = vec![RayAccumulator::default().finish(options.white_background); rays.len()];
     let mut live: Vec<LiveRay> = (0..rays.len())
         .into_par_iter()
         .with_min_len(ROUND_RAYS_PER_TASK)
         .map(|r| {
-            let ray = March { origin: rays.origins[r], direction: rays.directions[r], near: s.near, interval, steps, shift: 0.5 };
+            let ray = March { origin: rays.origins[r], direction: rays.directions[r], near: s.near, interval: round.interval, steps, shift: 0.5 };
             LiveRay { r, march: RayMarch::new(skipper, ray), ray: RayAccumulator::default() }
         })
         .filter(|l| !l.march.finished())
         .collect();
-    let (mut points, mut dirs) = (Vec::new(), Vec::new());
-    while !live.is_empty() {
-        let parts: Vec<RoundPart> = live
-            .par_chunks_mut(ROUND_RAYS_PER_TASK)
+    if !options.overlap {
+        while !live.is_empty() {
+            let parts = round.march(&mut live);
+            let (points, dirs) = gather(&parts);
+            let out = field.evaluate(stage, &points, &dirs)?;
+            round.composite(&mut live, &parts, &out, &mut outputs);
+        }
+        return Ok(outputs);
+    }
+    // Two halves: `ready` has marched (its parts wait for the field), `waiting` holds its last
+    // round's parts and field output, to composite before it marches again.
+    let second = live.split_off(live.len() / 2);
+    let mut ready = (live, Vec::new());
+    ready.1 = round.march(&mut ready.0);
+    let mut waiting: (Vec<LiveRay>, Vec<RoundPart>, Option<FieldOutput>) = (second, Vec::new(), None);
+    let mut finished = Vec::new();
+    loop {
+        let (points, dirs) = gather(&ready.1);
+        let (out, (marched, done)) = std::thread::scope(|scope| {
+            let other = scope.spawn(|| {
+                let (live, parts, out) = &mut waiting;
+                let mut done = Vec::new();
+                if let Some(out) = out.take() {
+                    round.composite_into(live, parts, &out, &mut done);
+                }
+                (round.march(live), done)
+            });
+            let out = if points.is_empty() { Ok(FieldOutput::default()) } else { field.evaluate(stage, &points, &dirs) };
+            (out, other.join().unwrap_or_else(|e| std::panic::resume_unwind(e)))
+        });
+        finished.extend(done);
+        let out = out?;
+        // Swap: the half just evaluated waits to be composited; the other has marched.
+        let evaluated = std::mem::replace(&mut ready, (std::mem::take(&mut waiting.0), marched));
+        waiting = (evaluated.0, evaluated.1, Some(out));
+        if ready.0.is_empty() && waiting.0.is_empty() {
+            break;
+        }
+    }
+    for (r, output) in finished {
+        outputs[r] = output;
+    }
+    Ok(outputs)
+}
+
+/// What every round of [`render_rays_in`] shares.
+struct Round<'a> {
+    skipper: &'a Skipper<'a>,
+    rays: &'a Rays,
+    viewdirs: Vec<[f32; 3]>,
+    interval: f32,
+    min_transmittance: f32,
+    white_background: bool,
+}
+
+impl Round<'_> {
+    /// March each live ray to its next samples (at most [`MARCH_SEGMENT`]), in parallel.
+    fn march(&self, live: &mut [LiveRay]) -> Vec<RoundPart> {
+        let skipper = self.skipper;
+        live.par_chunks_mut(ROUND_RAYS_PER_TASK)
             .map(|chunk| {
                 let mut part = RoundPart { counts: Vec::with_capacity(chunk.len()), ..RoundPart::default() };
                 for l in chunk.iter_mut() {
@@ -294,24 +359,31 @@ pub fn render_rays_in<F: Field>(field: &mut F, skipper: &Skipper, rays: &Rays, o
                         part.t.push(t);
                         part.points.push(p);
                     });
-                    part.dirs.extend(std::iter::repeat_n(viewdirs[l.r], n));
+                    part.dirs.extend(std::iter::repeat_n(self.viewdirs[l.r], n));
                     part.counts.push(n as u8);
                 }
                 part
             })
-            .collect();
-        points.clear();
-        dirs.clear();
-        for part in &parts {
-            points.extend_from_slice(&part.points);
-            dirs.extend_from_slice(&part.dirs);
+            .collect()
+    }
+
+    /// Composite the field's `out` for `parts` (as [`Self::march`] made them from `live`) and
+    /// drop the rays that are done, writing their outputs.
+    fn composite(&self, live: &mut Vec<LiveRay>, parts: &[RoundPart], out: &FieldOutput, outputs: &mut [RayOutput]) {
+        let mut done = Vec::new();
+        self.composite_into(live, parts, out, &mut done);
+        for (r, output) in done {
+            outputs[r] = output;
         }
-        let out = field.evaluate(stage, &points, &dirs)?;
+    }
+
+    /// [`Self::composite`], the finished rays' outputs pushed to `done`.
+    fn composite_into(&self, live: &mut Vec<LiveRay>, parts: &[RoundPart], out: &FieldOutput, done: &mut Vec<(usize, RayOutput)>) {
         let starts: Vec<usize> = parts.iter().scan(0, |at, p| Some(std::mem::replace(at, *at + p.t.len()))).collect();
-        live.par_chunks_mut(ROUND_RAYS_PER_TASK).zip(&parts).zip(starts).for_each(|((chunk, part), start)| {
+        live.par_chunks_mut(ROUND_RAYS_PER_TASK).zip(parts).zip(starts).for_each(|((chunk, part), start)| {
             let mut i = 0;
             for (l, &n) in chunk.iter_mut().zip(&part.counts) {
-                let delta = interval * length(rays.directions[l.r]);
+                let delta = self.interval * length(self.rays.directions[l.r]);
                 for _ in 0..n {
                     let alpha = alpha_from_density(out.sigma[start + i], delta);
                     l.ray.add(alpha, out.rgb[start + i], part.t[i]);
@@ -320,14 +392,24 @@ pub fn render_rays_in<F: Field>(field: &mut F, skipper: &Skipper, rays: &Rays, o
             }
         });
         live.retain(|l| {
-            let more = l.ray.transmittance() >= min_transmittance && !l.march.finished();
+            let more = l.ray.transmittance() >= self.min_transmittance && !l.march.finished();
             if !more {
-                outputs[l.r] = l.ray.finish(options.white_background);
+                done.push((l.r, l.ray.finish(self.white_background)));
             }
             more
         });
     }
-    Ok(outputs)
+}
+
+/// The field call's inputs: `parts`' points and directions in order.
+fn gather(parts: &[RoundPart]) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
+    let n = parts.iter().map(|p| p.points.len()).sum();
+    let (mut points, mut dirs) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    for part in parts {
+        points.extend_from_slice(&part.points);
+        dirs.extend_from_slice(&part.dirs);
+    }
+    (points, dirs)
 }
 
 #[cfg(test)]
@@ -592,13 +674,24 @@ mod tests {
         let rays = rays(list);
         let sampling = SamplingConfig { near: 0.5, far: 6.0, n_coarse: 64, n_fine: 0, ..Default::default() };
         for (min_transmittance, white_background) in [(Some(1e-4), true), (Some(0.3), false), (None, true)] {
-            let options = RenderOptions { sampling: sampling.clone(), white_background, chunk: 1500, min_transmittance, march_steps: 1024 };
+            let options = RenderOptions { sampling: sampling.clone(), white_background, chunk: 1500, min_transmittance, march_steps: 1024, overlap: false };
             let samples = occupied_samples(&grid, &rays, 0.5, 6.0, 1024, None);
             let mut before = Recorded(Vec::new());
             let expected = march_front_to_back(&mut before, Stage::Coarse, &rays, &rays.view_directions(), &samples, min_transmittance.unwrap_or(0.0), white_background).unwrap();
             let mut after = Recorded(Vec::new());
             let got = render_rays(&mut after, &grid, &rays, &options).unwrap();
             assert_eq!(got, expected.rays, "{min_transmittance:?}: pixels");
+            // Overlapped: half the rays per call, the same samples and pixels.
+            let mut halves = Recorded(Vec::new());
+            let overlapped = render_rays(&mut halves, &grid, &rays, &RenderOptions { overlap: true, ..options.clone() }).unwrap();
+            assert_eq!(overlapped, expected.rays, "{min_transmittance:?}: overlapped pixels");
+            let points = |calls: &[Vec<[f32; 3]>]| {
+                let mut all: Vec<[u32; 3]> = calls.iter().flatten().map(|p| p.map(f32::to_bits)).collect();
+                all.sort_unstable();
+                all
+            };
+            assert!(points(&halves.0) == points(&before.0), "{min_transmittance:?}: the same points evaluated");
+            assert!(halves.0.iter().all(|c| c.len() <= 750 * MARCH_SEGMENT) && halves.0.len() > before.0.len(), "halves per call");
             // Rounds may end with a call of no points (rays whose last segment was full).
             let calls: Vec<_> = after.0.into_iter().filter(|c| !c.is_empty()).collect();
             assert!(calls == before.0, "{min_transmittance:?}: {} calls against {}", calls.len(), before.0.len());
@@ -634,6 +727,7 @@ mod tests {
             chunk: 100,
             min_transmittance: Some(1e-4),
             march_steps: DEFAULT_MARCH_STEPS,
+            overlap: false,
         };
         let mut field = Ball(0);
         let dense = render_image(&mut field, None, &k, &pose, &RenderOptions { min_transmittance: None, ..options.clone() }, &mut |_, _| {}).unwrap();

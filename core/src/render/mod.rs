@@ -42,6 +42,10 @@ pub struct RenderOptions {
     /// Intervals over [near, far] when marching through an occupancy grid ([`grid`]).
     #[serde(default = "default_march_steps")]
     pub march_steps: usize,
+    /// Marching: overlap the CPU's marching and compositing with the field's evaluation, half
+    /// the rays at a time ([`grid::render_rays_in`]); for fields evaluated on a device.
+    #[serde(default)]
+    pub overlap: bool,
 }
 
 fn default_march_steps() -> usize {
@@ -59,6 +63,7 @@ impl RenderOptions {
             chunk,
             min_transmittance: skip_empty_space.then_some(DEFAULT_MIN_TRANSMITTANCE),
             march_steps: DEFAULT_MARCH_STEPS,
+            overlap: false,
         }
     }
 }
