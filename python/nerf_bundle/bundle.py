@@ -28,6 +28,7 @@ class Frame:
     acc: np.ndarray
     seconds: float = 0.0
     field_seconds: float = 0.0
+    stages: Optional[R.Stages] = None
 
     @property
     def raw(self) -> np.ndarray:
@@ -201,14 +202,24 @@ class Bundle:
         naming ``what`` otherwise)."""
         return self.default_chunk if chunk is None else check_chunk(chunk, self.samples_per_ray, what)
 
-    def _render_batch(self, o: np.ndarray, d: np.ndarray, view: np.ndarray) -> R.Marched:
-        """nerf-render's ``render_rays`` for one batch of (already NDC-warped) rays."""
+    def _render_batch(self, o: np.ndarray, d: np.ndarray, view: np.ndarray, chunk: int, stages: R.Stages) -> R.Marched:
+        """nerf-render's ``render_rays`` for (already NDC-warped) rays, ``chunk`` rays per batch:
+        marched all together (each chunk's field calls as nerf-render makes them), or dense
+        a chunk at a time."""
         min_t = float(R.MIN_TRANSMITTANCE) if self.skip_empty_space else None
         viewdirs = R.unit(view)
         if self.grid is not None:
-            samples = R.occupied_samples(self.grid, o, d, self.near, self.far, max(self.march_steps, 1))
             stage = "fine" if self.n_fine > 0 else "coarse"
-            return R.march_front_to_back(self._graph(stage), o, d, viewdirs, samples, min_t, self.white_background)
+            return R.march_grid(self._graph(stage), self.grid, o, d, viewdirs, self.near, self.far, max(self.march_steps, 1),
+                                min_t, self.white_background, chunk, stages)
+        parts = [self._render_dense(o[s:s + chunk], d[s:s + chunk], viewdirs[s:s + chunk], min_t) for s in range(0, len(o), chunk)]
+        if not parts:
+            return R.Marched(np.zeros((0, 3), F32), np.zeros(0, F32), np.zeros(0, F32), None)
+        return R.Marched(np.concatenate([p.rgb for p in parts]), np.concatenate([p.depth for p in parts]),
+                         np.concatenate([p.acc for p in parts]), None)
+
+    def _render_dense(self, o: np.ndarray, d: np.ndarray, viewdirs: np.ndarray, min_t: Optional[float]) -> R.Marched:
+        """Coarse (and fine) samples of one chunk of rays, without a grid."""
         n = self.n_coarse
         t = np.broadcast_to(R.stratified(self.near, self.far, n, self.lindisp), (len(o), n))
         seg = R.MARCH_SEGMENT if min_t is not None else n
@@ -216,6 +227,7 @@ class Bundle:
                                     self.white_background, seg)
         if self.n_fine == 0:
             return out
+        assert out.weights is not None
         extra = R.importance(t, out.weights.reshape(len(o), n), self.n_fine)
         t_all = np.sort(np.concatenate([t, extra], axis=1), axis=1)
         seg = R.MARCH_SEGMENT if min_t is not None else t_all.shape[1]
@@ -228,17 +240,16 @@ class Bundle:
         chunk = self.check_chunk(chunk)
         o = np.asarray(origins, F32).reshape(-1, 3)
         d = np.asarray(directions, F32).reshape(-1, 3)
-        parts = [self._render_chunk(o[s:s + chunk], d[s:s + chunk]) for s in range(0, len(o), chunk)]
-        if not parts:
-            return Rays(np.zeros((0, 3), F32), np.zeros(0, F32), np.zeros(0, F32))
-        return Rays(np.concatenate([p.rgb for p in parts]), np.concatenate([p.depth for p in parts]),
-                    np.concatenate([p.acc for p in parts]))
+        out = self._render_world(o, d, chunk, R.Stages())
+        return Rays(out.rgb, out.depth, out.acc)
 
-    def _render_chunk(self, o: np.ndarray, d: np.ndarray) -> R.Marched:
+    def _render_world(self, o: np.ndarray, d: np.ndarray, chunk: int, stages: R.Stages) -> R.Marched:
+        start = time.perf_counter()
         view = d
         if self.ndc is not None:
             o, d = ndc_rays(self.ndc, o, d)
-        return self._render_batch(o, d, view)
+        stages.lap("rays", start)
+        return self._render_batch(o, d, view, chunk, stages)
 
     def render(self, c2w: np.ndarray, width: Optional[int] = None, height: Optional[int] = None, *,
                chunk: Optional[int] = None) -> Frame:
@@ -249,18 +260,15 @@ class Bundle:
         chunk = self.check_chunk(chunk)
         c2w = check_pose(c2w, "c2w", "pose")
         cam = self.camera_at(width, height)
+        stages = R.Stages()
         start, field_start = time.perf_counter(), self.field_seconds
-        n = cam.width * cam.height
-        raw = np.empty((n, 5), F32)
-        for s in range(0, n, chunk):
-            e = min(s + chunk, n)
-            idx = np.arange(s, e)
-            o, d = cam.rays(c2w, idx % cam.width, idx // cam.width)
-            out = self._render_chunk(o, d)
-            raw[s:e, :3], raw[s:e, 3], raw[s:e, 4] = out.rgb, out.depth, out.acc
-        raw = raw.reshape(cam.height, cam.width, 5)
-        return Frame(raw[..., :3].copy(), raw[..., 3].copy(), raw[..., 4].copy(),
-                     time.perf_counter() - start, self.field_seconds - field_start)
+        idx = np.arange(cam.width * cam.height)
+        o, d = cam.rays(c2w, idx % cam.width, idx // cam.width)
+        stages.lap("rays", start)
+        out = self._render_world(o, d, chunk, stages)
+        shape = (cam.height, cam.width)
+        return Frame(out.rgb.reshape(shape + (3,)), out.depth.reshape(shape), out.acc.reshape(shape),
+                     time.perf_counter() - start, self.field_seconds - field_start, stages)
 
     def __repr__(self) -> str:
         return (f"Bundle({self.path!r}, field_kind={self.field_kind!r}, camera={self.camera.width}×{self.camera.height}, "
