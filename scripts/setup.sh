@@ -8,7 +8,8 @@
 # Everything lives under ~/.cache/nerf-rs (override with NERF_HOME).
 #
 # `--gpu` also installs onnxruntime-gpu (the CUDA 13 build, for `nerf-render --device cuda`)
-# into a second venv, $NERF_HOME/venv-gpu: it cannot share the first (same module name). Not
+# into a second venv, $NERF_HOME/venv-gpu (with python/ on its path, for `python -m nerf_bundle
+# bench --device cuda`): it cannot share the first (same module name). Not
 # done by default (≈ 300 MB); CI never does it.
 set -euo pipefail
 GPU=0
@@ -40,6 +41,10 @@ if [ "$GPU" = 1 ]; then
     "$GPU_VENV/bin/python" -m pip install --quiet --disable-pip-version-check $GPU_REQUIREMENTS
     echo "$GPU_REQUIREMENTS" > "$GPU_STAMP"
   fi
+  # The Python package for `python -m nerf_bundle ... --device cuda`: a .pth naming python/
+  # (what an editable install writes; no download, so it also works offline).
+  GPU_SITE="$("$GPU_VENV/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')"
+  echo "$(cd "$(dirname "$0")/.." && pwd)/python" > "$GPU_SITE/nerf_bundle_repo.pth"
 fi
 
 # The Python package, editable: python/ is used as it is.

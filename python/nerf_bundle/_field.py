@@ -1,13 +1,15 @@
 """One bundle graph as onnxruntime sessions (``runtime/src/network.rs``): a call is split
 across ``workers`` sessions with one intra-op thread each, every session evaluating pieces of
 at most ``points_per_run`` points, run side by side from a thread pool (onnxruntime releases
-the GIL)."""
+the GIL). On a GPU (``device="cuda"``), one session of onnxruntime's CUDA provider evaluates
+pieces of ``GPU_POINTS_PER_RUN`` points."""
 from __future__ import annotations
 
+import re
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
-from typing import Optional, Sequence, Tuple
+from typing import Any, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -17,6 +19,35 @@ from ._validate import BundleError
 
 F32 = np.float32
 MIN_POINTS_PER_WORKER = 256
+#: Points per session run on a GPU unless told otherwise: a GPU wants large batches.
+GPU_POINTS_PER_RUN = 1 << 21
+#: How to get onnxruntime's CUDA build (errors name it).
+HOW_TO_INSTALL_GPU = ("pip install onnxruntime-gpu==1.31.1 (the CUDA 13 build; in place of onnxruntime, which has the same "
+                      "module name), or `bash scripts/setup.sh --gpu`, which installs it into $NERF_HOME/venv-gpu "
+                      "(~/.cache/nerf-rs/venv-gpu): run $NERF_HOME/venv-gpu/bin/python")
+
+
+def parse_device(device: str) -> Optional[int]:
+    """``"cpu"`` → None, ``"cuda"`` → 0, ``"cuda:N"`` → N; ValueError otherwise."""
+    if device == "cpu":
+        return None
+    m = re.fullmatch(r"cuda(?::([0-9]{1,9}))?", device) if isinstance(device, str) else None
+    if m is None:
+        raise ValueError(f"unknown device {device!r}: expected cpu, cuda or cuda:N (N a GPU index: 0, 1, …)")
+    return int(m.group(1) or 0)
+
+
+def cuda_providers(gpu: int) -> List[Any]:
+    """onnxruntime's CUDA provider on GPU ``gpu`` with TF32 off (TF32 matmuls move the field
+    by up to 6e-3 from the CPU's; without, 2e-7); BundleError when the installed onnxruntime
+    has no CUDA provider (the CPU wheel)."""
+    import onnxruntime as ort
+
+    available = ort.get_available_providers()
+    if "CUDAExecutionProvider" not in available:
+        raise BundleError(f"device cuda:{gpu}: the installed onnxruntime {ort.__version__} has no CUDAExecutionProvider "
+                          f"(it has {', '.join(available)}): {HOW_TO_INSTALL_GPU}")
+    return [("CUDAExecutionProvider", {"device_id": gpu, "use_tf32": 0})]
 
 
 class Graph:
@@ -24,7 +55,7 @@ class Graph:
     [N, 1] out."""
 
     def __init__(self, path: str, workers: int, providers: Optional[Sequence] = None,
-                 points_per_run: int = POINTS_PER_RUN) -> None:
+                 points_per_run: int = POINTS_PER_RUN, gpu: Optional[int] = None) -> None:
         import onnxruntime as ort
 
         self.path = path
@@ -35,6 +66,8 @@ class Graph:
         opts.intra_op_num_threads = 1
         opts.inter_op_num_threads = 1
         opts.log_severity_level = 3
+        if gpu is not None:
+            providers, workers = cuda_providers(gpu), 1
         providers = list(providers) if providers else ["CPUExecutionProvider"]
         try:
             with open(path, "rb") as f:
@@ -43,17 +76,28 @@ class Graph:
             raise BundleError(f"{path}: cannot read the graph: {e.strerror}") from None
         # Before onnxruntime sees it: it would follow external data out of the bundle.
         check_graph_bytes(path, model)
+        # On a GPU, an error rather than onnxruntime's fall-back to the CPU (at load or run).
+        strict = {"enable_fallback": 0} if gpu is not None else {}
         try:
-            first = ort.InferenceSession(model, opts, providers=providers)
+            first = ort.InferenceSession(model, opts, providers=providers, **strict)
         except Exception as e:  # onnxruntime raises its own exception types
+            if gpu is not None:
+                raise BundleError(f"{path}: cannot create a CUDA session on GPU {gpu} (onnxruntime: {e}); "
+                                  "is there a GPU, with the CUDA 13 libraries onnxruntime-gpu needs?") from None
             raise BundleError(f"{path}: cannot load the graph (truncated, not an ONNX model, or not following the graph "
                               f"contract: inputs points, viewdirs [N, 3]; outputs rgb [N, 3], sigma [N, 1]): {e}") from None
+        # onnxruntime falls back to the CPU quietly when the CUDA provider cannot start.
+        if gpu is not None and first.get_providers()[:1] != ["CUDAExecutionProvider"]:
+            raise BundleError(f"{path}: onnxruntime did not start its CUDA provider on GPU {gpu} (the session has "
+                              f"{', '.join(first.get_providers())}; its log says why): is there a GPU, with the CUDA 13 "
+                              "libraries onnxruntime-gpu needs?")
+        self.gpu = gpu
         inputs = sorted(i.name for i in first.get_inputs())
         outputs = sorted(o.name for o in first.get_outputs())
         if inputs != ["points", "viewdirs"] or not {"rgb", "sigma"} <= set(outputs):
             raise BundleError(f"{path}: inputs {inputs} and outputs {outputs} break the graph contract "
                               "(inputs points, viewdirs [N, 3]; outputs rgb [N, 3], sigma [N, 1])")
-        self.sessions = [first] + [ort.InferenceSession(model, opts, providers=providers) for _ in range(workers - 1)]
+        self.sessions = [first] + [ort.InferenceSession(model, opts, providers=providers, **strict) for _ in range(workers - 1)]
         self.pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="nerf-bundle") if workers > 1 else None
         self._lock = threading.Lock()
 
@@ -61,7 +105,12 @@ class Graph:
         session, piece = self.sessions[k], self.points_per_run
         for s in range(0, len(points), piece):
             e = min(s + piece, len(points))
-            out_rgb, out_sigma = session.run(["rgb", "sigma"], {"points": points[s:e], "viewdirs": viewdirs[s:e]})
+            try:
+                out_rgb, out_sigma = session.run(["rgb", "sigma"], {"points": points[s:e], "viewdirs": viewdirs[s:e]})
+            except Exception as err:  # onnxruntime's own types; on a CPU its errors are bugs, left as they are
+                if self.gpu is None:
+                    raise
+                raise BundleError(f"{self.path}: onnxruntime failed on GPU {self.gpu} ({e - s} points): {err}") from None
             rgb[s:e] = out_rgb
             sigma[s:e] = np.asarray(out_sigma).reshape(-1)
 

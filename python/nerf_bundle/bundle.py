@@ -9,7 +9,7 @@ from typing import Any, Dict, List, Optional, Sequence, Tuple
 import numpy as np
 
 from . import _render as R
-from ._field import Graph
+from ._field import GPU_POINTS_PER_RUN, Graph, parse_device
 from ._limits import (DEFAULT_CHUNK, DEFAULT_MARCH_STEPS, MAX_FRAMES, MAX_FRAME_PIXELS, MAX_GRAPH_BYTES, MAX_IMAGE_SIDE,
                       MAX_POINTS_PER_CALL, MAX_THREADS, POINTS_PER_RUN)
 from ._validate import (bounded_file, bundle_file, check_chunk, check_count, check_grid_matches, check_pose, graph_files,
@@ -28,6 +28,7 @@ class Frame:
     acc: np.ndarray
     seconds: float = 0.0
     field_seconds: float = 0.0
+    stages: Optional[R.Stages] = None
 
     @property
     def raw(self) -> np.ndarray:
@@ -77,6 +78,7 @@ class Bundle:
         self.graphs = graphs
         self.grid = grid
         self.skip_empty_space = skip_empty_space
+        self.device = "cpu"
         self.camera = Camera.from_scene(scene["camera"])
         s = scene["sampling"]
         self.near, self.far = F32(s["near"]), F32(s["far"])
@@ -87,23 +89,37 @@ class Bundle:
 
     @classmethod
     def open(cls, path: "str | os.PathLike[str]", *, providers: Optional[Sequence[Any]] = None, threads: Optional[int] = None,
-             skip_empty_space: bool = True, points_per_run: int = POINTS_PER_RUN) -> "Bundle":
+             skip_empty_space: bool = True, points_per_run: Optional[int] = None, device: Optional[str] = None) -> "Bundle":
         """Open and check the bundle at ``path`` as nerf-render does (limits of untrusted bundles,
         file names inside the bundle, the graph contract); raises :class:`BundleError` naming
         the file and the problem.
 
-        ``threads``: onnxruntime sessions per graph run side by side (default ``os.cpu_count()``),
-        each with one intra-op thread on pieces of ``points_per_run`` points. ``providers``:
-        onnxruntime execution providers (default CPU). ``skip_empty_space=False`` ignores
+        ``device``: ``"cpu"`` (the default) or ``"cuda"`` / ``"cuda:N"``: onnxruntime's CUDA
+        provider on GPU N with TF32 off, one session per graph on pieces of ``points_per_run``
+        (default 2**21) points, and a frame's rays marched in batches of up to 262,144 rays per
+        field call; BundleError when the installed onnxruntime has no CUDA provider (the CPU
+        wheel: ``pip install onnxruntime-gpu==1.31.1``) or the session cannot start on the GPU,
+        never a quiet fall-back to the CPU. ``providers``: onnxruntime execution providers for
+        the CPU path (default CPU); with ``device`` a ValueError (say one or the other).
+        ``threads``: onnxruntime sessions per graph run side by side (default
+        ``os.cpu_count()``; on a GPU one), each with one intra-op thread on pieces of
+        ``points_per_run`` points (default 2,048). ``skip_empty_space=False`` ignores
         occupancy.bin (nerf-render ``--dense``)."""
         path = os.fspath(path)
-        workers = check_count(threads if threads is not None else (os.cpu_count() or 1), MAX_THREADS, "threads", "threads")
+        gpu = parse_device(device) if device is not None else None
+        if device is not None and providers is not None:
+            raise ValueError(f"device={device!r} and providers=...: pass one of them (device picks the providers)")
+        if gpu is not None and threads not in (None, 1):
+            raise ValueError(f"threads: {threads!r} sessions per graph; on a GPU one session runs each graph (leave threads out)")
+        if points_per_run is None:
+            points_per_run = GPU_POINTS_PER_RUN if gpu is not None else POINTS_PER_RUN
+        workers = 1 if gpu is not None else check_count(threads if threads is not None else (os.cpu_count() or 1), MAX_THREADS, "threads", "threads")
         points_per_run = check_count(points_per_run, MAX_POINTS_PER_CALL, "points_per_run", "points")
         scene = read_scene(path)
         graphs: Dict[str, Graph] = {}
         for role, (key, name) in graph_files(scene).items():
             file = bounded_file(bundle_file(path, name, key), MAX_GRAPH_BYTES, key)
-            graphs[role] = Graph(file, workers, providers, points_per_run)
+            graphs[role] = Graph(file, workers, providers, points_per_run, gpu)
         occ = scene.get("occupancy")
         grid = None
         if occ and skip_empty_space:
@@ -113,6 +129,8 @@ class Bundle:
         elif is_bounded(scene):
             grid = R.Grid(np.ones(1, bool), 1, F32(occ["bound"]))
         bundle = cls(path, scene, graphs, grid, skip_empty_space)
+        if gpu is not None:
+            bundle.device = f"cuda:{gpu}"
         for split in ("test", "orbit"):
             bundle.poses(split)  # non-finite or malformed poses are refused now
         return bundle
@@ -201,14 +219,25 @@ class Bundle:
         naming ``what`` otherwise)."""
         return self.default_chunk if chunk is None else check_chunk(chunk, self.samples_per_ray, what)
 
-    def _render_batch(self, o: np.ndarray, d: np.ndarray, view: np.ndarray) -> R.Marched:
-        """nerf-render's ``render_rays`` for one batch of (already NDC-warped) rays."""
+    def _render_batch(self, o: np.ndarray, d: np.ndarray, view: np.ndarray, chunk: int, stages: R.Stages,
+                      march_batch: Optional[int] = None) -> R.Marched:
+        """nerf-render's ``render_rays`` for (already NDC-warped) rays, ``chunk`` rays per batch:
+        marched all together (each chunk's field calls as nerf-render makes them; ``march_batch``
+        rays per call instead when given), or dense a chunk at a time."""
         min_t = float(R.MIN_TRANSMITTANCE) if self.skip_empty_space else None
         viewdirs = R.unit(view)
         if self.grid is not None:
-            samples = R.occupied_samples(self.grid, o, d, self.near, self.far, max(self.march_steps, 1))
             stage = "fine" if self.n_fine > 0 else "coarse"
-            return R.march_front_to_back(self._graph(stage), o, d, viewdirs, samples, min_t, self.white_background)
+            return R.march_grid(self._graph(stage), self.grid, o, d, viewdirs, self.near, self.far, max(self.march_steps, 1),
+                                min_t, self.white_background, march_batch or chunk, stages)
+        parts = [self._render_dense(o[s:s + chunk], d[s:s + chunk], viewdirs[s:s + chunk], min_t) for s in range(0, len(o), chunk)]
+        if not parts:
+            return R.Marched(np.zeros((0, 3), F32), np.zeros(0, F32), np.zeros(0, F32), None)
+        return R.Marched(np.concatenate([p.rgb for p in parts]), np.concatenate([p.depth for p in parts]),
+                         np.concatenate([p.acc for p in parts]), None)
+
+    def _render_dense(self, o: np.ndarray, d: np.ndarray, viewdirs: np.ndarray, min_t: Optional[float]) -> R.Marched:
+        """Coarse (and fine) samples of one chunk of rays, without a grid."""
         n = self.n_coarse
         t = np.broadcast_to(R.stratified(self.near, self.far, n, self.lindisp), (len(o), n))
         seg = R.MARCH_SEGMENT if min_t is not None else n
@@ -216,6 +245,7 @@ class Bundle:
                                     self.white_background, seg)
         if self.n_fine == 0:
             return out
+        assert out.weights is not None
         extra = R.importance(t, out.weights.reshape(len(o), n), self.n_fine)
         t_all = np.sort(np.concatenate([t, extra], axis=1), axis=1)
         seg = R.MARCH_SEGMENT if min_t is not None else t_all.shape[1]
@@ -225,20 +255,25 @@ class Bundle:
     def render_rays(self, origins: np.ndarray, directions: np.ndarray, *, chunk: Optional[int] = None) -> Rays:
         """Render world rays ``origins``, ``directions`` [N, 3] (directions not normalised: t is
         along them; NDC-warped first for a forward-facing bundle, as nerf-render does)."""
+        batch = self._march_batch(chunk)
         chunk = self.check_chunk(chunk)
         o = np.asarray(origins, F32).reshape(-1, 3)
         d = np.asarray(directions, F32).reshape(-1, 3)
-        parts = [self._render_chunk(o[s:s + chunk], d[s:s + chunk]) for s in range(0, len(o), chunk)]
-        if not parts:
-            return Rays(np.zeros((0, 3), F32), np.zeros(0, F32), np.zeros(0, F32))
-        return Rays(np.concatenate([p.rgb for p in parts]), np.concatenate([p.depth for p in parts]),
-                    np.concatenate([p.acc for p in parts]))
+        out = self._render_world(o, d, chunk, R.Stages(), batch)
+        return Rays(out.rgb, out.depth, out.acc)
 
-    def _render_chunk(self, o: np.ndarray, d: np.ndarray) -> R.Marched:
+    def _render_world(self, o: np.ndarray, d: np.ndarray, chunk: int, stages: R.Stages, batch: Optional[int]) -> R.Marched:
+        start = time.perf_counter()
         view = d
         if self.ndc is not None:
             o, d = ndc_rays(self.ndc, o, d)
-        return self._render_batch(o, d, view)
+        stages.lap("rays", start)
+        return self._render_batch(o, d, view, chunk, stages, batch)
+
+    def _march_batch(self, chunk: Optional[int]) -> Optional[int]:
+        """Rays per field call when marching on a GPU without a ``chunk``: as many as keep a
+        call within the points limit (a GPU wants large batches); None otherwise."""
+        return MAX_POINTS_PER_CALL // R.MARCH_SEGMENT if self.device != "cpu" and chunk is None else None
 
     def render(self, c2w: np.ndarray, width: Optional[int] = None, height: Optional[int] = None, *,
                chunk: Optional[int] = None) -> Frame:
@@ -246,21 +281,19 @@ class Bundle:
         resolution, or at ``width`` (× ``height``, default keeping the aspect) with the camera
         rescaled as nerf-render's ``--width``/``--height``. ``chunk`` rays per batch (default
         :attr:`default_chunk`)."""
+        batch = self._march_batch(chunk)
         chunk = self.check_chunk(chunk)
         c2w = check_pose(c2w, "c2w", "pose")
         cam = self.camera_at(width, height)
+        stages = R.Stages()
         start, field_start = time.perf_counter(), self.field_seconds
-        n = cam.width * cam.height
-        raw = np.empty((n, 5), F32)
-        for s in range(0, n, chunk):
-            e = min(s + chunk, n)
-            idx = np.arange(s, e)
-            o, d = cam.rays(c2w, idx % cam.width, idx // cam.width)
-            out = self._render_chunk(o, d)
-            raw[s:e, :3], raw[s:e, 3], raw[s:e, 4] = out.rgb, out.depth, out.acc
-        raw = raw.reshape(cam.height, cam.width, 5)
-        return Frame(raw[..., :3].copy(), raw[..., 3].copy(), raw[..., 4].copy(),
-                     time.perf_counter() - start, self.field_seconds - field_start)
+        idx = np.arange(cam.width * cam.height)
+        o, d = cam.rays(c2w, idx % cam.width, idx // cam.width)
+        stages.lap("rays", start)
+        out = self._render_world(o, d, chunk, stages, batch)
+        shape = (cam.height, cam.width)
+        return Frame(out.rgb.reshape(shape + (3,)), out.depth.reshape(shape), out.acc.reshape(shape),
+                     time.perf_counter() - start, self.field_seconds - field_start, stages)
 
     def __repr__(self) -> str:
         return (f"Bundle({self.path!r}, field_kind={self.field_kind!r}, camera={self.camera.width}×{self.camera.height}, "

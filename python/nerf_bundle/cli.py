@@ -5,10 +5,17 @@ Writes ``<name>.png`` per view (needs Pillow) and, with ``--npy``, ``<name>.npy`
 [H, W, 5] = r, g, b, depth, acc, named as nerf-render names them: a bundle's test views by
 their pose names (``r_0``, ...), orbit frames ``frame_000``, ...; ``--pose FILE`` (JSON: a 4×4
 or 3×4 OpenGL camera-to-world matrix, or an object with ``transform_matrix``) writes ``pose``.
-A line per frame (``k/N``) reports progress."""
+A line per frame (``k/N``) reports progress. ``--device cuda[:N]`` renders on a GPU.
+
+``python -m nerf_bundle bench BUNDLE [--device cpu|cuda[:N]] [--view N] [--repeat K] [--width W]
+[--threads N] [--parity] [--json]`` renders test view N K times and prints, per frame, the
+total seconds, the seconds inside onnxruntime (the wall time of the field calls), the rest
+(outside) and its stages; ``--parity`` also renders the view with onnxruntime's CPU provider
+and prints the largest |Δ| of r, g, b, depth, acc; ``--json`` prints one JSON object instead."""
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 import time
@@ -38,6 +45,16 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--threads", type=int, help="onnxruntime sessions side by side (default: one per core)")
     r.add_argument("--chunk", type=int, help="rays per batch (default: 4096, fewer when the bundle's rays have many samples)")
     r.add_argument("--dense", action="store_true", help="ignore occupancy.bin (as nerf-render --dense)")
+    r.add_argument("--device", help="cpu (default), or cuda / cuda:N: onnxruntime's CUDA provider on GPU N (needs onnxruntime-gpu)")
+    b = sub.add_parser("bench", help="time frames: total, inside onnxruntime, outside, and the stages")
+    b.add_argument("bundle", help="bundle directory")
+    b.add_argument("--device", default="cpu", help="cpu (default), or cuda / cuda:N (needs onnxruntime-gpu)")
+    b.add_argument("--view", type=int, default=0, help="test view index (default 0)")
+    b.add_argument("--repeat", type=int, default=3, help="frames to render (default 3; the first one warms up)")
+    b.add_argument("--width", type=int, help="render at this width (the camera scales with it)")
+    b.add_argument("--threads", type=int, help="onnxruntime sessions side by side on the CPU (default: one per core)")
+    b.add_argument("--parity", action="store_true", help="also render on the CPU provider and print the largest |Δ|")
+    b.add_argument("--json", action="store_true", help="print one JSON object")
     return p
 
 
@@ -62,6 +79,8 @@ def _read_pose(path: str) -> np.ndarray:
 
 def main(argv: Optional[List[str]] = None) -> int:
     a = _parser().parse_args(argv)
+    if a.command == "bench":
+        return bench(a)
     if a.height is not None and a.width is None:
         print("error: --height needs --width", file=sys.stderr)
         return 2
@@ -78,7 +97,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         print("error: writing PNGs needs Pillow: pip install 'nerf_bundle[images]' (or pass --npy for raw arrays only)", file=sys.stderr)
         return 2
     try:
-        bundle = Bundle.open(a.bundle, threads=a.threads, skip_empty_space=not a.dense)
+        bundle = Bundle.open(a.bundle, threads=a.threads, skip_empty_space=not a.dense, device=a.device)
         if a.pose:
             poses, names = [_read_pose(a.pose)], ["pose"]
         elif a.orbit:
@@ -112,6 +131,57 @@ def main(argv: Optional[List[str]] = None) -> int:
     seconds = time.perf_counter() - start
     print(f"{len(poses)} frames at {cam.width}×{cam.height} in {seconds:.1f} s ({seconds / len(poses):.2f} s per frame, "
           f"{'dense sampling' if bundle.grid is None else 'empty space skipped' if not a.dense else 'marched through the box'}) into {a.out}")
+    return 0
+
+
+def bench(a: argparse.Namespace) -> int:
+    """``bench``: time ``--repeat`` frames of one test view (and the CPU provider's parity)."""
+    try:
+        if a.repeat < 1 or a.repeat > 1000:
+            raise ValueError(f"--repeat: {a.repeat} is outside 1..1000")
+        bundle = Bundle.open(a.bundle, threads=a.threads, device=a.device)
+        poses = bundle.poses("test")
+        if not 0 <= a.view < len(poses):
+            raise ValueError(f"--view: {a.view} is not a test view (the bundle has {len(poses)})")
+        cam = bundle.camera_at(a.width)
+    except BundleError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    frames, last = [], None
+    try:
+        for k in range(a.repeat):
+            last = bundle.render(poses[a.view], a.width)
+            stages = {name: round(getattr(last.stages, name), 4) for name in ("rays", "march", "gather", "composite")}
+            row = {"total_s": round(last.seconds, 4), "onnxruntime_s": round(last.field_seconds, 4),
+                   "outside_s": round(last.seconds - last.field_seconds, 4), "stages_s": stages}
+            frames.append(row)
+            if not a.json:
+                split = ", ".join(f"{n} {v:.3f}" for n, v in stages.items())
+                print(f"frame {k + 1}/{a.repeat}: {row['total_s']:.3f} s, onnxruntime {row['onnxruntime_s']:.3f} s, "
+                      f"outside {row['outside_s']:.3f} s ({split})", flush=True)
+        parity = None
+        if a.parity:
+            cpu = Bundle.open(a.bundle, threads=a.threads).render(poses[a.view], a.width)
+            assert last is not None
+            diff = np.abs(last.raw.astype(np.float64) - cpu.raw)
+            parity = {"max_abs": float(diff.max()), "max_abs_rgb_depth_acc": [float(v) for v in diff.max(axis=(0, 1))]}
+    except BundleError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
+    best = min(frames[1:] or frames, key=lambda f: f["total_s"])
+    if a.json:
+        print(json.dumps({"bundle": a.bundle, "device": bundle.device, "view": a.view, "width": cam.width, "height": cam.height,
+                          "frames": frames, "best": best, "parity_vs_cpu": parity}))
+    else:
+        print(f"{cam.width}×{cam.height} on {bundle.device}: best {best['total_s']:.3f} s per frame, "
+              f"{best['onnxruntime_s']:.3f} s in onnxruntime, {best['outside_s']:.3f} s outside"
+              + ("" if len(frames) == 1 else " (the first frame, warming up, left out)"))
+        if parity is not None:
+            print(f"parity against the CPU provider: max |Δ| {parity['max_abs']:.3g} "
+                  f"(r g b depth acc: {' '.join(f'{v:.3g}' for v in parity['max_abs_rgb_depth_acc'])})")
     return 0
 
 
