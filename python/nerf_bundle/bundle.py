@@ -205,8 +205,9 @@ class Bundle:
 
     @property
     def samples_per_ray(self) -> int:
-        """The most samples one ray may send to the field: n_coarse + n_fine, or march_steps."""
-        return max(self.n_coarse + self.n_fine, self.march_steps)
+        """The most samples one ray sends to the field in one call: marching's MARCH_SEGMENT, or
+        n_coarse + n_fine on the dense path (nerf-render's chunk limit)."""
+        return R.MARCH_SEGMENT if self.grid is not None else self.n_coarse + self.n_fine
 
     @property
     def default_chunk(self) -> int:

@@ -251,7 +251,7 @@ def test_cli_refuses_bad_options_and_bundles_without_a_traceback(tmp_path):
 
     out = tmp_path / "out"
     for chunk, needle in [("0", "--chunk: must be at least 1"), ("1000000000", "--chunk: 1000000000 rays is more than the limit of 1048576"),
-                          ("100000", "--chunk: 100000 rays × 256 samples = 25600000 points per network call is more than the limit of 4194304")]:
+                          ("300000", "--chunk: 300000 rays × 16 samples = 4800000 points per network call is more than the limit of 4194304")]:
         done = cli(SPHERES, "--orbit", "--limit", "1", "--npy", "--out", out, "--chunk", chunk)
         assert done.returncode == 2 and done.stderr.startswith("error: ") and needle in done.stderr, done.stderr
     done = cli(SPHERES, "--orbit", "--npy", "--out", out, "--chunk", "many")
@@ -263,15 +263,20 @@ def test_cli_refuses_bad_options_and_bundles_without_a_traceback(tmp_path):
 
 
 def test_the_default_chunk_keeps_a_call_within_the_points_limit(tmp_path):
-    """As nerf-render's default_chunk: 4096 rays, fewer when a ray has many samples (a bundle
-    marching 2048 intervals: 2048 rays; 4096 × 2048 would pass the 2^22 points limit)."""
+    """As nerf-render's default_chunk: 4096 rays; marching sends at most 16 samples a ray per
+    call, however many intervals it marches (2048 here), the dense path all of its samples
+    (64 + 128 without the grid: 4096 rays)."""
     assert nerf_bundle.Bundle.open(SPHERES, threads=1).default_chunk == 4096
     b = nerf_bundle.Bundle.open(edited_bundle(tmp_path / "steps", lambda j: j.__setitem__("march_steps", 2048)), threads=1)
-    assert (b.samples_per_ray, b.default_chunk, b.check_chunk(None)) == (2048, 2048, 2048)
-    with pytest.raises(ValueError, match="4096 rays × 2048 samples = 8388608 points"):
-        b.check_chunk(4096)
+    assert (b.samples_per_ray, b.default_chunk, b.check_chunk(None)) == (16, 4096, 4096)
+    with pytest.raises(ValueError, match="300000 rays × 16 samples = 4800000 points"):
+        b.check_chunk(300000)
     rays = b.render_rays(np.zeros((3, 3), np.float32) + [0, 0, 4], np.array([[0, 0, -1]] * 3, np.float32))
     assert rays.rgb.shape == (3, 3)
+    dense = nerf_bundle.Bundle.open(SPHERES, threads=1, skip_empty_space=False)
+    assert dense.samples_per_ray == 96
+    with pytest.raises(ValueError, match="50000 rays × 96 samples = 4800000 points"):
+        dense.check_chunk(50000)
 
 
 def test_a_pose_of_huge_finite_numbers_renders(tmp_path):
