@@ -124,7 +124,3 @@ export function graphInfo(bytes: Uint8Array, name: string): GraphInfo {
   if (info.ops.size === 0) bad("no graph nodes");
   return info;
 }
-
-/** Operators of the hash grid's default (bitwise) lowering that onnxruntime-web's WebGPU
- *  provider has no kernel for (the portable lowering, `nerf export --portable`, avoids them). */
-export const WEBGPU_MISSING_OPS = ["BitwiseXor", "BitwiseAnd", "BitwiseOr", "BitwiseNot", "BitShift"];

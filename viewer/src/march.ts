@@ -27,9 +27,10 @@ export function emptyReach(g: Grid): Uint8Array {
   for (let c = 0; c < n; c++) if (cur[c]) reach[c] = 0;
   const strides = [R * R, R, 1];
   for (let dist = 1; dist <= MAX_REACH; dist++) {
+    // One 3-wide max filter per axis: cells within `dist` of an occupied cell, from within dist − 1.
     for (const stride of strides) {
       for (let c = 0; c < n; c++) {
-        const at = Math.floor(c / stride) % R;
+        const at = ((c / stride) | 0) % R;
         tmp[c] = cur[c] | (at > 0 ? cur[c - stride] : 0) | (at < R - 1 ? cur[c + stride] : 0);
       }
       [cur, tmp] = [tmp, cur];

@@ -5,9 +5,11 @@
 
 import type * as OrtModule from "onnxruntime-web/wasm";
 import { cameraRays, ndcRays, outputSize, pinhole, resized } from "./camera";
-import { type GraphInfo, WEBGPU_MISSING_OPS, checkScene, graphFiles, graphInfo, isBounded, parseGrid, wholeBox } from "./bundle";
+import { type GraphInfo, checkScene, graphFiles, graphInfo, isBounded, parseGrid, wholeBox } from "./bundle";
 import { type Field, type Grid, MAX_POINTS, type MarchTiming, renderDense, renderMarch } from "./render";
 import type { FromWorker, Provider, ToWorker } from "./protocol";
+import { type Adapter, pickProvider } from "./provider";
+import { emptyReach } from "./march";
 
 type Ort = typeof OrtModule;
 interface Loaded { scene: any; coarse: Field; fine: Field | null; grid: Grid | null }
@@ -50,25 +52,14 @@ function sessionField(ort: Ort, session: OrtModule.InferenceSession): Field {
   };
 }
 
-/** WebGPU where the browser has an adapter and every graph can run on it; else WASM, with why.
- *  `want` = "wasm" (?ep=wasm) skips WebGPU. */
+/** The provider (see provider.ts); `want` = "wasm" (?ep=wasm) skips WebGPU. */
 async function chooseProvider(graphs: { name: string; info: GraphInfo }[], want: string): Promise<{ provider: Provider; reason: string }> {
   if (want === "wasm") return { provider: "wasm", reason: "asked for (?ep=wasm)" };
   const gpu = (navigator as any).gpu;
-  if (!gpu) return { provider: "wasm", reason: "no WebGPU in this browser" };
-  let adapter: any = null;
+  if (!gpu) return pickProvider(null, graphs, true);
+  let adapter: Adapter | null = null;
   try { adapter = await gpu.requestAdapter(); } catch { /* as no adapter */ }
-  if (!adapter) return { provider: "wasm", reason: "no GPU adapter" };
-  for (const g of graphs) {
-    const missing = WEBGPU_MISSING_OPS.filter((op) => g.info.ops.has(op));
-    if (missing.length) return { provider: "wasm", reason: `${g.name} has ops WebGPU lacks: ${missing.join(", ")} (a bundle exported with nerf export --portable runs on WebGPU)` };
-    // onnxruntime-web's WebGPU kernels read float16 only where the adapter has shader-f16.
-    if (g.info.float16 && !adapter.features.has("shader-f16"))
-      return { provider: "wasm", reason: `${g.name} stores float16 tensors and the GPU adapter lacks shader-f16 (export with --tables f32)` };
-  }
-  const info = adapter.info ?? {};
-  const name = [info.vendor, info.architecture].filter(Boolean).join(" ") || "GPU";
-  return { provider: "webgpu", reason: `${name} adapter${info.isFallbackAdapter ? " (software fallback)" : ""}` };
+  return pickProvider(adapter, graphs);
 }
 
 /** onnxruntime-web's WASM build, or its WebGPU build (which also holds the WASM kernels). */
@@ -113,6 +104,8 @@ async function load(bundleUrl: string, ortUrl: string, dense: boolean, ep: strin
   let grid: Grid | null = null;
   if (scene.occupancy && !dense) grid = parseGrid(await fetchOk(new URL(scene.occupancy.file, bundleUrl).href));
   else if (isBounded(scene)) grid = wholeBox(scene.occupancy.bound);
+  if (grid) emptyReach(grid); // once per bundle, not per frame
+
   bundle = { scene, coarse: fields[0], fine: fields[1] ?? null, grid };
   post({ type: "loaded", scene, threads: ort.env.wasm.numThreads as number, backend: provider, reason, isolated, marched: grid !== null });
 }

@@ -1,6 +1,6 @@
 // Time to the first preview and to the full frame in the browser, against nerf-render on the
 // same view, one bundle after the other in one run:
-//   node tests/timing.mjs [--viewer DIR ...] [--webgpu] [bundle ...]
+//   node tests/timing.mjs [--viewer DIR ...] [--webgpu] [--no-native] [bundle ...]
 // (default bundles: models/lego models/lego-ngp, paths from the repository root; default viewer:
 // viewer/dist; several --viewer DIRs, e.g. a build before and after a change, run back to back
 // on each bundle; --webgpu: chromium with --enable-unsafe-webgpu, its software adapter;
@@ -20,10 +20,11 @@ const REPO = resolve(import.meta.dirname, "../..");
 const env = (cmd) => execFileSync("bash", ["-c", `. scripts/env.sh && ${cmd}`], { cwd: REPO, encoding: "utf8" });
 const bin = process.env.NERF_RENDER ?? env('echo "$CARGO_TARGET_DIR/release/nerf-render"').trim();
 const args = process.argv.slice(2), viewers = [], bundles = [];
-let webgpu = false;
+let webgpu = false, nativeToo = true;
 for (let i = 0; i < args.length; i++) {
   if (args[i] === "--viewer") viewers.push(resolve(args[++i]));
   else if (args[i] === "--webgpu") webgpu = true;
+  else if (args[i] === "--no-native") nativeToo = false;
   else bundles.push(args[i]);
 }
 if (!viewers.length) viewers.push(join(REPO, "viewer/dist"));
@@ -63,8 +64,11 @@ for (const bundle of bundles) {
     server.kill();
     const first = timeline[0], full = timeline[timeline.length - 1];
     console.log(`${bundle} [${viewer}]: first preview ${first.width}×${first.height} at ${s(first.at)} s, full ${full.width}×${full.height} at ${s(full.at)} s; ` +
-      `that pass ${s(stats.ms)} s = field ${s(stats.fieldMs)} s + loop ${s(stats.ms - stats.fieldMs)} s (${stats.threads} threads, ${stats.backend})\n  stats line: ${line}`);
+      `that pass ${s(stats.ms)} s = field ${s(stats.fieldMs)} s + loop ${s(stats.ms - stats.fieldMs)} s` +
+      (stats.marchMs !== undefined ? ` (rays ${s(stats.raysMs)}, march ${s(stats.marchMs)}, compositing ${s(stats.compositeMs)})` : "") +
+      ` (${stats.threads} threads, ${stats.backend})\n  stats line: ${line}`);
   }
+  if (!nativeToo) continue;
   const fast = native(dir, width, []), whole = native(dir, width, ["--whole-graph"]);
   console.log(`${bundle}: nerf-render ${fast.toFixed(2)} s per frame, --whole-graph ${whole.toFixed(2)} s (same view)`);
 }
