@@ -126,7 +126,7 @@ export class RayMarch {
       const x = f(ox + f(tk * dx)), y = f(oy + f(tk * dy)), z = f(oz + f(tk * dz));
       const u = f(f(f(x + b) / two) * R), v = f(f(f(y + b) / two) * R), w = f(f(f(z + b) / two) * R);
       if (!(u >= 0 && u < R && v >= 0 && v < R && w >= 0 && w < R)) { k++; continue; }
-      const i = Math.floor(u), j = Math.floor(v), l = Math.floor(w);
+      const i = u | 0, j = v | 0, l = w | 0; // floor: 0 ≤ u < R ≤ 512
       const c = (i * R + j) * R + l;
       if (occ[c] !== 0) {
         const p = at + n;

@@ -1,6 +1,9 @@
 // The viewer in a real browser (Debian's chromium through playwright-core) against the native
 // renderer: each bundle's test pose 0 rendered by the page (?pose=test:0) and by
-// `nerf-render --npy` must agree to max |Δrgb| <= 1e-3 and PSNR >= 40 dB.
+// `nerf-render --npy` must agree to max |Δrgb| <= 1e-3 and PSNR >= 40 dB. A second chromium
+// with --enable-unsafe-webgpu (a software WebGPU adapter) renders the portable hash-grid fixture
+// on WebGPU, which must agree with its WASM frame to 1e-5, and a bitwise graph, which must fall
+// back to WASM with the reason on the stats line (both skip, saying so, without an adapter).
 //
 // The pages are served by `nerf-render --bundle B --serve --port P --viewer dist/` on a free
 // loopback port. Environment: NERF_SERVE_CMD swaps the server: a shell command with {root},
