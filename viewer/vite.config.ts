@@ -4,7 +4,9 @@ import { copyFileSync, mkdirSync } from "node:fs";
 import { resolve } from "node:path";
 import { defineConfig, type Plugin } from "vite";
 
-const ORT_FILES = ["ort-wasm-simd-threaded.mjs", "ort-wasm-simd-threaded.wasm"];
+// The WASM build, and the WebGPU one (asyncify) the worker loads instead when it runs on a GPU.
+const ORT_FILES = ["ort-wasm-simd-threaded.mjs", "ort-wasm-simd-threaded.wasm",
+  "ort-wasm-simd-threaded.asyncify.mjs", "ort-wasm-simd-threaded.asyncify.wasm"];
 
 function copyOrt(): Plugin {
   return {
@@ -18,7 +20,7 @@ function copyOrt(): Plugin {
   };
 }
 
-// "onnxruntime-web-use-extern-wasm" picks ort.wasm.min.mjs, which loads the runtime from
+// "onnxruntime-web-use-extern-wasm" picks ort.wasm.min.mjs (ort.webgpu.min.mjs), which loads the runtime from
 // wasmPaths instead of bundling it into our chunks.
 const conditions = ["onnxruntime-web-use-extern-wasm", "module", "browser", "development|production"];
 

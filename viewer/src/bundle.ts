@@ -62,3 +62,65 @@ export function parseGrid(buf: ArrayBuffer): Grid {
 export function wholeBox(bound: number): Grid {
   return { res: 1, bound, occupied: new Uint8Array([1]) };
 }
+
+/** What a consumer needs to know about an ONNX graph before picking where to run it. */
+export interface GraphInfo {
+  /** The operator types of the main graph's nodes. */
+  ops: Set<string>;
+  /** Whether an initializer is float16 (a hash grid's table stored in float16). */
+  float16: boolean;
+  /** metadata_props (nerf.hash_lowering, nerf.grid_table, …). */
+  metadata: Record<string, string>;
+}
+
+/** Reads the parts of an ONNX ModelProto GraphInfo names, walking the protobuf wire format
+ *  (ModelProto.graph = 7, metadata_props = 14; GraphProto.node = 1, initializer = 5;
+ *  NodeProto.op_type = 4; TensorProto.data_type = 2, FLOAT16 = 10) and skipping the rest by
+ *  length, so the weights are never decoded. `name` goes into the error of a malformed file. */
+export function graphInfo(bytes: Uint8Array, name: string): GraphInfo {
+  const info: GraphInfo = { ops: new Set(), float16: false, metadata: {} };
+  const text = new TextDecoder();
+  const bad = (why: string): never => { throw new Error(`${name}: not an ONNX model (${why})`); };
+  const varint = (at: { pos: number }, end: number): number => {
+    let v = 0, scale = 1;
+    for (let i = 0; i < 10; i++) {
+      if (at.pos >= end) bad("truncated");
+      const b = bytes[at.pos++];
+      v += (b & 0x7f) * scale; scale *= 128;
+      if (b < 0x80) return v;
+    }
+    return bad("a varint longer than 10 bytes");
+  };
+  /** Calls `field(number, start, end)` for length-delimited fields and `scalar(number, value)` for varints. */
+  const walk = (start: number, end: number, field: (n: number, s: number, e: number) => void, scalar: (n: number, v: number) => void = () => {}) => {
+    const at = { pos: start };
+    while (at.pos < end) {
+      const key = varint(at, end), n = Math.floor(key / 8), wire = key % 8;
+      if (wire === 0) scalar(n, varint(at, end));
+      else if (wire === 1) at.pos += 8;
+      else if (wire === 5) at.pos += 4;
+      else if (wire === 2) {
+        const len = varint(at, end), s = at.pos;
+        if (s + len > end) bad("a field runs past the end of the file");
+        at.pos += len;
+        field(n, s, s + len);
+      } else bad(`wire type ${wire}`);
+      if (at.pos > end) bad("truncated");
+    }
+  };
+  const str = (s: number, e: number) => text.decode(bytes.subarray(s, e));
+  walk(0, bytes.length, (n, s, e) => {
+    if (n === 14) {
+      let key = "", value = "";
+      walk(s, e, (m, a, b) => { if (m === 1) key = str(a, b); else if (m === 2) value = str(a, b); });
+      info.metadata[key] = value;
+    } else if (n === 7) {
+      walk(s, e, (m, a, b) => {
+        if (m === 1) walk(a, b, (k, c, d) => { if (k === 4) info.ops.add(str(c, d)); });
+        else if (m === 5) walk(a, b, () => {}, (k, v) => { if (k === 2 && v === 10) info.float16 = true; });
+      });
+    }
+  });
+  if (info.ops.size === 0) bad("no graph nodes");
+  return info;
+}

@@ -40,13 +40,19 @@ function draw(m: FrameMsg, depthView: boolean, near: number, far: number): void 
 }
 
 function statsOf(m: FrameMsg, loaded: Loaded) {
-  return { width: m.width, height: m.height, ms: m.ms, fieldMs: m.fieldMs, points: m.points, pointsPerSecond: m.points / (m.ms / 1000),
-    threads: loaded.threads, backend: loaded.backend };
+  return { width: m.width, height: m.height, ms: m.ms, fieldMs: m.fieldMs, loopMs: m.ms - m.fieldMs,
+    raysMs: m.raysMs, marchMs: m.marchMs, compositeMs: m.compositeMs, points: m.points, pointsPerSecond: m.points / (m.ms / 1000),
+    threads: loaded.threads, backend: loaded.backend, reason: loaded.reason };
 }
 
+const sec = (ms: number) => `${(ms / 1000).toFixed(2)} s`;
+
+/** "400×400 in 9.80 s: field 9.52 s · loop 0.28 s (march 0.20 s) · 2.82 M points · … · wasm, 2 threads (no GPU adapter)". */
 function statsLine(s: ReturnType<typeof statsOf>, loaded: Loaded): string {
-  return `${s.width}×${s.height} in ${s.ms.toFixed(0)} ms (${s.fieldMs.toFixed(0)} in onnxruntime) · ${(s.points / 1e6).toFixed(2)} M points · ` +
-    `${(s.pointsPerSecond / 1e6).toFixed(2)} M points/s · ${s.threads} thread${s.threads > 1 ? "s" : ""} (${s.backend})` +
+  const threads = s.backend === "wasm" ? `, ${s.threads} thread${s.threads > 1 ? "s" : ""}` : "";
+  return `${s.width}×${s.height} in ${sec(s.ms)}: field ${sec(s.fieldMs)} · loop ${sec(s.loopMs)}` +
+    (loaded.marched ? ` (march ${sec(s.marchMs)})` : "") + ` · ${(s.points / 1e6).toFixed(2)} M points · ` +
+    `${(s.pointsPerSecond / 1e6).toFixed(2)} M points/s · ${s.backend}${threads} (${s.reason})` +
     (loaded.marched ? " · marched" : " · coarse+fine");
 }
 
@@ -167,7 +173,7 @@ function start(): void {
     else if (pose) fail(`pose ${pose}: expected test:K`);
     else interactive(loaded);
   };
-  send({ type: "load", bundleUrl, ortUrl, dense: params.get("dense") === "1" });
+  send({ type: "load", bundleUrl, ortUrl, dense: params.get("dense") === "1", ep: params.get("ep") ?? "auto" });
 }
 
 start();

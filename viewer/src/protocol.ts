@@ -1,14 +1,23 @@
 // Messages between the page and the render worker.
 
+/** onnxruntime-web's execution provider that runs the graphs. */
+export type Provider = "webgpu" | "wasm";
+
 export type ToWorker =
-  | { type: "load"; bundleUrl: string; ortUrl: string; dense: boolean }
+  | { type: "load"; bundleUrl: string; ortUrl: string; dense: boolean; ep: string }
   | { type: "render"; id: number; width: number; height: number; c2w: number[][] }
   | { type: "cancel"; id: number };
 
-export interface Loaded { type: "loaded"; scene: any; threads: number; backend: string; isolated: boolean; marched: boolean }
+export interface Loaded {
+  type: "loaded"; scene: any; threads: number; isolated: boolean; marched: boolean;
+  backend: Provider;
+  reason: string; // why this provider: the adapter, or why not WebGPU
+}
 export interface FrameMsg {
   type: "frame"; id: number; width: number; height: number;
   rgb: Float32Array; depth: Float32Array; acc: Float32Array; points: number; ms: number;
   fieldMs: number; // of ms, the time inside onnxruntime
+  // The rest of ms, the loop around the field: rays, marching + packing, compositing.
+  raysMs: number; marchMs: number; compositeMs: number;
 }
 export type FromWorker = Loaded | FrameMsg | { type: "cancelled"; id: number } | { type: "error"; id?: number; message: string };

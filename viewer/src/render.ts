@@ -3,6 +3,7 @@
 // termination), vectorised over batches of points for the field. Pure: the field is a callback.
 
 import { norm3 } from "./camera";
+import { RayMarch } from "./march";
 
 const f = Math.fround;
 
@@ -162,94 +163,81 @@ export async function renderDense(s: Sampling, white: boolean, coarse: Field, fi
   return { rgb: rgbOut, depth, acc, points };
 }
 
-/** The steps [k0, k1) of ray r that can lie in the grid's cube: outside it every cell is empty,
- *  so skipping them changes nothing. The cube is enlarged (1e-3) far beyond float32 rounding. */
-export function stepsInBox(bound: number, o: Float32Array, d: Float32Array, r: number, near: number, interval: number, steps: number): [number, number] {
-  const B = bound * 1.001 + 1e-3;
-  let t0 = -Infinity, t1 = Infinity;
-  for (let a = 0; a < 3; a++) {
-    const oa = o[3 * r + a], da = d[3 * r + a];
-    if (Math.abs(da) < 1e-12) { if (Math.abs(oa) > B) return [0, 0]; continue; }
-    const ta = (-B - oa) / da, tb = (B - oa) / da;
-    t0 = Math.max(t0, Math.min(ta, tb)); t1 = Math.min(t1, Math.max(ta, tb));
-  }
-  if (!(t0 <= t1)) return [0, 0];
-  // Sample k sits at near + (k + 0.5)·interval; one step of slack on each side.
-  const k0 = Math.max(0, Math.ceil((t0 - near) / interval - 0.5) - 1);
-  const k1 = Math.min(steps, Math.floor((t1 - near) / interval - 0.5) + 2);
-  return k0 < k1 ? [k0, k1] : [0, 0];
-}
+/** Where a marched frame's time outside the field went, in ms: marching and packing the
+ *  samples, and compositing them. */
+export interface MarchTiming { marchMs: number; compositeMs: number }
 
 /** march(): march_steps equal intervals over [near, far], a sample at each middle, only samples in
- *  occupied cells evaluated, front to back in segments of 16 occupied samples per ray; a ray stops
- *  after the segment where its transmittance falls below 1e-4. Rays take turns in a queue, each
- *  handing the field its next `chunk` occupied samples, so every call carries up to MAX_POINTS. */
+ *  occupied cells evaluated (marched lazily with empty-space skipping, see march.ts), front to
+ *  back in segments of `segment` occupied samples per ray; a ray stops after the segment where
+ *  its transmittance falls below `minTransmittance`. Rays take turns in a queue, each handing
+ *  the field its next `chunk` occupied samples, so every call carries up to MAX_POINTS.
+ *  `timing`, when given, receives the split of the time outside the field. */
 export async function renderMarch(s: Sampling, steps: number, white: boolean, grid: Grid, field: Field,
   o: Float32Array, d: Float32Array, view: Float32Array, cancelled: Cancelled = () => false,
-  segment = 16, minTransmittance = 1e-4, chunk = segment): Promise<Frame | null> {
+  segment = 16, minTransmittance = 1e-4, chunk = segment, timing?: MarchTiming): Promise<Frame | null> {
   const n = o.length / 3, near = f(s.near), far = f(s.far);
   const interval = f(f(far - near) / f(steps));
-  const t = new Float32Array(steps);
-  for (let k = 0; k < steps; k++) t[k] = f(near + f(f(k + 0.5) * interval));
+  const clock = { marchMs: 0, compositeMs: 0 };
+  let t0 = performance.now();
   const vd = viewDirs(view);
+  const march = new RayMarch(grid, o, d, near, interval, steps), t = march.t, cursor = march.cursor, end = march.end;
   const rgb = new Float32Array(3 * n), depth = new Float32Array(n), acc = new Float32Array(n);
-  const cursor = new Int32Array(n), end = new Int32Array(n), done = new Int32Array(n), trans = new Float32Array(n).fill(1);
-  for (let r = 0; r < n; r++) [cursor[r], end[r]] = stepsInBox(grid.bound, o, d, r, near, interval, steps);
-  const stepLen = new Float32Array(n);
+  const done = new Int32Array(n), trans = new Float32Array(n).fill(1), stepLen = new Float32Array(n);
   for (let r = 0; r < n; r++) stepLen[r] = f(interval * norm3(d[3 * r], d[3 * r + 1], d[3 * r + 2]));
-  let queue: number[] = [];
-  for (let r = 0; r < n; r++) queue.push(r);
+  // A ring of the rays waiting for their next samples: each ray is in it at most once.
+  const queue = new Int32Array(Math.max(n, 1));
+  let head = 0, queued = 0;
+  for (let r = 0; r < n; r++) if (cursor[r] < end[r]) queue[queued++] = r;
   const pts = new Float32Array(3 * MAX_POINTS), dirs = new Float32Array(3 * MAX_POINTS), ks = new Int32Array(MAX_POINTS);
+  const rays = new Int32Array(MAX_POINTS), counts = new Int32Array(MAX_POINTS);
   let points = 0;
-  while (queue.length > 0) {
+  while (queued > 0) {
     if (cancelled()) return null;
     // Gather the next occupied samples of as many queued rays as fit in one call.
-    const rays: number[] = [], counts: number[] = [];
-    let m = 0, qi = 0;
-    for (; qi < queue.length && m + chunk <= MAX_POINTS; qi++) {
-      const r = queue[qi];
-      let k = cursor[r], c = 0;
-      const ox = o[3 * r], oy = o[3 * r + 1], oz = o[3 * r + 2], dx = d[3 * r], dy = d[3 * r + 1], dz = d[3 * r + 2];
-      for (; k < end[r] && c < chunk; k++) {
-        const x = f(ox + f(t[k] * dx)), y = f(oy + f(t[k] * dy)), z = f(oz + f(t[k] * dz));
-        if (!isOccupied(grid, x, y, z)) continue;
-        const p = m + c;
-        pts[3 * p] = x; pts[3 * p + 1] = y; pts[3 * p + 2] = z;
-        dirs[3 * p] = vd[3 * r]; dirs[3 * p + 1] = vd[3 * r + 1]; dirs[3 * p + 2] = vd[3 * r + 2];
-        ks[p] = k; c++;
-      }
-      cursor[r] = k;
-      rays.push(r); counts.push(c); m += c;
+    let m = 0, batch = 0;
+    while (queued > 0 && m + chunk <= MAX_POINTS) {
+      const r = queue[head];
+      head = head + 1 === n ? 0 : head + 1; queued--;
+      const c = march.next(r, chunk, pts, ks, m);
+      if (c === 0) continue; // no samples left: done
+      const vx = vd[3 * r], vy = vd[3 * r + 1], vz = vd[3 * r + 2];
+      for (let p = m; p < m + c; p++) { dirs[3 * p] = vx; dirs[3 * p + 1] = vy; dirs[3 * p + 2] = vz; }
+      rays[batch] = r; counts[batch] = c; batch++; m += c;
     }
-    const rest = queue.slice(qi);
-    let out: { rgb: Float32Array; sigma: Float32Array } = { rgb: new Float32Array(0), sigma: new Float32Array(0) };
-    if (m > 0) out = await field(pts.slice(0, 3 * m), dirs.slice(0, 3 * m), m);
+    let t1 = performance.now();
+    clock.marchMs += t1 - t0;
+    if (m === 0) break;
+    const out = await field(pts.subarray(0, 3 * m), dirs.subarray(0, 3 * m), m);
     points += m;
+    t0 = performance.now();
+    const sig = out.sigma, col = out.rgb;
     // Composite each ray's samples in order; the segment count runs over its occupied samples.
     let p = 0;
-    for (let q = 0; q < rays.length; q++) {
-      const r = rays[q];
-      let T = trans[r], stopped = false;
-      const p0 = p;
+    for (let q = 0; q < batch; q++) {
+      const r = rays[q], p0 = p, len = stepLen[r];
+      let T = trans[r], stopped = false, cr = rgb[3 * r], cg = rgb[3 * r + 1], cb = rgb[3 * r + 2], z = depth[r], a = acc[r], nd = done[r];
       for (let c = 0; c < counts[q]; c++, p++) {
-        const alpha = f(1 - f(Math.exp(f(-Math.max(out.sigma[p], 0) * stepLen[r]))));
+        const alpha = f(1 - f(Math.exp(f(-Math.max(sig[p], 0) * len))));
         const w = f(alpha * T);
-        rgb[3 * r] = f(rgb[3 * r] + f(w * out.rgb[3 * p]));
-        rgb[3 * r + 1] = f(rgb[3 * r + 1] + f(w * out.rgb[3 * p + 1]));
-        rgb[3 * r + 2] = f(rgb[3 * r + 2] + f(w * out.rgb[3 * p + 2]));
-        depth[r] = f(depth[r] + f(w * t[ks[p]]));
-        acc[r] = f(acc[r] + w);
+        cr = f(cr + f(w * col[3 * p])); cg = f(cg + f(w * col[3 * p + 1])); cb = f(cb + f(w * col[3 * p + 2]));
+        z = f(z + f(w * t[ks[p]]));
+        a = f(a + w);
         T = f(T * f(f(1 - alpha) + f(1e-10)));
-        done[r]++;
-        if (done[r] % segment === 0 && T < minTransmittance) { stopped = true; break; }
+        nd++;
+        if (nd % segment === 0 && T < minTransmittance) { stopped = true; break; }
       }
+      rgb[3 * r] = cr; rgb[3 * r + 1] = cg; rgb[3 * r + 2] = cb; depth[r] = z; acc[r] = a; done[r] = nd;
       p = p0 + counts[q];
       trans[r] = T;
       // A ray also stops after its last (partial) segment; cursor at the end means no samples left.
-      if (!stopped && cursor[r] < end[r]) rest.push(r);
+      if (!stopped && cursor[r] < end[r]) { queue[(head + queued) % n] = r; queued++; }
     }
-    queue = rest;
+    t1 = performance.now();
+    clock.compositeMs += t1 - t0;
+    t0 = t1;
   }
   if (white) for (let r = 0; r < n; r++) { const bg = f(1 - acc[r]); for (let a = 0; a < 3; a++) rgb[3 * r + a] = f(rgb[3 * r + a] + bg); }
+  if (timing) { timing.marchMs += clock.marchMs + performance.now() - t0; timing.compositeMs += clock.compositeMs; }
   return { rgb, depth, acc, points };
 }

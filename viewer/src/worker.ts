@@ -1,12 +1,17 @@
-// The render worker: loads a bundle into onnxruntime-web (WASM) and renders frames off the
-// page's thread. Sessions and the grid live here; frames go back as transferred arrays.
+// The render worker: loads a bundle into onnxruntime-web and renders frames off the page's
+// thread. It picks the execution provider (WebGPU where the browser offers a GPU adapter and
+// the graphs can run there, WASM otherwise) and says why. Sessions and the grid live here;
+// frames go back as transferred arrays.
 
-import * as ort from "onnxruntime-web/wasm";
+import type * as OrtModule from "onnxruntime-web/wasm";
 import { cameraRays, ndcRays, outputSize, pinhole, resized } from "./camera";
-import { checkScene, graphFiles, isBounded, parseGrid, wholeBox } from "./bundle";
-import { type Field, type Grid, MAX_POINTS, renderDense, renderMarch } from "./render";
-import type { FromWorker, ToWorker } from "./protocol";
+import { type GraphInfo, checkScene, graphFiles, graphInfo, isBounded, parseGrid, wholeBox } from "./bundle";
+import { type Field, type Grid, MAX_POINTS, type MarchTiming, renderDense, renderMarch } from "./render";
+import type { FromWorker, Provider, ToWorker } from "./protocol";
+import { type Adapter, pickProvider } from "./provider";
+import { emptyReach } from "./march";
 
+type Ort = typeof OrtModule;
 interface Loaded { scene: any; coarse: Field; fine: Field | null; grid: Grid | null }
 let bundle: Loaded | null = null;
 let latest = 0; // the newest render request: older ones are cancelled
@@ -23,49 +28,86 @@ async function fetchOk(url: string): Promise<ArrayBuffer> {
 }
 
 /** A field backed by one session, split into calls of at most MAX_POINTS points. */
-function sessionField(session: ort.InferenceSession): Field {
+function sessionField(ort: Ort, session: OrtModule.InferenceSession): Field {
+  const run = async (points: Float32Array, viewdirs: Float32Array, m: number) => {
+    const t0 = performance.now();
+    const out = await session.run({
+      points: new ort.Tensor("float32", points, [m, 3]),
+      viewdirs: new ort.Tensor("float32", viewdirs, [m, 3]),
+    });
+    const rgb = out.rgb.data as Float32Array, sigma = out.sigma.data as Float32Array;
+    fieldMs += performance.now() - t0;
+    return { rgb, sigma };
+  };
   return async (points, viewdirs, n) => {
+    // One call (the renderers never ask for more): onnxruntime's own output arrays, no copy.
+    if (n <= MAX_POINTS) return run(points.subarray(0, 3 * n), viewdirs.subarray(0, 3 * n), n);
     const rgb = new Float32Array(3 * n), sigma = new Float32Array(n);
     for (let s = 0; s < n; s += MAX_POINTS) {
       const m = Math.min(MAX_POINTS, n - s);
-      const t0 = performance.now();
-      const out = await session.run({
-        points: new ort.Tensor("float32", points.subarray(3 * s, 3 * (s + m)), [m, 3]),
-        viewdirs: new ort.Tensor("float32", viewdirs.subarray(3 * s, 3 * (s + m)), [m, 3]),
-      });
-      rgb.set(out.rgb.data as Float32Array, 3 * s);
-      sigma.set(out.sigma.data as Float32Array, s);
-      out.rgb.dispose(); out.sigma.dispose();
-      fieldMs += performance.now() - t0;
+      const out = await run(points.subarray(3 * s, 3 * (s + m)), viewdirs.subarray(3 * s, 3 * (s + m)), m);
+      rgb.set(out.rgb, 3 * s); sigma.set(out.sigma, s);
     }
     return { rgb, sigma };
   };
 }
 
-async function load(bundleUrl: string, ortUrl: string, dense: boolean): Promise<void> {
-  const isolated = (self as any).crossOriginIsolated === true;
+/** The provider (see provider.ts); `want` = "wasm" (?ep=wasm) skips WebGPU. */
+async function chooseProvider(graphs: { name: string; info: GraphInfo }[], want: string): Promise<{ provider: Provider; reason: string }> {
+  if (want === "wasm") return { provider: "wasm", reason: "asked for (?ep=wasm)" };
+  const gpu = (navigator as any).gpu;
+  if (!gpu) return pickProvider(null, graphs, true);
+  let adapter: Adapter | null = null;
+  try { adapter = await gpu.requestAdapter(); } catch { /* as no adapter */ }
+  return pickProvider(adapter, graphs);
+}
+
+/** onnxruntime-web's WASM build, or its WebGPU build (which also holds the WASM kernels). */
+async function loadOrt(provider: Provider, ortUrl: string, isolated: boolean): Promise<Ort> {
+  const ort: Ort = provider === "webgpu" ? await import("onnxruntime-web/webgpu") : await import("onnxruntime-web/wasm");
   // Threads need SharedArrayBuffer, which needs cross-origin isolation (COOP + COEP).
   ort.env.wasm.numThreads = isolated ? navigator.hardwareConcurrency || 1 : 1;
   ort.env.wasm.wasmPaths = ortUrl; // served locally from the build, never a CDN
+  return ort;
+}
+
+async function load(bundleUrl: string, ortUrl: string, dense: boolean, ep: string): Promise<void> {
+  const isolated = (self as any).crossOriginIsolated === true;
   const sceneUrl = new URL("scene.json", bundleUrl).href;
   let scene: any;
   try { scene = JSON.parse(new TextDecoder().decode(await fetchOk(sceneUrl))); }
   catch (e) { throw new Error(`${sceneUrl}: ${(e as Error).message}`); }
   checkScene(scene);
   const files = graphFiles(scene);
-  const open = async (name: string) => {
-    const url = new URL(name, bundleUrl).href;
-    try { return await ort.InferenceSession.create(new Uint8Array(await fetchOk(url)), { executionProviders: ["wasm"] }); }
-    catch (e) { throw new Error(`${url}: ${(e as Error).message}`); }
-  };
   // One graph for the whole field serves both stages.
-  const coarse = sessionField(await open(files.field ?? files.coarse));
-  const fine = files.fine ? sessionField(await open(files.fine)) : null;
+  const names = [files.field ?? files.coarse, ...(files.fine ? [files.fine] : [])];
+  const graphs = await Promise.all(names.map(async (name) => {
+    const url = new URL(name, bundleUrl).href, bytes = new Uint8Array(await fetchOk(url));
+    return { name, url, bytes, info: graphInfo(bytes, url) };
+  }));
+  let { provider, reason } = await chooseProvider(graphs, ep);
+  const open = async (ort: Ort, g: (typeof graphs)[number], p: Provider) => {
+    try { return sessionField(ort, await ort.InferenceSession.create(g.bytes, { executionProviders: [p] })); }
+    catch (e) { throw new Error(`${g.url}: ${(e as Error).message}`); }
+  };
+  let ort = await loadOrt(provider, ortUrl, isolated);
+  let fields: Field[];
+  try { fields = await Promise.all(graphs.map((g) => open(ort, g, provider))); }
+  catch (e) {
+    if (provider !== "webgpu") throw e;
+    // A GPU that will not take the graph: render on the CPU and say why.
+    reason = `WebGPU failed: ${(e as Error).message}`;
+    provider = "wasm";
+    ort = await loadOrt(provider, ortUrl, isolated);
+    fields = await Promise.all(graphs.map((g) => open(ort, g, provider)));
+  }
   let grid: Grid | null = null;
   if (scene.occupancy && !dense) grid = parseGrid(await fetchOk(new URL(scene.occupancy.file, bundleUrl).href));
   else if (isBounded(scene)) grid = wholeBox(scene.occupancy.bound);
-  bundle = { scene, coarse, fine, grid };
-  post({ type: "loaded", scene, threads: ort.env.wasm.numThreads as number, backend: "wasm", isolated, marched: grid !== null });
+  if (grid) emptyReach(grid); // once per bundle, not per frame
+
+  bundle = { scene, coarse: fields[0], fine: fields[1] ?? null, grid };
+  post({ type: "loaded", scene, threads: ort.env.wasm.numThreads as number, backend: provider, reason, isolated, marched: grid !== null });
 }
 
 async function render(id: number, width: number, height: number, c2w: number[][]): Promise<void> {
@@ -82,19 +124,21 @@ async function render(id: number, width: number, height: number, c2w: number[][]
   let { o, d } = rays;
   const view = d; // viewdirs stay the world direction, also under NDC
   if (scene.sampling.ndc) ({ o, d } = ndcRays(scene.sampling.ndc, o, d));
+  const raysMs = performance.now() - start;
+  const timing: MarchTiming = { marchMs: 0, compositeMs: 0 };
   const frame = grid
-    ? await renderMarch(scene.sampling, scene.march_steps ?? 256, !!scene.white_background, grid, fine ?? coarse, o, d, view, cancelled)
+    ? await renderMarch(scene.sampling, scene.march_steps ?? 256, !!scene.white_background, grid, fine ?? coarse, o, d, view, cancelled, undefined, undefined, undefined, timing)
     : await renderDense(scene.sampling, !!scene.white_background, coarse, fine, o, d, view, cancelled);
   if (!frame) { post({ type: "cancelled", id }); return; }
   const ms = performance.now() - start;
-  post({ type: "frame", id, width: w, height: h, rgb: frame.rgb, depth: frame.depth, acc: frame.acc, points: frame.points, ms, fieldMs },
-    [frame.rgb.buffer, frame.depth.buffer, frame.acc.buffer]);
+  post({ type: "frame", id, width: w, height: h, rgb: frame.rgb, depth: frame.depth, acc: frame.acc, points: frame.points, ms, fieldMs,
+    raysMs, marchMs: timing.marchMs, compositeMs: timing.compositeMs }, [frame.rgb.buffer, frame.depth.buffer, frame.acc.buffer]);
 }
 
 self.onmessage = (ev: MessageEvent<ToWorker>) => {
   const m = ev.data;
   if (m.type === "load") {
-    load(m.bundleUrl, m.ortUrl, m.dense).catch((e) => post({ type: "error", message: String((e as Error).message ?? e) }));
+    load(m.bundleUrl, m.ortUrl, m.dense, m.ep).catch((e) => post({ type: "error", message: String((e as Error).message ?? e) }));
   } else if (m.type === "render") {
     latest = m.id;
     queue = queue.then(() => render(m.id, m.width, m.height, m.c2w))

@@ -1,6 +1,9 @@
 // The viewer in a real browser (Debian's chromium through playwright-core) against the native
 // renderer: each bundle's test pose 0 rendered by the page (?pose=test:0) and by
-// `nerf-render --npy` must agree to max |Δrgb| <= 1e-3 and PSNR >= 40 dB.
+// `nerf-render --npy` must agree to max |Δrgb| <= 1e-3 and PSNR >= 40 dB. A second chromium
+// with --enable-unsafe-webgpu (a software WebGPU adapter) renders the portable hash-grid fixture
+// on WebGPU, which must agree with its WASM frame to 1e-5, and a bitwise graph, which must fall
+// back to WASM with the reason on the stats line (both skip, saying so, without an adapter).
 //
 // The pages are served by `nerf-render --bundle B --serve --port P --viewer dist/` on a free
 // loopback port. Environment: NERF_SERVE_CMD swaps the server: a shell command with {root},
@@ -19,6 +22,9 @@ import { tmpdir } from "node:os";
 import { join, resolve } from "node:path";
 import { chromium } from "playwright-core";
 import { serve } from "./serve.mjs";
+
+/** A tiny hash-grid bundle in the portable lowering (fixtures/ngp-portable/README.md). */
+const PORTABLE = resolve(import.meta.dirname, "fixtures/ngp-portable");
 
 const VIEWER = resolve(import.meta.dirname, "..");
 const REPO = resolve(VIEWER, "..");
@@ -79,26 +85,34 @@ export async function startServer(bundle, { broken = false } = {}) {
   return { url, stop: async () => { try { process.kill(-child.pid); } catch {} } };
 }
 
-let browser;
+// Two browsers: one without a GPU (--disable-gpu: WASM, as most tests expect), and one with
+// WebGPU on chromium's software adapter (SwiftShader; --enable-unsafe-webgpu offers it headless).
+let browser, gpuBrowser, gpuAdapter;
 before(async () => {
   assert.ok(existsSync(join(DIST, "index.html")), "run `npm run build` first");
-  browser = await chromium.launch({
-    executablePath: process.env.CHROMIUM ?? "/usr/bin/chromium",
-    args: ["--no-sandbox", "--disable-dev-shm-usage", "--disable-gpu"],
-  });
+  const launch = (flags) => chromium.launch({ executablePath: process.env.CHROMIUM ?? "/usr/bin/chromium", args: ["--no-sandbox", "--disable-dev-shm-usage", ...flags] });
+  browser = await launch(["--disable-gpu"]);
+  gpuBrowser = await launch(["--enable-unsafe-webgpu"]);
+  // WebGPU needs a secure context: a page of the loopback server.
+  const server = await serve({ root: DIST, bundle: PORTABLE });
+  const page = await gpuBrowser.newPage();
+  await page.goto(`http://127.0.0.1:${server.address().port}/?bundle=none/`);
+  gpuAdapter = await page.evaluate(async () => !!(await navigator.gpu?.requestAdapter()));
+  await page.close();
+  await new Promise((ok) => server.close(ok));
 });
-after(async () => { await browser?.close(); });
+after(async () => { await browser?.close(); await gpuBrowser?.close(); });
 
-/** Render test pose 0 in the page; returns { frame, stats, isolated }. */
-async function pageFrame(bundle, width, height, extra = "") {
+/** Render test pose 0 in the page; returns { frame, stats, line, isolated }. */
+async function pageFrame(bundle, width, height, extra = "", on = browser) {
   const server = await startServer(bundle);
-  const page = await browser.newPage();
+  const page = await on.newPage();
   try {
     await page.goto(`${server.url}?pose=test:0&width=${width}&height=${height}${extra}`);
     await page.waitForFunction(() => document.body.dataset.state, null, { timeout: 300_000 });
     const r = await page.evaluate(() => ({
       state: document.body.dataset.state, error: document.getElementById("error")?.textContent,
-      stats: window.nerfStats, isolated: crossOriginIsolated, frame: window.nerfFrame && Array.from(window.nerfFrame),
+      stats: window.nerfStats, line: document.getElementById("stats").textContent, isolated: crossOriginIsolated, frame: window.nerfFrame && Array.from(window.nerfFrame),
       canvas: [document.getElementById("view").width, document.getElementById("view").height],
     }));
     assert.equal(r.state, "done", `page error: ${r.error}`);
@@ -127,6 +141,7 @@ function compare(name, bundle, width, dense = false) {
     assert.equal(r.isolated, true);
     assert.ok(r.stats.threads > 1, `threads ${r.stats.threads}`);
     assert.equal(r.stats.backend, "wasm");
+    assert.match(r.line, /wasm, \d+ threads \(no GPU adapter\)/);
   });
 }
 
@@ -136,6 +151,34 @@ compare("spheres", join(REPO, "models/spheres"), 64, true);
 compare("lego", join(REPO, "models/lego"), 100);
 compare("lego", join(REPO, "models/lego"), 50, true);
 compare("lego-ngp", join(REPO, "models/lego-ngp"), 400);
+compare("ngp-portable", PORTABLE, 100);
+
+/** max |a − b| over two frames of the same size. */
+function maxDiff(a, b) {
+  assert.equal(a.length, b.length);
+  return a.reduce((m, v, i) => Math.max(m, Math.abs(v - b[i])), 0);
+}
+
+// WebGPU on the software adapter is slow (≈ 1,300 points/s here): small frames.
+test("webgpu: the portable hash grid renders on WebGPU and agrees with WASM", { timeout: 600_000 }, async (t) => {
+  if (!gpuAdapter) { t.skip("chromium offers no WebGPU adapter here"); return; }
+  const gpu = await pageFrame(PORTABLE, 24, 24, "", gpuBrowser);
+  const cpu = await pageFrame(PORTABLE, 24, 24, "&ep=wasm", gpuBrowser);
+  assert.equal(gpu.stats.backend, "webgpu", gpu.line);
+  assert.match(gpu.line, /webgpu \(.*adapter/);
+  assert.equal(cpu.stats.backend, "wasm");
+  assert.ok(gpu.stats.points > 1000, `${gpu.stats.points} points: the view sees the object`);
+  const diff = maxDiff(gpu.frame, cpu.frame);
+  t.diagnostic(`webgpu vs wasm: max |Δrgb| ${diff.toExponential(2)} over ${gpu.stats.points} points; ${gpu.line}`);
+  assert.ok(diff <= 1e-5, `max |Δrgb| ${diff} > 1e-5`);
+});
+
+test("webgpu: a bitwise graph falls back to WASM and the stats line says why", { timeout: 600_000 }, async (t) => {
+  if (!gpuAdapter) { t.skip("chromium offers no WebGPU adapter here"); return; }
+  const r = await pageFrame(join(REPO, "models/lego-ngp"), 24, 24, "", gpuBrowser);
+  assert.equal(r.stats.backend, "wasm");
+  assert.match(r.line, /wasm, \d+ threads \(field\.onnx has ops WebGPU lacks: BitwiseXor/);
+});
 
 test("interactive page: refines to full size, re-renders after a drag, depth toggle", { timeout: 300_000 }, async () => {
   const server = await startServer(join(REPO, "models/spheres"));

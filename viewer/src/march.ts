@@ -1,0 +1,164 @@
+// The samples marching takes, as core/src/render/grid.rs's occupied_samples: `steps` equal
+// intervals over [near, far], a sample at each middle, kept where it lies in an occupied cell.
+// Empty space is skipped by slab tests as grid.rs does it (boxes grown or shrunk by a margin far
+// above f32 rounding), so the samples are those of testing every interval; the box jumped
+// through is the largest empty cube of cells around the cell (up to MAX_REACH cells each way)
+// rather than grid.rs's empty 8³ block or the cell alone: fewer tests, the same samples. Rays march lazily: `next` hands out a ray's next few samples
+// and remembers where it stopped, so a ray that terminates early never marches the rest.
+
+import type { Grid } from "./render";
+
+const f = Math.fround;
+
+/** The widest empty cube around a cell the skipping jumps through, in cells from the cell. */
+export const MAX_REACH = 8;
+
+const reaches = new WeakMap<Grid, Uint8Array>();
+
+/** Per cell, its Chebyshev distance in cells to the nearest occupied cell, capped at
+ *  MAX_REACH + 1 (0: occupied): the cube of cells within reach − 1 of an empty cell is empty.
+ *  By repeated 3×3×3 dilation of the occupied cells, one axis at a time. Shape: [R³]. */
+export function emptyReach(g: Grid): Uint8Array {
+  let reach = reaches.get(g);
+  if (reach) return reach;
+  const R = g.res, n = R ** 3;
+  reach = new Uint8Array(n).fill(MAX_REACH + 1);
+  let cur = Uint8Array.from(g.occupied, (v) => (v ? 1 : 0)), tmp = new Uint8Array(n);
+  for (let c = 0; c < n; c++) if (cur[c]) reach[c] = 0;
+  const strides = [R * R, R, 1];
+  for (let dist = 1; dist <= MAX_REACH; dist++) {
+    // One 3-wide max filter per axis: cells within `dist` of an occupied cell, from within dist − 1.
+    for (const stride of strides) {
+      for (let c = 0; c < n; c++) {
+        const at = ((c / stride) | 0) % R;
+        tmp[c] = cur[c] | (at > 0 ? cur[c - stride] : 0) | (at < R - 1 ? cur[c + stride] : 0);
+      }
+      [cur, tmp] = [tmp, cur];
+    }
+    for (let c = 0; c < n; c++) if (cur[c] && reach[c] > dist) reach[c] = dist;
+  }
+  reaches.set(g, reach);
+  return reach;
+}
+
+// The slab test's result, kept here so the hot loop allocates nothing.
+let slabEnter = 0, slabLeave = 0;
+
+/** The t range [slabEnter, slabLeave] over which o + t·d lies in the box [lo, hi] (empty: enter > leave), in f64. */
+function slab(ox: number, oy: number, oz: number, dx: number, dy: number, dz: number,
+  lx: number, ly: number, lz: number, hx: number, hy: number, hz: number): void {
+  let enter = -Infinity, leave = Infinity;
+  // Per axis; a zero component keeps that coordinate exactly o (o + t·0 rounds to o). Written
+  // out three times: a helper closure would allocate in the hot loop.
+  if (dx === 0) { if (ox < lx || ox > hx) { slabEnter = Infinity; slabLeave = -Infinity; return; } }
+  else { const u = (lx - ox) / dx, v = (hx - ox) / dx; enter = Math.max(enter, Math.min(u, v)); leave = Math.min(leave, Math.max(u, v)); }
+  if (dy === 0) { if (oy < ly || oy > hy) { slabEnter = Infinity; slabLeave = -Infinity; return; } }
+  else { const u = (ly - oy) / dy, v = (hy - oy) / dy; enter = Math.max(enter, Math.min(u, v)); leave = Math.min(leave, Math.max(u, v)); }
+  if (dz === 0) { if (oz < lz || oz > hz) { slabEnter = Infinity; slabLeave = -Infinity; return; } }
+  else { const u = (lz - oz) / dz, v = (hz - oz) / dz; enter = Math.max(enter, Math.min(u, v)); leave = Math.min(leave, Math.max(u, v)); }
+  slabEnter = enter; slabLeave = leave;
+}
+
+/** Every ray's march through `grid`: step k samples t[k] = near + (k + 0.5)·interval (in f32);
+ *  `cursor[r]` is the next step ray r tests, `end[r]` one past its last. Shapes: o, d [n, 3]. */
+export class RayMarch {
+  /** t of each step: [steps]. */
+  readonly t: Float32Array;
+  readonly cursor: Int32Array;
+  readonly end: Int32Array;
+  /** Steps tested so far, all rays together (the work skipping saves). */
+  tested = 0;
+  /** Per ray: the margin of its slab tests; NaN where the ray tests every step (non-finite input). */
+  private readonly margin: Float64Array;
+  private readonly reach: Uint8Array;
+  private readonly cellSide: number;
+
+  constructor(private readonly grid: Grid, private readonly o: Float32Array, private readonly d: Float32Array,
+    private readonly near: number, private readonly interval: number, private readonly steps: number) {
+    const n = o.length / 3;
+    this.t = new Float32Array(steps);
+    for (let k = 0; k < steps; k++) this.t[k] = f(near + f(f(k + 0.5) * interval));
+    this.cursor = new Int32Array(n); this.end = new Int32Array(n); this.margin = new Float64Array(n);
+    this.reach = emptyReach(grid);
+    const b = f(grid.bound), R = grid.res;
+    this.cellSide = (2 * b) / R;
+    // The largest coordinate magnitude a sample reaches bounds its rounding error.
+    const tMax = Math.max(Math.abs(f(near + f(f(steps + 0.5) * interval))), Math.abs(near));
+    const intervalOk = Number.isFinite(interval) && interval > 0 && Number.isFinite(near);
+    for (let r = 0; r < n; r++) {
+      const ox = o[3 * r], oy = o[3 * r + 1], oz = o[3 * r + 2], dx = d[3 * r], dy = d[3 * r + 1], dz = d[3 * r + 2];
+      if (!intervalOk || !Number.isFinite(ox + oy + oz + dx + dy + dz)) {
+        this.margin[r] = NaN; this.cursor[r] = 0; this.end[r] = steps;
+        continue;
+      }
+      const scale = Math.max(b, Math.abs(ox) + tMax * Math.abs(dx), Math.abs(oy) + tMax * Math.abs(dy), Math.abs(oz) + tMax * Math.abs(dz));
+      const margin = 1e-3 * this.cellSide + 64 * 2 ** -23 * scale;
+      this.margin[r] = margin;
+      const lo = -b - margin, hi = -b + R * this.cellSide + margin;
+      slab(ox, oy, oz, dx, dy, dz, lo, lo, lo, hi, hi, hi);
+      if (slabEnter > slabLeave) continue; // misses the grid: cursor = end = 0
+      this.cursor[r] = this.stepAt(slabEnter, -1);
+      this.end[r] = this.stepAt(slabLeave, 1);
+    }
+  }
+
+  /** The first step whose exact t is at or after `t`, moved by `by`, clamped to 0..=steps. */
+  private stepAt(t: number, by: number): number {
+    const k = Math.ceil((t - this.near) / this.interval - 0.5) + by;
+    return k >= this.steps ? this.steps : k > 0 ? k : 0;
+  }
+
+  /** Ray r's next (at most `max`) occupied samples: positions into pts[3·at…], step indices into
+   *  ks[at…]; returns how many. Fewer than `max` means the ray has none left. */
+  next(r: number, max: number, pts: Float32Array, ks: Int32Array, at: number): number {
+    const g = this.grid, R = g.res, occ = g.occupied, b = f(g.bound), two = f(2 * b), t = this.t;
+    const ox = this.o[3 * r], oy = this.o[3 * r + 1], oz = this.o[3 * r + 2];
+    const dx = this.d[3 * r], dy = this.d[3 * r + 1], dz = this.d[3 * r + 2];
+    // Reciprocals: the slab's t differ from grid.rs's quotients by an ulp of f64, far inside the margin.
+    const ix = 1 / dx, iy = 1 / dy, iz = 1 / dz;
+    const margin = this.margin[r], skip = !Number.isNaN(margin);
+    const reach = this.reach, side = this.cellSide, near = this.near, interval = this.interval, steps = this.steps;
+    let k = this.cursor[r], n = 0, tested = 0;
+    const end = this.end[r];
+    while (k < end && n < max) {
+      const tk = t[k];
+      tested++;
+      const x = f(ox + f(tk * dx)), y = f(oy + f(tk * dy)), z = f(oz + f(tk * dz));
+      const u = f(f(f(x + b) / two) * R), v = f(f(f(y + b) / two) * R), w = f(f(f(z + b) / two) * R);
+      if (!(u >= 0 && u < R && v >= 0 && v < R && w >= 0 && w < R)) { k++; continue; }
+      const i = u | 0, j = v | 0, l = w | 0; // floor: 0 ≤ u < R ≤ 512
+      const c = (i * R + j) * R + l;
+      if (occ[c] !== 0) {
+        const p = at + n;
+        pts[3 * p] = x; pts[3 * p + 1] = y; pts[3 * p + 2] = z;
+        ks[p] = k; n++; k++;
+        continue;
+      }
+      if (!skip) { k++; continue; }
+      // An empty cell: jump to where the ray leaves the empty cube of cells around it, shrunk by
+      // the margin (a slab test written out per axis: this is the hot loop).
+      const h = reach[c] - 1;
+      const lx = -b + (i - h) * side + margin, hx = -b + (i + h + 1) * side - margin;
+      const ly = -b + (j - h) * side + margin, hy = -b + (j + h + 1) * side - margin;
+      const lz = -b + (l - h) * side + margin, hz = -b + (l + h + 1) * side - margin;
+      let enter = -Infinity, leave = Infinity;
+      if (dx === 0) { if (ox < lx || ox > hx) leave = -Infinity; }
+      else { const p = (lx - ox) * ix, q = (hx - ox) * ix; enter = Math.min(p, q); leave = Math.max(p, q); }
+      if (dy === 0) { if (oy < ly || oy > hy) leave = -Infinity; }
+      else { const p = (ly - oy) * iy, q = (hy - oy) * iy; enter = Math.max(enter, Math.min(p, q)); leave = Math.min(leave, Math.max(p, q)); }
+      if (dz === 0) { if (oz < lz || oz > hz) leave = -Infinity; }
+      else { const p = (lz - oz) * iz, q = (hz - oz) * iz; enter = Math.max(enter, Math.min(p, q)); leave = Math.min(leave, Math.max(p, q)); }
+      // Every step whose exact t is before the exit lies inside the shrunk cube, so in the empty
+      // one; the jump lands on the first step at or after the exit. (grid.rs lands one step
+      // short; not needed here: a step's f32 t and position are off the exact ones by far less
+      // than the margin, and the tests compare the samples with testing every interval.)
+      if (enter <= tk && tk <= leave) {
+        const kl = Math.ceil((leave - near) / interval - 0.5);
+        k = kl > k + 1 ? (kl < steps ? kl : steps) : k + 1;
+      } else k++;
+    }
+    this.cursor[r] = k;
+    this.tested += tested;
+    return n;
+  }
+}
