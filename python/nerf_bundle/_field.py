@@ -8,13 +8,14 @@ from __future__ import annotations
 import re
 import threading
 import time
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, List, Optional, Sequence, Tuple
 
 import numpy as np
 
 from ._limits import POINTS_PER_RUN
-from ._onnx import check_graph_bytes
+from ._onnx import check_graph_bytes, op_types
 from ._validate import BundleError
 
 F32 = np.float32
@@ -76,6 +77,12 @@ class Graph:
             raise BundleError(f"{path}: cannot read the graph: {e.strerror}") from None
         # Before onnxruntime sees it: it would follow external data out of the bundle.
         check_graph_bytes(path, model)
+        if gpu is not None and "BitwiseXor" in op_types(model):
+            # onnxruntime's CUDA provider has no BitwiseXor kernel (measured on an H200: a
+            # 400×400 lego-ngp frame's field 0.90 s bitwise, 0.09 s portable).
+            warnings.warn(f"{path}: the bitwise lowering's BitwiseXor nodes run on the CPU, with copies to and from GPU "
+                          f"{gpu}; `nerf export --bundle <this bundle> --portable --out <dir>` makes one that runs wholly "
+                          "on the GPU, with the same pixels", stacklevel=3)
         # On a GPU, an error rather than onnxruntime's fall-back to the CPU (at load or run).
         strict = {"enable_fallback": 0} if gpu is not None else {}
         try:

@@ -4,7 +4,7 @@ graph, from wherever the path leads), and initializers of the types the graphs u
 protobuf reader of the ONNX messages, so the package needs no ``onnx``."""
 from __future__ import annotations
 
-from typing import Iterator, Tuple
+from typing import Iterator, Set, Tuple
 
 from ._validate import BundleError
 
@@ -154,3 +154,14 @@ def check_graph_bytes(path: str, data: bytes) -> None:
         raise BundleError(f"{path}: not a valid ONNX file (truncated?): {e}") from None
     except BundleError as e:
         raise BundleError(f"{path}: {e}") from None
+
+
+def op_types(data: bytes) -> Set[str]:
+    """The operator types of a checked graph file's top-level nodes (NodeProto op_type 4)."""
+    buf, ops = memoryview(data), set()
+    for number, wire, a, b in _fields(buf, 0, len(buf)):
+        if number == 7 and wire == 2:
+            for n2, w2, a2, b2 in _fields(buf, a, b):
+                if n2 == 1 and w2 == 2:
+                    ops.update(_text(buf, a3, b3) for n3, w3, a3, b3 in _fields(buf, a2, b2) if n3 == 4 and w3 == 2)
+    return ops

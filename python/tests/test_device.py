@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import onnxruntime as ort
 import pytest
@@ -80,3 +81,13 @@ def test_bench_on_cuda_without_the_gpu_wheel_is_an_error_without_a_traceback():
     assert done.returncode == 1 and done.stderr.startswith("error: device cuda:0") and "Traceback" not in done.stderr
     done = run_cli("bench", str(MODELS / "lego-ngp"), "--device", "tpu")
     assert done.returncode == 2 and "expected cpu, cuda or cuda:N" in done.stderr and "Traceback" not in done.stderr
+
+
+def test_op_types_tell_the_bitwise_lowering_from_the_portable_one():
+    """What `device="cuda"` warns about: the default lowering's BitwiseXor (no CUDA kernel)."""
+    from nerf_bundle._onnx import op_types
+    root = Path(__file__).resolve().parents[2]
+    bitwise = op_types((root / "models/lego-ngp/field.onnx").read_bytes())
+    portable = op_types((root / "viewer/tests/fixtures/ngp-portable/field.onnx").read_bytes())
+    assert "BitwiseXor" in bitwise and {"Gather", "MatMul"} <= bitwise
+    assert "BitwiseXor" not in portable and {"Gather", "MatMul"} <= portable

@@ -15,9 +15,9 @@ use rayon::prelude::*;
 /// interval's middle, kept only where it lies in an occupied cell; δ = the interval · ‖d‖.
 /// With `jitter` (training), each ray's samples move together by one uniform draw within their
 /// interval instead of sitting at the middles (drawn ray by ray in order: deterministic).
-/// Rays are marched in parallel, [`MARCH_RAYS_PER_TASK`] per task. Empty space is skipped a
-/// block or cell at a time ([`march_ray`]); the samples are exactly those of testing every
-/// interval ([`march_ray_every_interval`]).
+/// Rays are marched in parallel, [`MARCH_RAYS_PER_TASK`] per task. Empty space is skipped an
+/// empty cube of cells at a time ([`march_ray`]); the samples are exactly those of testing
+/// every interval ([`march_ray_every_interval`]).
 pub fn occupied_samples(grid: &OccupancyGrid, rays: &Rays, near: f32, far: f32, steps: usize, jitter: Option<&mut Rng>) -> PackedSamples {
     let interval = (far - near) / steps as f32;
     let shifts: Vec<f32> = match jitter {
@@ -35,7 +35,7 @@ pub fn occupied_samples(grid: &OccupancyGrid, rays: &Rays, near: f32, far: f32, 
             for &r in chunk {
                 let before = t_values.len();
                 let ray = March { origin: rays.origins[r], direction: rays.directions[r], near, interval, steps, shift: shifts[r] };
-                march_ray(&skipper, &ray, &mut |p| grid.is_occupied(p), &mut t_values);
+                march_ray(&skipper, &ray, &mut t_values);
                 counts.push(t_values.len() - before);
             }
             (t_values, counts)
@@ -74,8 +74,11 @@ impl March {
 
     /// The first step whose (exact) t is at or after `t`, clamped to 0..=steps, moved by `by`.
     fn step_at(&self, t: f64, by: f64) -> usize {
-        let k = ((t - self.near as f64) / self.interval as f64 - self.shift as f64).ceil() + by;
-        k.clamp(0.0, self.steps as f64) as usize
+        // Clamped before rounding up, by hand: `f64::ceil` is a libm call on baseline x86-64.
+        let x = ((t - self.near as f64) / self.interval as f64 - self.shift as f64).clamp(-2.0, self.steps as f64 + 2.0);
+        let floor = x as i64 as f64;
+        let ceil = if floor < x { floor + 1.0 } else { floor };
+        (ceil + by).clamp(0.0, self.steps as f64) as usize
     }
 }
 
@@ -90,31 +93,41 @@ fn march_ray_every_interval(ray: &March, occupied: &mut impl FnMut([f32; 3]) -> 
     }
 }
 
-/// Cells per side of a block of the coarse occupancy level that marching skips whole.
-const BLOCK: usize = 8;
+/// The widest empty cube around a cell that marching jumps through: up to this many cells each way.
+const MAX_REACH: usize = 8;
 
-/// The grid's geometry and a coarse level over it: which [`BLOCK`]³ blocks hold an occupied cell.
-/// Made once per grid ([`Skipper::new`] reads every cell) and shared by every batch of rays.
+/// The grid's geometry and, per cell, how far empty space reaches around it: marching at an
+/// empty cell jumps through the whole empty cube of cells around it. Made once per grid
+/// ([`Skipper::new`] reads every cell) and shared by every batch of rays.
 pub struct Skipper<'a> {
     grid: &'a OccupancyGrid,
-    /// Blocks per axis.
-    blocks: usize,
-    block_occupied: Vec<bool>,
+    /// Per cell: its Chebyshev distance in cells to the nearest occupied cell, capped at
+    /// `MAX_REACH + 1` (0: occupied). Every cell within `reach − 1` of a cell is empty.
+    reach: Vec<u8>,
     /// A cell's side in world units.
     cell_side: f64,
 }
 
 impl<'a> Skipper<'a> {
-    /// The coarse level over `grid`.
+    /// The empty reach of every cell of `grid`, by growing the occupied cells a cell at a time
+    /// (a 3-wide dilation per axis), [`MAX_REACH`] times.
     pub fn new(grid: &'a OccupancyGrid) -> Self {
         let r = grid.resolution();
-        let blocks = r.div_ceil(BLOCK);
-        let mut block_occupied = vec![false; blocks.pow(3)];
-        for c in (0..grid.len()).filter(|&c| grid.is_cell_occupied(c)) {
-            let (i, j, k) = (c / (r * r) / BLOCK, (c / r) % r / BLOCK, c % r / BLOCK);
-            block_occupied[(i * blocks + j) * blocks + k] = true;
+        let n = grid.len();
+        let mut near: Vec<bool> = (0..n).map(|c| grid.is_cell_occupied(c)).collect();
+        let mut reach: Vec<u8> = near.iter().map(|&o| if o { 0 } else { MAX_REACH as u8 + 1 }).collect();
+        let mut grown = vec![false; n];
+        for distance in 1..=MAX_REACH as u8 {
+            for stride in [r * r, r, 1] {
+                grown.par_iter_mut().enumerate().for_each(|(c, g)| {
+                    let at = (c / stride) % r;
+                    *g = near[c] || (at > 0 && near[c - stride]) || (at + 1 < r && near[c + stride]);
+                });
+                std::mem::swap(&mut near, &mut grown);
+            }
+            reach.iter_mut().zip(&near).filter(|(d, n)| **n && **d > distance).for_each(|(d, _)| *d = distance);
         }
-        Skipper { grid, blocks, block_occupied, cell_side: 2.0 * grid.bound() as f64 / r as f64 }
+        Skipper { grid, reach, cell_side: 2.0 * grid.bound() as f64 / r as f64 }
     }
 
     /// The world box of cells [lo, hi) per axis, grown by `margin` (shrunk where negative).
@@ -145,13 +158,16 @@ fn slab(o: [f64; 3], d: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> (f64, f64) {
 /// One ray's marching, resumable: [`RayMarch::advance`] emits its next occupied samples, in
 /// order, exactly those of [`march_ray_every_interval`], testing far fewer steps. Steps before
 /// the grid's box and after it are not tested; at a step in an empty cell, the steps up to where
-/// the ray leaves that cell's empty block (or the cell) are skipped. Rounding cannot skip an
-/// occupied step: the boxes are grown (the grid's) or shrunk (an empty block's) by a margin far
-/// above the f32 error of a sample's position, and each jump stops one step short of the exit.
+/// the ray leaves the empty cube of cells around it ([`Skipper`]) are skipped. Rounding cannot
+/// skip an occupied step: the boxes are grown (the grid's) or shrunk (an empty cube's) by a
+/// margin far above the f32 error of a sample's position and of a step's t, and a jump lands on
+/// the first step at or after the shrunk box's exit.
 struct RayMarch {
     ray: March,
     o: [f64; 3],
     d: [f64; 3],
+    /// 1/d per axis (the exits of the boxes jumped through).
+    inv_d: [f64; 3],
     margin: f64,
     /// The next step to test, and the step after the last that can be occupied.
     k: usize,
@@ -159,6 +175,8 @@ struct RayMarch {
     /// Test every step (rays the skipping does not handle: non-finite inputs, or a
     /// non-positive interval).
     every: bool,
+    /// Steps tested so far (the work skipping saves).
+    tested: usize,
 }
 
 impl RayMarch {
@@ -167,7 +185,7 @@ impl RayMarch {
         let (o, d) = (ray.origin.map(f64::from), ray.direction.map(f64::from));
         // A NaN interval fails `> 0` too.
         if !finite || ray.interval.is_infinite() || ray.interval <= 0.0 || ray.interval.is_nan() {
-            return RayMarch { end: ray.steps, ray, o, d, margin: 0.0, k: 0, every: true };
+            return RayMarch { end: ray.steps, ray, o, d, inv_d: [0.0; 3], margin: 0.0, k: 0, every: true, tested: 0 };
         }
         let grid = skipper.grid;
         let r = grid.resolution();
@@ -179,7 +197,7 @@ impl RayMarch {
         let (enter, leave) = slab(o, d, lo, hi);
         // Finite inputs: the slab's ends are numbers (±∞ at most), never NaN.
         let (k, end) = if enter > leave { (0, 0) } else { (ray.step_at(enter, -1.0), ray.step_at(leave, 1.0)) };
-        RayMarch { ray, o, d, margin, k, end, every: false }
+        RayMarch { ray, o, d, inv_d: d.map(|v| 1.0 / v), margin, k, end, every: false, tested: 0 }
     }
 
     /// Whether every step has been marched.
@@ -189,33 +207,40 @@ impl RayMarch {
 
     /// Emit (t, point) for the ray's next steps that `occupied` accepts, at most `max` of them;
     /// returns how many.
-    fn advance(&mut self, skipper: &Skipper, max: usize, occupied: &mut impl FnMut([f32; 3]) -> bool, emit: &mut impl FnMut(f32, [f32; 3])) -> usize {
+    fn advance(&mut self, skipper: &Skipper, max: usize, emit: &mut impl FnMut(f32, [f32; 3])) -> usize {
         let (ray, grid, r) = (&self.ray, skipper.grid, skipper.grid.resolution());
         let mut emitted = 0;
         while self.k < self.end && emitted < max {
             let k = self.k;
             let t = ray.t(k);
             let p = point_at(ray.origin, ray.direction, t);
-            if occupied(p) {
+            let cell = grid.cell_coordinates(p).map(|[i, j, k]| ([i, j, k], (i * r + j) * r + k));
+            self.tested += 1;
+            // `OccupancyGrid::is_occupied` (a reach of 0 is an occupied cell), its cell kept for the jump.
+            if cell.is_some_and(|(_, c)| skipper.reach[c] == 0) {
                 emit(t, p);
                 emitted += 1;
                 self.k += 1;
                 continue;
             }
-            let next = match grid.cell(p) {
-                Some(c) if !self.every => {
-                    let cell = [c / (r * r), (c / r) % r, c % r];
-                    let block = cell.map(|i| i / BLOCK);
-                    let nb = skipper.blocks;
-                    let (lo, hi) = if skipper.block_occupied[(block[0] * nb + block[1]) * nb + block[2]] {
-                        (cell, cell.map(|i| i + 1))
-                    } else {
-                        (block.map(|i| i * BLOCK), block.map(|i| ((i + 1) * BLOCK).min(r)))
-                    };
-                    let (lo, hi) = skipper.cell_box(lo, hi, -self.margin);
-                    let (enter, leave) = slab(self.o, self.d, lo, hi);
-                    // Every step from this one to `leave` lies inside the shrunk box, so in the empty one.
-                    if enter <= t as f64 && t as f64 <= leave { ray.step_at(leave, -1.0) } else { k + 1 }
+            let next = match cell {
+                Some((cell, c)) if !self.every => {
+                    // The empty cube around the cell, shrunk by the margin: where the exact line
+                    // at t lies inside it, every step up to its exit does too, so lies in empty
+                    // cells; the first step at or after the exit is the next to test.
+                    let reach = (skipper.reach[c] as usize).max(1);
+                    let (lo, hi) = skipper.cell_box(cell.map(|i| i.saturating_sub(reach - 1)), cell.map(|i| (i + reach).min(r)), -self.margin);
+                    let tt = t as f64;
+                    let mut exit = f64::INFINITY;
+                    let mut inside = true;
+                    for a in 0..3 {
+                        let x = self.o[a] + tt * self.d[a];
+                        inside &= lo[a] <= x && x <= hi[a];
+                        if self.d[a] != 0.0 {
+                            exit = exit.min(((if self.d[a] > 0.0 { hi[a] } else { lo[a] }) - self.o[a]) * self.inv_d[a]);
+                        }
+                    }
+                    if inside { ray.step_at(exit, 0.0) } else { k + 1 }
                 }
                 _ => k + 1,
             };
@@ -225,9 +250,12 @@ impl RayMarch {
     }
 }
 
-/// Push the t of each of the ray's steps that `occupied` accepts, in order ([`RayMarch`]).
-fn march_ray(skipper: &Skipper, ray: &March, occupied: &mut impl FnMut([f32; 3]) -> bool, out: &mut Vec<f32>) {
-    RayMarch::new(skipper, *ray).advance(skipper, usize::MAX, occupied, &mut |t, _| out.push(t));
+/// Push the t of each of the ray's occupied steps, in order ([`RayMarch`]); returns how many
+/// steps it tested.
+fn march_ray(skipper: &Skipper, ray: &March, out: &mut Vec<f32>) -> usize {
+    let mut march = RayMarch::new(skipper, *ray);
+    march.advance(skipper, usize::MAX, &mut |t, _| out.push(t));
+    march.tested
 }
 
 /// Rays per parallel task of [`occupied_samples`].
@@ -241,6 +269,8 @@ struct LiveRay {
     r: usize,
     march: RayMarch,
     ray: RayAccumulator,
+    /// Finished (its output written), waiting to be dropped from the list.
+    done: bool,
 }
 
 /// One task's share of a round: its rays' next samples, packed ray by ray.
@@ -288,7 +318,7 @@ pub fn render_rays_in<F: Field>(field: &mut F, skipper: &Skipper, rays: &Rays, o
         .with_min_len(ROUND_RAYS_PER_TASK)
         .map(|r| {
             let ray = March { origin: rays.origins[r], direction: rays.directions[r], near: s.near, interval: round.interval, steps, shift: 0.5 };
-            LiveRay { r, march: RayMarch::new(skipper, ray), ray: RayAccumulator::default() }
+            LiveRay { r, march: RayMarch::new(skipper, ray), ray: RayAccumulator::default(), done: false }
         })
         .filter(|l| !l.march.finished())
         .collect();
@@ -353,9 +383,14 @@ impl Round<'_> {
         let skipper = self.skipper;
         live.par_chunks_mut(ROUND_RAYS_PER_TASK)
             .map(|chunk| {
-                let mut part = RoundPart { counts: Vec::with_capacity(chunk.len()), ..RoundPart::default() };
+                let most = chunk.len() * MARCH_SEGMENT;
+                let mut part = RoundPart { points: Vec::with_capacity(most), dirs: Vec::with_capacity(most), t: Vec::with_capacity(most), counts: Vec::with_capacity(chunk.len()) };
                 for l in chunk.iter_mut() {
-                    let n = l.march.advance(skipper, MARCH_SEGMENT, &mut |p| skipper.grid.is_occupied(p), &mut |t, p| {
+                    if l.done {
+                        part.counts.push(0);
+                        continue;
+                    }
+                    let n = l.march.advance(skipper, MARCH_SEGMENT, &mut |t, p| {
                         part.t.push(t);
                         part.points.push(p);
                     });
@@ -380,24 +415,33 @@ impl Round<'_> {
     /// [`Self::composite`], the finished rays' outputs pushed to `done`.
     fn composite_into(&self, live: &mut Vec<LiveRay>, parts: &[RoundPart], out: &FieldOutput, done: &mut Vec<(usize, RayOutput)>) {
         let starts: Vec<usize> = parts.iter().scan(0, |at, p| Some(std::mem::replace(at, *at + p.t.len()))).collect();
-        live.par_chunks_mut(ROUND_RAYS_PER_TASK).zip(parts).zip(starts).for_each(|((chunk, part), start)| {
-            let mut i = 0;
-            for (l, &n) in chunk.iter_mut().zip(&part.counts) {
-                let delta = self.interval * length(self.rays.directions[l.r]);
-                for _ in 0..n {
-                    let alpha = alpha_from_density(out.sigma[start + i], delta);
-                    l.ray.add(alpha, out.rgb[start + i], part.t[i]);
-                    i += 1;
+        let finished: Vec<Vec<(usize, RayOutput)>> = live
+            .par_chunks_mut(ROUND_RAYS_PER_TASK)
+            .zip(parts)
+            .zip(starts)
+            .map(|((chunk, part), start)| {
+                let (mut i, mut finished) = (0, Vec::new());
+                for (l, &n) in chunk.iter_mut().zip(&part.counts).filter(|(l, _)| !l.done) {
+                    let delta = self.interval * length(self.rays.directions[l.r]);
+                    for _ in 0..n {
+                        let alpha = alpha_from_density(out.sigma[start + i], delta);
+                        l.ray.add(alpha, out.rgb[start + i], part.t[i]);
+                        i += 1;
+                    }
+                    if l.ray.transmittance() < self.min_transmittance || l.march.finished() {
+                        l.done = true;
+                        finished.push((l.r, l.ray.finish(self.white_background)));
+                    }
                 }
-            }
-        });
-        live.retain(|l| {
-            let more = l.ray.transmittance() >= self.min_transmittance && !l.march.finished();
-            if !more {
-                done.push((l.r, l.ray.finish(self.white_background)));
-            }
-            more
-        });
+                finished
+            })
+            .collect();
+        finished.into_iter().for_each(|f| done.extend(f));
+        // Dropping the finished rays moves the others: only once they are half the list.
+        let dead = live.iter().filter(|l| l.done).count();
+        if dead * 2 >= live.len() {
+            live.retain(|l| !l.done);
+        }
     }
 }
 
@@ -450,6 +494,9 @@ mod tests {
         }
         packed
     }
+
+    /// Blocks of cells that [`sparse_grid`] fills or leaves empty.
+    const BLOCK: usize = 8;
 
     /// Bound 1 and resolution 32 (cells of exactly 1/16, blocks of 1/2): occupied cells only in
     /// about a third of the blocks, a tenth of those blocks' cells, so some blocks are empty and
@@ -594,13 +641,10 @@ mod tests {
         for i in 0..100 {
             let s = i as f32 / 100.0;
             let ray = March { origin: [-3.0, 0.01 + 0.001 * s, 0.02], direction: [1.0, 0.0, 0.001 * s], near: 0.0, interval: 6.0 / steps as f32, steps, shift: s };
-            march_ray(&skipper, &ray, &mut |p| {
-                tested += 1;
-                grid.is_occupied(p)
-            }, &mut samples);
+            tested += march_ray(&skipper, &ray, &mut samples);
         }
-        // Each ray has ~ 680 steps in the box: one occupied cell (~ 11 steps), 7 empty blocks and
-        // 7 empty cells of the occupied one, each skipped with 2 tests (the jump stops one short).
+        // Each ray has ~ 680 steps in the box: one occupied cell (~ 11 steps), and empty cubes of
+        // up to 17 cells a side before and after it, each skipped with one test.
         assert!(samples.len() >= 100 * 10, "{} samples", samples.len());
         assert!(tested < 100 * 50, "{tested} occupancy tests for 100 rays of {steps} steps");
     }

@@ -121,16 +121,23 @@ impl OccupancyGrid {
     /// The cell holding `p`, or `None` outside the cube.
     pub fn cell(&self, p: [f32; 3]) -> Option<usize> {
         let r = self.resolution;
-        let mut index = 0;
-        for v in p {
-            let u = (v + self.bound) / (2.0 * self.bound) * r as f32;
+        self.cell_coordinates(p).map(|[i, j, k]| (i * r + j) * r + k)
+    }
+
+    /// The (i, j, k) of the cell holding `p` (its index is (i·R + j)·R + k), or `None` outside
+    /// the cube.
+    pub fn cell_coordinates(&self, p: [f32; 3]) -> Option<[usize; 3]> {
+        let r = self.resolution as f32;
+        let mut cell = [0; 3];
+        for (c, v) in cell.iter_mut().zip(p) {
+            let u = (v + self.bound) / (2.0 * self.bound) * r;
             // `!(u >= 0)` also rejects NaN.
-            if !(u >= 0.0) || u >= r as f32 {
+            if !(u >= 0.0) || u >= r {
                 return None;
             }
-            index = index * r + u as usize;
+            *c = u as usize;
         }
-        Some(index)
+        Some(cell)
     }
 
     /// Whether `p` lies in an occupied cell.
