@@ -63,6 +63,12 @@ fn main() {
     let calls = recorder.calls;
     let points: usize = calls.iter().map(|c| c.0).sum();
     println!("{}: {}×{}, {} rays a batch, {} field calls, {points} points, recorded in {:.3} s (overlap {overlap})", bundle.display(), k.width, k.height, scene.options.chunk, calls.len(), start.elapsed().as_secs_f64());
+    if let Some(grid) = &scene.occupancy {
+        let start = Instant::now();
+        let skipper = nerf_core::render::grid::Skipper::new(grid);
+        println!("the grid's empty reach: {:.4} s", start.elapsed().as_secs_f64());
+        drop(skipper);
+    }
     for _ in 0..repeats {
         // Cloning the outputs stands in for the field's own output allocation: timed apart.
         let start = Instant::now();

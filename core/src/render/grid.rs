@@ -93,41 +93,20 @@ fn march_ray_every_interval(ray: &March, occupied: &mut impl FnMut([f32; 3]) -> 
     }
 }
 
-/// The widest empty cube around a cell that marching jumps through: up to this many cells each way.
-const MAX_REACH: usize = 8;
-
-/// The grid's geometry and, per cell, how far empty space reaches around it: marching at an
-/// empty cell jumps through the whole empty cube of cells around it. Made once per grid
-/// ([`Skipper::new`] reads every cell) and shared by every batch of rays.
+/// The grid's geometry and, per cell, how far empty space reaches around it
+/// ([`OccupancyGrid::empty_reach`]): marching at an empty cell jumps through the whole empty cube
+/// of cells around it. Shared by every batch of rays.
 pub struct Skipper<'a> {
     grid: &'a OccupancyGrid,
-    /// Per cell: its Chebyshev distance in cells to the nearest occupied cell, capped at
-    /// `MAX_REACH + 1` (0: occupied). Every cell within `reach − 1` of a cell is empty.
-    reach: Vec<u8>,
+    reach: &'a [u8],
     /// A cell's side in world units.
     cell_side: f64,
 }
 
 impl<'a> Skipper<'a> {
-    /// The empty reach of every cell of `grid`, by growing the occupied cells a cell at a time
-    /// (a 3-wide dilation per axis), [`MAX_REACH`] times.
+    /// Marching through `grid` (its empty reach made on first use, then kept with the grid).
     pub fn new(grid: &'a OccupancyGrid) -> Self {
-        let r = grid.resolution();
-        let n = grid.len();
-        let mut near: Vec<bool> = (0..n).map(|c| grid.is_cell_occupied(c)).collect();
-        let mut reach: Vec<u8> = near.iter().map(|&o| if o { 0 } else { MAX_REACH as u8 + 1 }).collect();
-        let mut grown = vec![false; n];
-        for distance in 1..=MAX_REACH as u8 {
-            for stride in [r * r, r, 1] {
-                grown.par_iter_mut().enumerate().for_each(|(c, g)| {
-                    let at = (c / stride) % r;
-                    *g = near[c] || (at > 0 && near[c - stride]) || (at + 1 < r && near[c + stride]);
-                });
-                std::mem::swap(&mut near, &mut grown);
-            }
-            reach.iter_mut().zip(&near).filter(|(d, n)| **n && **d > distance).for_each(|(d, _)| *d = distance);
-        }
-        Skipper { grid, reach, cell_side: 2.0 * grid.bound() as f64 / r as f64 }
+        Skipper { grid, reach: grid.empty_reach(), cell_side: 2.0 * grid.bound() as f64 / grid.resolution() as f64 }
     }
 
     /// The world box of cells [lo, hi) per axis, grown by `margin` (shrunk where negative).
@@ -323,11 +302,22 @@ pub fn render_rays_in<F: Field>(field: &mut F, skipper: &Skipper, rays: &Rays, o
         .filter(|l| !l.march.finished())
         .collect();
     if !options.overlap {
+        // Compositing a round and marching the next in one pass; finished rays stay in the list
+        // (skipped) until they are half of it, then a round composites, drops them and marches.
+        let (mut parts, mut dead, mut done) = (round.march(&mut live), 0, Vec::new());
         while !live.is_empty() {
-            let parts = round.march(&mut live);
             let (points, dirs) = gather(&parts);
-            let out = field.evaluate(stage, &points, &dirs)?;
-            round.composite(&mut live, &parts, &out, &mut outputs);
+            let out = if points.is_empty() { FieldOutput::default() } else { field.evaluate(stage, &points, &dirs)? };
+            if dead * 2 >= live.len() {
+                round.composite(&mut live, &parts, &out, &mut outputs);
+                (parts, dead) = (round.march(&mut live), 0);
+            } else {
+                parts = round.composite_and_march(&mut live, &parts, &out, &mut done);
+                dead += done.len();
+                for (r, output) in done.drain(..) {
+                    outputs[r] = output;
+                }
+            }
         }
         return Ok(outputs);
     }
@@ -346,6 +336,7 @@ pub fn render_rays_in<F: Field>(field: &mut F, skipper: &Skipper, rays: &Rays, o
                 let mut done = Vec::new();
                 if let Some(out) = out.take() {
                     round.composite_into(live, parts, &out, &mut done);
+                    live.retain(|l| !l.done);
                 }
                 (round.march(live), done)
             });
@@ -380,26 +371,27 @@ struct Round<'a> {
 impl Round<'_> {
     /// March each live ray to its next samples (at most [`MARCH_SEGMENT`]), in parallel.
     fn march(&self, live: &mut [LiveRay]) -> Vec<RoundPart> {
+        live.par_chunks_mut(ROUND_RAYS_PER_TASK).map(|chunk| self.march_chunk(chunk)).collect()
+    }
+
+    /// One task's rays' next samples.
+    fn march_chunk(&self, chunk: &mut [LiveRay]) -> RoundPart {
         let skipper = self.skipper;
-        live.par_chunks_mut(ROUND_RAYS_PER_TASK)
-            .map(|chunk| {
-                let most = chunk.len() * MARCH_SEGMENT;
-                let mut part = RoundPart { points: Vec::with_capacity(most), dirs: Vec::with_capacity(most), t: Vec::with_capacity(most), counts: Vec::with_capacity(chunk.len()) };
-                for l in chunk.iter_mut() {
-                    if l.done {
-                        part.counts.push(0);
-                        continue;
-                    }
-                    let n = l.march.advance(skipper, MARCH_SEGMENT, &mut |t, p| {
-                        part.t.push(t);
-                        part.points.push(p);
-                    });
-                    part.dirs.extend(std::iter::repeat_n(self.viewdirs[l.r], n));
-                    part.counts.push(n as u8);
-                }
-                part
-            })
-            .collect()
+        let most = chunk.len() * MARCH_SEGMENT;
+        let mut part = RoundPart { points: Vec::with_capacity(most), dirs: Vec::with_capacity(most), t: Vec::with_capacity(most), counts: Vec::with_capacity(chunk.len()) };
+        for l in chunk.iter_mut() {
+            if l.done {
+                part.counts.push(0);
+                continue;
+            }
+            let n = l.march.advance(skipper, MARCH_SEGMENT, &mut |t, p| {
+                part.t.push(t);
+                part.points.push(p);
+            });
+            part.dirs.extend(std::iter::repeat_n(self.viewdirs[l.r], n));
+            part.counts.push(n as u8);
+        }
+        part
     }
 
     /// Composite the field's `out` for `parts` (as [`Self::march`] made them from `live`) and
@@ -407,42 +399,61 @@ impl Round<'_> {
     fn composite(&self, live: &mut Vec<LiveRay>, parts: &[RoundPart], out: &FieldOutput, outputs: &mut [RayOutput]) {
         let mut done = Vec::new();
         self.composite_into(live, parts, out, &mut done);
+        live.retain(|l| !l.done);
         for (r, output) in done {
             outputs[r] = output;
         }
     }
 
-    /// [`Self::composite`], the finished rays' outputs pushed to `done`.
-    fn composite_into(&self, live: &mut Vec<LiveRay>, parts: &[RoundPart], out: &FieldOutput, done: &mut Vec<(usize, RayOutput)>) {
-        let starts: Vec<usize> = parts.iter().scan(0, |at, p| Some(std::mem::replace(at, *at + p.t.len()))).collect();
+    /// Composite the field's `out` for `parts` into `live`, the finished rays marked done and
+    /// their outputs pushed to `done` (they stay in the list).
+    fn composite_into(&self, live: &mut [LiveRay], parts: &[RoundPart], out: &FieldOutput, done: &mut Vec<(usize, RayOutput)>) {
+        let starts = part_starts(parts);
         let finished: Vec<Vec<(usize, RayOutput)>> = live
             .par_chunks_mut(ROUND_RAYS_PER_TASK)
             .zip(parts)
             .zip(starts)
-            .map(|((chunk, part), start)| {
-                let (mut i, mut finished) = (0, Vec::new());
-                for (l, &n) in chunk.iter_mut().zip(&part.counts).filter(|(l, _)| !l.done) {
-                    let delta = self.interval * length(self.rays.directions[l.r]);
-                    for _ in 0..n {
-                        let alpha = alpha_from_density(out.sigma[start + i], delta);
-                        l.ray.add(alpha, out.rgb[start + i], part.t[i]);
-                        i += 1;
-                    }
-                    if l.ray.transmittance() < self.min_transmittance || l.march.finished() {
-                        l.done = true;
-                        finished.push((l.r, l.ray.finish(self.white_background)));
-                    }
-                }
-                finished
-            })
+            .map(|((chunk, part), start)| self.composite_chunk(chunk, part, out, start))
             .collect();
         finished.into_iter().for_each(|f| done.extend(f));
-        // Dropping the finished rays moves the others: only once they are half the list.
-        let dead = live.iter().filter(|l| l.done).count();
-        if dead * 2 >= live.len() {
-            live.retain(|l| !l.done);
-        }
     }
+
+    /// [`Self::composite_into`] and the next [`Self::march`] in one pass over the rays.
+    fn composite_and_march(&self, live: &mut [LiveRay], parts: &[RoundPart], out: &FieldOutput, done: &mut Vec<(usize, RayOutput)>) -> Vec<RoundPart> {
+        let starts = part_starts(parts);
+        let (finished, parts): (Vec<_>, Vec<_>) = live
+            .par_chunks_mut(ROUND_RAYS_PER_TASK)
+            .zip(parts)
+            .zip(starts)
+            .map(|((chunk, part), start)| (self.composite_chunk(chunk, part, out, start), self.march_chunk(chunk)))
+            .unzip();
+        finished.into_iter().for_each(|f| done.extend(f));
+        parts
+    }
+
+    /// Composite one task's samples (its part's, from `start` in `out`); returns the rays that
+    /// finished, now marked done.
+    fn composite_chunk(&self, chunk: &mut [LiveRay], part: &RoundPart, out: &FieldOutput, start: usize) -> Vec<(usize, RayOutput)> {
+        let (mut i, mut finished) = (0, Vec::new());
+        for (l, &n) in chunk.iter_mut().zip(&part.counts).filter(|(l, _)| !l.done) {
+            let delta = self.interval * length(self.rays.directions[l.r]);
+            for _ in 0..n {
+                let alpha = alpha_from_density(out.sigma[start + i], delta);
+                l.ray.add(alpha, out.rgb[start + i], part.t[i]);
+                i += 1;
+            }
+            if l.ray.transmittance() < self.min_transmittance || l.march.finished() {
+                l.done = true;
+                finished.push((l.r, l.ray.finish(self.white_background)));
+            }
+        }
+        finished
+    }
+}
+
+/// Where each part's samples start in the field call.
+fn part_starts(parts: &[RoundPart]) -> Vec<usize> {
+    parts.iter().scan(0, |at, p| Some(std::mem::replace(at, *at + p.t.len()))).collect()
 }
 
 /// The field call's inputs: `parts`' points and directions in order.

@@ -57,18 +57,30 @@ impl Default for OccupancyConfig {
 }
 
 /// The grid itself.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone)]
 pub struct OccupancyGrid {
     resolution: usize,
     bound: f32,
     threshold: f32,
     density: Vec<f32>,
+    /// [`Self::empty_reach`], made on first use and dropped by any change.
+    reach: std::sync::OnceLock<Vec<u8>>,
 }
+
+/// Grids are equal when their cells and settings are (the cached reach is derived from them).
+impl PartialEq for OccupancyGrid {
+    fn eq(&self, other: &Self) -> bool {
+        (self.resolution, self.bound, self.threshold) == (other.resolution, other.bound, other.threshold) && self.density == other.density
+    }
+}
+
+/// The farthest [`OccupancyGrid::empty_reach`] records: 8 cells.
+pub const MAX_REACH: usize = 8;
 
 impl OccupancyGrid {
     /// A grid with every cell occupied (no information yet).
     pub fn new(resolution: usize, bound: f32, threshold: f32) -> Self {
-        OccupancyGrid { resolution, bound, threshold, density: vec![f32::INFINITY; resolution.pow(3)] }
+        OccupancyGrid { resolution, bound, threshold, density: vec![f32::INFINITY; resolution.pow(3)], reach: Default::default() }
     }
 
     /// A fresh grid as `config` describes.
@@ -100,6 +112,7 @@ impl OccupancyGrid {
     /// Change the occupancy threshold in place.
     pub fn set_threshold(&mut self, threshold: f32) {
         self.threshold = threshold;
+        self.reach.take();
     }
 
     /// One occupied cell covering [−bound, bound]³: marching through it evaluates every
@@ -150,6 +163,39 @@ impl OccupancyGrid {
         self.density[cell] > self.threshold
     }
 
+    /// Per cell, how far empty space reaches around it: its Chebyshev distance in cells to the
+    /// nearest occupied cell, capped at [`MAX_REACH`] + 1 (0: the cell is occupied), so every cell
+    /// within `reach − 1` of a cell is empty. Made on first use (growing the occupied cells a
+    /// cell at a time, a 3-wide dilation per axis, [`MAX_REACH`] times) and kept until the grid
+    /// changes. Marching jumps through these empty cubes. Shape `[R³]`, cell order.
+    pub fn empty_reach(&self) -> &[u8] {
+        self.reach.get_or_init(|| {
+            use rayon::prelude::*;
+            let r = self.resolution;
+            let n = self.len();
+            let mut near: Vec<bool> = (0..n).map(|c| self.is_cell_occupied(c)).collect();
+            let mut reach: Vec<u8> = near.iter().map(|&o| if o { 0 } else { MAX_REACH as u8 + 1 }).collect();
+            let mut grown = vec![false; n];
+            for distance in 1..=MAX_REACH as u8 {
+                for (axis, stride) in [r * r, r, 1].into_iter().enumerate() {
+                    // One (i, ·, ·) slab of cells per task: coordinates by counting, not dividing.
+                    grown.par_chunks_mut((r * r).max(1)).enumerate().for_each(|(i, slab)| {
+                        for (j, row) in slab.chunks_mut(r).enumerate() {
+                            for (k, g) in row.iter_mut().enumerate() {
+                                let c = (i * r + j) * r + k;
+                                let at = [i, j, k][axis];
+                                *g = near[c] || (at > 0 && near[c - stride]) || (at + 1 < r && near[c + stride]);
+                            }
+                        }
+                    });
+                    std::mem::swap(&mut near, &mut grown);
+                }
+                reach.iter_mut().zip(&near).filter(|(d, n)| **n && **d > distance).for_each(|(d, _)| *d = distance);
+            }
+            reach
+        })
+    }
+
     /// Indices of the points that lie in occupied cells, in order.
     pub fn occupied_indices(&self, points: &[[f32; 3]]) -> Vec<usize> {
         (0..points.len()).filter(|&i| self.is_occupied(points[i])).collect()
@@ -184,6 +230,7 @@ impl OccupancyGrid {
     /// [`random_cell_points`](Self::random_cell_points)).
     pub fn update(&mut self, sigma: &[f32], decay: f32) {
         assert_eq!(sigma.len(), self.len(), "one density per cell");
+        self.reach.take();
         for (d, &s) in self.density.iter_mut().zip(sigma) {
             let s = s.max(0.0);
             *d = if d.is_finite() { (*d * decay).max(s) } else { s };
@@ -211,7 +258,7 @@ impl OccupancyGrid {
             return Err(Error::invalid(path, format!("{} bytes, expected {want} for a {resolution}³ grid (truncated?)", bytes.len())));
         }
         let density = bytes[HEADER_BYTES..].chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
-        Ok(OccupancyGrid { resolution, bound, threshold, density })
+        Ok(OccupancyGrid { resolution, bound, threshold, density, reach: Default::default() })
     }
 
     /// Resolution, bound and threshold from the first [`HEADER_BYTES`] bytes, checked (the
@@ -288,6 +335,28 @@ mod tests {
         assert_eq!(grid.cell([0.0, f32::NAN, 0.0]), None);
         assert!(grid.is_occupied([0.0, 0.0, 0.0]), "a fresh grid is all occupied");
         assert!(!grid.is_occupied([0.0, 0.0, 2.0]), "outside is empty");
+    }
+
+    #[test]
+    fn empty_reach_is_the_chebyshev_distance_to_the_nearest_occupied_cell_capped() {
+        // 24³, one occupied cell at (2, 3, 4).
+        let r = 24;
+        let at = |i: usize, j: usize, k: usize| (i * r + j) * r + k;
+        let mut density = vec![0.0; r * r * r];
+        density[at(2, 3, 4)] = 1.0;
+        let mut grid = OccupancyGrid::new(r, 1.0, 0.5);
+        grid.update(&density, 1.0);
+        let reach = grid.empty_reach();
+        assert_eq!((reach[at(2, 3, 4)], reach[at(3, 3, 4)], reach[at(1, 2, 5)]), (0, 1, 1));
+        // max(|4 − 2|, |5 − 3|, |4 − 4|) = 2; max(5, 4, 3) = 5; 20 cells away: capped at 9.
+        assert_eq!((reach[at(4, 5, 4)], reach[at(7, 7, 7)], reach[at(22, 3, 4)]), (2, 5, MAX_REACH as u8 + 1));
+        assert_eq!(reach.iter().filter(|&&d| d == 1).count(), 26);
+        // Kept until the grid changes: a second occupied cell at (2, 3, 8).
+        density[at(2, 3, 8)] = 1.0;
+        grid.update(&density, 1.0);
+        assert_eq!((grid.empty_reach()[at(2, 3, 6)], grid.empty_reach()[at(2, 3, 7)]), (2, 1));
+        grid.set_threshold(2.0);
+        assert!(grid.empty_reach().iter().all(|&d| d == MAX_REACH as u8 + 1), "nothing is occupied above 2");
     }
 
     #[test]
