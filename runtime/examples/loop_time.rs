@@ -60,7 +60,10 @@ fn main() {
     let mut recorder = Recorder { field: &mut scene.field, calls: Vec::new() };
     let start = Instant::now();
     let reference = render_image(&mut recorder, scene.occupancy.as_ref(), &k, &pose, &scene.options, &mut |_, _| {}).unwrap();
+    let recorded_s = start.elapsed().as_secs_f64();
     let calls = recorder.calls;
+    let net = &scene.field.graphs[0].1;
+    println!("the recorded frame: {recorded_s:.3} s = onnxruntime {:.3} + Rust encoding {:.3} + the rest {:.3} s", net.seconds, net.encoding_seconds, recorded_s - net.seconds - net.encoding_seconds);
     let points: usize = calls.iter().map(|c| c.0).sum();
     println!("{}: {}×{}, {} rays a batch, {} field calls, {points} points, recorded in {:.3} s (overlap {overlap})", bundle.display(), k.width, k.height, scene.options.chunk, calls.len(), start.elapsed().as_secs_f64());
     if let Some(grid) = &scene.occupancy {

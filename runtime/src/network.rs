@@ -104,6 +104,9 @@ pub struct OrtNetwork {
     pub seconds: f64,
     /// Seconds spent in the Rust encoding so far (split graphs only).
     pub encoding_seconds: f64,
+    /// The split path's inputs (unit points, features, harmonics), kept from call to call:
+    /// fresh, zeroed buffers of a block's size each call cost as much as the loop around them.
+    scratch: (Vec<[f32; 3]>, Vec<f32>, Vec<f32>),
 }
 
 impl OrtNetwork {
@@ -152,7 +155,7 @@ impl OrtNetwork {
                 builder.commit_from_memory(&bytes).map_err(|e| ort_err(&e))
             })
             .collect::<Result<Vec<_>>>()?;
-        Ok(OrtNetwork { sessions, encoder, points_per_run: threading.points_per_run.max(1), path: path.to_path_buf(), evaluated: 0, seconds: 0.0, encoding_seconds: 0.0 })
+        Ok(OrtNetwork { sessions, encoder, points_per_run: threading.points_per_run.max(1), path: path.to_path_buf(), evaluated: 0, seconds: 0.0, encoding_seconds: 0.0, scratch: Default::default() })
     }
 
     /// Where this graph's encoding runs ([`Encoding::Graph`] for graphs that are not split).
@@ -182,7 +185,16 @@ impl OrtNetwork {
         };
         let width = encoder.grid.output_dim();
         let block = n.min(ENCODE_BLOCK);
-        let (mut unit, mut features, mut sh) = (vec![[0.0f32; 3]; block], vec![0.0f32; block * width], vec![0.0f32; block * SH4_DIM]);
+        let (mut unit, mut features, mut sh) = std::mem::take(&mut self.scratch);
+        // Every value is written before it is read: growing zeroes only the new part.
+        for (v, len) in [(&mut features, block * width), (&mut sh, block * SH4_DIM)] {
+            if v.len() < len {
+                v.resize(len, 0.0);
+            }
+        }
+        if unit.len() < block {
+            unit.resize(block, [0.0; 3]);
+        }
         let mut out = FieldOutput { rgb: Vec::with_capacity(n), sigma: Vec::with_capacity(n) };
         for (points, viewdirs) in points.chunks(ENCODE_BLOCK).zip(viewdirs.chunks(ENCODE_BLOCK)) {
             let start = std::time::Instant::now();
@@ -202,6 +214,7 @@ impl OrtNetwork {
             out.rgb.extend(part.rgb);
             out.sigma.extend(part.sigma);
         }
+        self.scratch = (unit, features, sh);
         Ok(out)
     }
 
