@@ -1,7 +1,7 @@
 // scene.json and occupancy.bin of a scene bundle (formats nerf-rs-scene-1 and -2), as
 // render_rays.py reads them: graph files by role, the bounded flag, the occupancy grid.
 
-import type { Grid } from "./render";
+import type { Grid } from "./march";
 
 /** A field defined inside its grid's box only: "bounded", or a version-1 hash-grid bundle. */
 export function isBounded(scene: any): boolean {

@@ -6,9 +6,19 @@
 // rather than grid.rs's empty 8³ block or the cell alone: fewer tests, the same samples. Rays march lazily: `next` hands out a ray's next few samples
 // and remembers where it stopped, so a ray that terminates early never marches the rest.
 
-import type { Grid } from "./render";
 
 const f = Math.fround;
+
+/** Occupied cells of occupancy.bin: cell (i, j, k) of p is floor((p + b) / 2b · R); outside is empty. */
+export interface Grid { res: number; bound: number; occupied: Uint8Array }
+
+/** Is point (x, y, z) in an occupied cell? */
+export function isOccupied(g: Grid, x: number, y: number, z: number): boolean {
+  const b = f(g.bound), two = f(2 * b), R = g.res;
+  const u = f(f(f(x + b) / two) * R), v = f(f(f(y + b) / two) * R), w = f(f(f(z + b) / two) * R);
+  if (!(u >= 0 && u < R && v >= 0 && v < R && w >= 0 && w < R)) return false;
+  return g.occupied[(Math.floor(u) * R + Math.floor(v)) * R + Math.floor(w)] !== 0;
+}
 
 /** The widest empty cube around a cell the skipping jumps through, in cells from the cell. */
 export const MAX_REACH = 8;

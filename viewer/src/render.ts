@@ -3,7 +3,7 @@
 // termination), vectorised over batches of points for the field. Pure: the field is a callback.
 
 import { norm3 } from "./camera";
-import { RayMarch } from "./march";
+import { type Grid, RayMarch } from "./march";
 
 const f = Math.fround;
 
@@ -15,8 +15,6 @@ export type Field = (points: Float32Array, viewdirs: Float32Array, n: number) =>
 
 export interface Sampling { near: number; far: number; n_coarse: number; n_fine: number; lindisp: boolean }
 
-/** Occupied cells of occupancy.bin: cell (i, j, k) of p is floor((p + b) / 2b · R); outside is empty. */
-export interface Grid { res: number; bound: number; occupied: Uint8Array }
 
 /** The output of a frame: rgb [N,3], depth [N], acc [N], and the number of points evaluated. */
 export interface Frame { rgb: Float32Array; depth: Float32Array; acc: Float32Array; points: number }
@@ -73,14 +71,6 @@ export function samplePdf(bins: ArrayLike<number>, weights: ArrayLike<number>, u
     out[q] = f(bins[below] + f(f(f(u[q] - c0) / denom) * f(bins[above] - bins[below])));
   }
   return out;
-}
-
-/** Is point (x, y, z) in an occupied cell? */
-export function isOccupied(g: Grid, x: number, y: number, z: number): boolean {
-  const b = f(g.bound), two = f(2 * b), R = g.res;
-  const u = f(f(f(x + b) / two) * R), v = f(f(f(y + b) / two) * R), w = f(f(f(z + b) / two) * R);
-  if (!(u >= 0 && u < R && v >= 0 && v < R && w >= 0 && w < R)) return false;
-  return g.occupied[(Math.floor(u) * R + Math.floor(v)) * R + Math.floor(w)] !== 0;
 }
 
 /** Unit view directions (float32) of view [N,3]. */

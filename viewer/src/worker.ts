@@ -6,7 +6,8 @@
 import type * as OrtModule from "onnxruntime-web/wasm";
 import { cameraRays, ndcRays, outputSize, pinhole, resized } from "./camera";
 import { type GraphInfo, checkScene, graphFiles, graphInfo, isBounded, parseGrid, wholeBox } from "./bundle";
-import { type Field, type Grid, MAX_POINTS, type MarchTiming, renderDense, renderMarch } from "./render";
+import type { Grid } from "./march";
+import { type Field, MAX_POINTS, type MarchTiming, renderDense, renderMarch } from "./render";
 import type { FromWorker, Provider, ToWorker } from "./protocol";
 import { type Adapter, pickProvider } from "./provider";
 import { emptyReach } from "./march";

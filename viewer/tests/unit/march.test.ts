@@ -1,7 +1,7 @@
 // The marcher (src/march.ts) against the reference marching: every interval tested with
 // isOccupied, sample for sample, bit for bit (as core/src/render/grid.rs's tests).
 import { describe, expect, it } from "vitest";
-import { type Grid, isOccupied } from "../../src/render";
+import { type Grid, isOccupied } from "../../src/march";
 import { RayMarch } from "../../src/march";
 
 const f = Math.fround;
@@ -84,7 +84,7 @@ describe("marching with empty-space skipping", () => {
       const { samples } = same(g, list, 0, 6, 2048, [16, 3, 1000][seed - 1]);
       expect(samples).toBeGreaterThan(2000); // the rays see occupied cells
     }
-  });
+  }, 60_000);
 
   it("takes the same samples on rays along cell faces, edges and corners and hugging a plane", () => {
     const g = sparseGrid(7), u = rng(5), cell = 1 / 16, below = (n: number) => Math.floor(u() * n);
@@ -109,7 +109,7 @@ describe("marching with empty-space skipping", () => {
       hug.push([[-2, plane + offset, -1 + (below(32) + 0.5) * cell], [1, -offset / crossing, 0]]);
     }
     expect(same({ res: R, bound: 1, occupied: striped }, hug, 0, 6, 2048).samples).toBeGreaterThan(30000);
-  });
+  }, 60_000); // thousands of rays tested step by step: seconds, more on a busy machine
 
   it("handles rays that miss the box, degenerate rays and a degenerate interval", () => {
     const g = sparseGrid(2);
