@@ -14,6 +14,7 @@ pub mod mesh;
 pub mod network;
 pub mod scene;
 pub mod serve;
+pub mod site;
 
 pub use error::{Result, RuntimeError};
 pub use field::OrtField;

@@ -17,6 +17,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 #[derive(Parser)]
+#[command(group(clap::ArgGroup::new("viewer_use").args(["serve", "export_site"])))]
 #[command(
     name = "nerf-render",
     version,
@@ -49,8 +50,12 @@ struct Cli {
     show_bundle_error: bool,
     /// The built viewer's directory (default: $NERF_VIEWER, else ~/.cache/nerf-rs/viewer, where
     /// scripts/setup.sh installs it).
-    #[arg(long, requires = "serve")]
+    #[arg(long, requires = "viewer_use")]
     viewer: Option<PathBuf>,
+    /// Write the viewer and the bundle into DIR (new or empty), a folder any static host serves
+    /// (its service worker supplies the isolation headers for onnxruntime's threads).
+    #[arg(long, value_name = "DIR", conflicts_with_all = ["orbit", "split", "serve", "camera_path", "shard", "skip_existing", "out"])]
+    export_site: Option<PathBuf>,
     /// Orbit frames (default: the bundle's orbit; another count renders the same path with
     /// that many frames: around a capture's cameras, else the reference orbit, radius 4,
     /// elevation −30°).
@@ -75,7 +80,7 @@ struct Cli {
     #[arg(long)]
     limit: Option<usize>,
     /// Output directory.
-    #[arg(long, required_unless_present = "serve")]
+    #[arg(long, required_unless_present_any = ["serve", "export_site"])]
     out: Option<PathBuf>,
     /// Threads (onnxruntime sessions side by side, and the compositing; default: one per core).
     #[arg(long)]
@@ -152,8 +157,19 @@ fn run(cli: Cli) -> Result<()> {
         return Ok(());
     }
     let bundle = cli.bundle.clone().expect("clap requires --bundle without --merge");
+    let viewer = || cli.viewer.clone().or_else(nerf_runtime::serve::viewer_dir).ok_or_else(|| anyhow::anyhow!("no viewer directory: set --viewer or $NERF_VIEWER"));
+    if let Some(dir) = &cli.export_site {
+        let files = nerf_runtime::serve::bundle_files(&bundle)?;
+        let site = nerf_runtime::serve::Site::new(&viewer()?, files)?;
+        let exported = nerf_runtime::site::export_site(&site, dir)?;
+        if !exported.service_worker {
+            eprintln!("warning: the viewer has no {}: on a static host it runs onnxruntime on one thread (rebuild it: bash scripts/setup.sh)", nerf_runtime::site::SERVICE_WORKER);
+        }
+        println!("site: {} ({} files, {:.1} MB); serve the folder with any static server, e.g. python3 -m http.server -d {}", dir.display(), exported.files, exported.bytes as f64 / 1e6, dir.display());
+        return Ok(());
+    }
     if cli.serve {
-        let viewer = cli.viewer.clone().or_else(nerf_runtime::serve::viewer_dir).ok_or_else(|| anyhow::anyhow!("no viewer directory: set --viewer or $NERF_VIEWER"))?;
+        let viewer = viewer()?;
         let files = match nerf_runtime::serve::bundle_files(&bundle) {
             Ok(files) => files,
             Err(e) if cli.show_bundle_error && bundle.is_dir() => {
@@ -175,7 +191,7 @@ fn run(cli: Cli) -> Result<()> {
         let site = nerf_runtime::serve::Site::new(&viewer, files)?;
         return Ok(nerf_runtime::serve::serve(site, cli.host, cli.port)?);
     }
-    let out = cli.out.clone().expect("clap requires --out without --serve");
+    let out = cli.out.clone().expect("clap requires --out without --serve or --export-site");
     if let Some(n) = cli.threads {
         limits::check_count(n, limits::MAX_THREADS, "threads", Origin::Option("--threads"))?;
         rayon::ThreadPoolBuilder::new().num_threads(n).build_global()?;

@@ -138,6 +138,13 @@ impl Site {
     pub fn file(&self, path: &str) -> Option<&Path> {
         self.files.get(path).map(PathBuf::as_path)
     }
+
+    /// Every file served, by request path (`/` once, as `/index.html`), sorted by path.
+    pub fn files(&self) -> Vec<(&str, &Path)> {
+        let mut files: Vec<_> = self.files.iter().filter(|(p, _)| p.as_str() != "/").map(|(p, f)| (p.as_str(), f.as_path())).collect();
+        files.sort();
+        files
+    }
 }
 
 /// A name served as it is: printable ASCII letters, digits and `._-`, not starting with a dot.

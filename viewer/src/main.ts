@@ -4,6 +4,7 @@
 
 import type { FromWorker, FrameMsg, Loaded, ToWorker } from "./protocol";
 import { type Orbit, orbitFromPose, orbitPose, toBytes } from "./view";
+import { isolate } from "./isolation";
 
 declare global {
   interface Window { nerfStats?: Record<string, unknown>; nerfFrame?: Float32Array; nerfTimeline?: { width: number; height: number; at: number }[] }
@@ -20,17 +21,23 @@ function fail(message: string): void {
   document.body.dataset.state = "error";
 }
 
-const worker = new Worker(new URL("./worker.ts", import.meta.url), { type: "module" });
+let worker: Worker; // started once the page knows it will not reload for isolation
 const send = (m: ToWorker) => worker.postMessage(m);
 let onLoaded: (m: Loaded) => void = () => {};
 let onFrame: (m: FrameMsg) => void = () => {};
-worker.onmessage = (ev: MessageEvent<FromWorker>) => {
-  const m = ev.data;
-  if (m.type === "loaded") onLoaded(m);
-  else if (m.type === "frame") onFrame(m);
-  else if (m.type === "error") fail(m.message);
-};
-worker.onerror = (ev) => fail(`worker: ${ev.message || "failed to start"}`);
+/** Why onnxruntime runs on one thread (not cross-origin isolated), for the stats line. */
+let singleThreadWhy: string | null = null;
+
+function startWorker(): void {
+  worker = new Worker(new URL("./worker.ts", import.meta.url), { type: "module" });
+  worker.onmessage = (ev: MessageEvent<FromWorker>) => {
+    const m = ev.data;
+    if (m.type === "loaded") onLoaded(m);
+    else if (m.type === "frame") onFrame(m);
+    else if (m.type === "error") fail(m.message);
+  };
+  worker.onerror = (ev) => fail(`worker: ${ev.message || "failed to start"}`);
+}
 
 /** Draws rgb (or a depth map) 1:1 into the canvas, resizing it to the frame. */
 function draw(m: FrameMsg, depthView: boolean, near: number, far: number): void {
@@ -53,7 +60,8 @@ function statsLine(s: ReturnType<typeof statsOf>, loaded: Loaded): string {
   return `${s.width}×${s.height} in ${sec(s.ms)}: field ${sec(s.fieldMs)} · loop ${sec(s.loopMs)}` +
     (loaded.marched ? ` (march ${sec(s.marchMs)})` : "") + ` · ${(s.points / 1e6).toFixed(2)} M points · ` +
     `${(s.pointsPerSecond / 1e6).toFixed(2)} M points/s · ${s.backend}${threads} (${s.reason})` +
-    (loaded.marched ? " · marched" : " · coarse+fine");
+    (loaded.marched ? " · marched" : " · coarse+fine") +
+    (s.backend === "wasm" && !loaded.isolated && singleThreadWhy ? ` · one thread: not isolated, ${singleThreadWhy}` : "");
 }
 
 /** ?pose=test:K: one full-quality frame, then data-state="done" for a test to read window.nerfFrame. */
@@ -163,10 +171,15 @@ function interactive(loaded: Loaded): void {
   request(0);
 }
 
-function start(): void {
+async function start(): Promise<void> {
+  const isolation = await isolate(params.get("sw") === "0");
+  if (!isolation) return; // reloading under the service worker
+  singleThreadWhy = isolation.why;
+  startWorker();
   const bundleUrl = new URL(params.get("bundle") ?? "bundle/", document.baseURI).href;
   const ortUrl = new URL("ort/", document.baseURI).href;
   $("isolation").hidden = crossOriginIsolated;
+  if (singleThreadWhy) $("isolation").textContent += ` (${singleThreadWhy})`;
   onLoaded = (loaded) => {
     const pose = params.get("pose");
     if (pose && pose.startsWith("test:")) testHook(loaded, pose);
@@ -176,4 +189,4 @@ function start(): void {
   send({ type: "load", bundleUrl, ortUrl, dense: params.get("dense") === "1", ep: params.get("ep") ?? "auto" });
 }
 
-start();
+start().catch((e) => fail(`start: ${(e as Error).message}`));

@@ -15,53 +15,19 @@
 // scripts/env.sh). Run `npm run build` first.
 import { after, before, test } from "node:test";
 import assert from "node:assert/strict";
-import { spawn, execFileSync } from "node:child_process";
+import { spawn } from "node:child_process";
 import { cpSync, existsSync, mkdtempSync, readFileSync, rmSync, writeFileSync } from "node:fs";
-import { createServer } from "node:net";
 import { tmpdir } from "node:os";
 import { join, resolve } from "node:path";
 import { chromium } from "playwright-core";
 import { serve } from "./serve.mjs";
+import { REPO, frameError, freePort, nativeFrame } from "./common.mjs";
 
 /** A tiny hash-grid bundle in the portable lowering (fixtures/ngp-portable/README.md). */
 const PORTABLE = resolve(import.meta.dirname, "fixtures/ngp-portable");
 
 const VIEWER = resolve(import.meta.dirname, "..");
-const REPO = resolve(VIEWER, "..");
 const DIST = join(VIEWER, "dist");
-
-/** float32 [H, W, C] from a .npy file (format versions 1–3, little-endian f4, C order). */
-export function readNpy(path) {
-  const buf = readFileSync(path);
-  assert.equal(buf.subarray(0, 6).toString("latin1"), "\x93NUMPY");
-  const v = buf[6], len = v === 1 ? buf.readUInt16LE(8) : buf.readUInt32LE(8), start = v === 1 ? 10 : 12;
-  const header = buf.subarray(start, start + len).toString("latin1");
-  assert.match(header, /'descr': '<f4'/);
-  assert.match(header, /'fortran_order': False/);
-  const shape = header.match(/'shape': \(([^)]*)\)/)[1].split(",").filter((s) => s.trim()).map(Number);
-  const data = new Float32Array(buf.buffer.slice(buf.byteOffset + start + len, buf.byteOffset + buf.length));
-  return { shape, data };
-}
-
-/** nerf-render's exact output for test pose 0 at width (height keeps the aspect): [H, W, 5]. */
-function nativeFrame(bundle, width, dense) {
-  const out = mkdtempSync(join(tmpdir(), "nerf-native-"));
-  try {
-    const args = ["--bundle", bundle, "--split", "test", "--limit", "1", "--width", String(width), "--out", out, "--npy", ...(dense ? ["--dense"] : [])];
-    const bin = process.env.NERF_RENDER;
-    if (bin) execFileSync(bin, args, { stdio: "pipe" });
-    else execFileSync("bash", ["-c", '. scripts/env.sh && exec "$CARGO_TARGET_DIR/release/nerf-render" "$@"', "nerf-render", ...args], { cwd: REPO, stdio: "pipe" });
-    return readNpy(join(out, "r_0.npy"));
-  } finally { rmSync(out, { recursive: true, force: true }); }
-}
-
-async function freePort() {
-  const s = createServer();
-  await new Promise((ok) => s.listen(0, "127.0.0.1", ok));
-  const port = s.address().port;
-  await new Promise((ok) => s.close(ok));
-  return port;
-}
 
 /** Start a server for `bundle` (`broken`: one that does not load, served with
  * --show-bundle-error); returns { url, stop }. NERF_SERVE_CMD swaps in another server. */
@@ -123,16 +89,10 @@ async function pageFrame(bundle, width, height, extra = "", on = browser) {
 function compare(name, bundle, width, dense = false) {
   test(`${name}${dense ? " (dense)" : ""}: browser matches nerf-render at width ${width}`, { timeout: 600_000 }, async (t) => {
     const native = nativeFrame(bundle, width, dense);
-    const [h, w, c] = native.shape;
+    const [h, w] = native.shape;
     const r = await pageFrame(bundle, w, h, dense ? "&dense=1" : "");
     assert.deepEqual(r.canvas, [w, h]);
-    assert.equal(r.frame.length, h * w * 3);
-    let maxDiff = 0, se = 0;
-    for (let p = 0; p < h * w; p++) for (let k = 0; k < 3; k++) {
-      const e = r.frame[3 * p + k] - native.data[c * p + k];
-      maxDiff = Math.max(maxDiff, Math.abs(e)); se += e * e;
-    }
-    const psnr = 10 * Math.log10(1 / Math.max(se / (h * w * 3), 1e-30));
+    const { maxDiff, psnr } = frameError(r.frame, native);
     t.diagnostic(`${name}: ${w}×${h}, max |Δrgb| ${maxDiff.toExponential(2)}, PSNR ${psnr.toFixed(1)} dB, ` +
       `${r.stats.ms.toFixed(0)} ms, ${r.stats.points} points, ${r.stats.threads} threads, isolated ${r.isolated}`);
     assert.ok(maxDiff <= 1e-3, `max |Δrgb| ${maxDiff} > 1e-3`);
@@ -257,7 +217,7 @@ test("without COOP/COEP: a visible note, one thread", { timeout: 120_000, }, asy
   const server = await serve({ root: DIST, bundle: join(REPO, "models/spheres"), isolation: false });
   const page = await browser.newPage();
   try {
-    await page.goto(`http://127.0.0.1:${server.address().port}/?pose=test:0&width=32&height=32`);
+    await page.goto(`http://127.0.0.1:${server.address().port}/?pose=test:0&width=32&height=32&sw=0`);
     await page.waitForFunction(() => document.body.dataset.state, null, { timeout: 60_000 });
     assert.equal(await page.evaluate(() => document.body.dataset.state), "done");
     assert.equal(await page.evaluate(() => crossOriginIsolated), false);
