@@ -132,7 +132,7 @@ pub fn render_views(run: &Path, views: &RenderViews, out: &Path, raw: bool, plan
         RenderViews::CameraPath { file, downscale } => {
             let path = CameraPathFile::read(file)?;
             let transform = loaded.placement().map_or_else(nerf_core::SceneTransform::identity, |p| p.transform);
-            let mut specs = path.frames(&transform);
+            let mut specs = path.frames(&transform, loaded.camera.pixel_center);
             for f in &mut specs {
                 f.camera = shrink(f.camera, *downscale, "camera path's render size")?;
             }

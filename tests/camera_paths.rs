@@ -2,7 +2,9 @@
 //! renders through `nerf render` (burn) and `nerf-render` (onnxruntime) to the same frames
 //! (≥ 60 dB between them) and the same animation; bad files are refused by both, naming the key,
 //! before anything is written. A path's poses are in the capture's own coordinates: on a capture
-//! in arbitrary units, a path through its test cameras renders its test views.
+//! in arbitrary units, a path through its test cameras renders its test views. A path's rays go
+//! through the run's or bundle's pixel centres: on a Blender scene (integer centres) a path
+//! through the test poses renders `--split test`'s views through both binaries.
 
 mod common;
 
@@ -184,5 +186,50 @@ fn camera_path_poses_are_in_the_captures_coordinates() {
         println!("test view {view}: --split test vs --camera-path {db:.1} dB");
         assert!(off_white > 0.05, "{view} is blank: the comparison would mean nothing");
         assert!(db >= 60.0, "{view}: --split test vs --camera-path {db:.1} dB");
+    }
+}
+
+/// The generated Blender scene (integer pixel centres) and a camera path whose cameras are its
+/// test poses (`transforms_test.json`'s matrices, `camera_angle_x` as the fov of the square
+/// image): each binary renders the path's frames as its own `--split test` renders the test
+/// views (≥ 60 dB). Rays through nerfstudio's half-pixel centres instead would shift every frame
+/// by half a pixel against the views the field was trained on.
+#[test]
+fn a_camera_path_through_the_test_poses_renders_the_test_views() {
+    let dir = tempfile::tempdir().unwrap();
+    let (scene, run) = trained_run(dir.path());
+    let bundle = dir.path().join("bundle");
+    let (ok, text) = nerf(&["export", "--run", s(&run), "--out", s(&bundle)]);
+    assert!(ok, "{text}");
+    let scene_json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(bundle.join("scene.json")).unwrap()).unwrap();
+    assert_eq!(scene_json["camera"]["pixel_center"], "integer", "the Blender scene's convention, which this test is about");
+    let test: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(scene.join("transforms_test.json")).unwrap()).unwrap();
+    let fov = test["camera_angle_x"].as_f64().unwrap().to_degrees();
+    let frames = test["frames"].as_array().unwrap();
+    let path: Vec<_> = frames.iter().map(|f| serde_json::json!({"camera_to_world": f["transform_matrix"], "fov": fov, "aspect": 1.0})).collect();
+    let names: Vec<String> = frames.iter().map(|f| Path::new(f["file_path"].as_str().unwrap()).file_name().unwrap().to_str().unwrap().to_string()).collect();
+    assert_eq!(names.len(), 2);
+    let path_file = dir.path().join("camera_path.json");
+    let camera_path = serde_json::json!({"camera_type": "perspective", "render_width": 32, "render_height": 32, "seconds": 2, "camera_path": path});
+    std::fs::write(&path_file, camera_path.to_string()).unwrap();
+    let out = |name: &str| dir.path().join(name);
+    let runs = [
+        ("nerf render", nerf(&["render", "--run", s(&run), "--split", "test", "--data", s(&scene), "--out", s(&out("burn-views")), "--npy"]), "burn-views"),
+        ("nerf render", nerf(&["render", "--run", s(&run), "--camera-path", s(&path_file), "--out", s(&out("burn-path")), "--npy"]), "burn-path"),
+        ("nerf-render", nerf_render(&["--bundle", s(&bundle), "--split", "test", "--data", s(&scene), "--out", s(&out("ort-views")), "--npy"]), "ort-views"),
+        ("nerf-render", nerf_render(&["--bundle", s(&bundle), "--camera-path", s(&path_file), "--out", s(&out("ort-path")), "--npy"]), "ort-path"),
+    ];
+    for (binary, (ok, text), what) in runs {
+        assert!(ok, "{binary} ({what}): {text}");
+    }
+    for (binary, views, along) in [("nerf render", "burn-views", "burn-path"), ("nerf-render", "ort-views", "ort-path")] {
+        for (k, view) in names.iter().enumerate() {
+            let (a, b) = (rgb(&out(views), view).2, rgb(&out(along), &format!("frame_{k:05}")).2);
+            let off_white = a.iter().flatten().map(|v| (1.0 - v).abs()).fold(0.0, f32::max);
+            let db = psnr(&a, &b);
+            println!("{binary}, test view {view}: --split test vs --camera-path {db:.1} dB");
+            assert!(off_white > 0.05, "{binary}: {view} is blank: the comparison would mean nothing");
+            assert!(db >= 60.0, "{binary}, {view}: --split test vs --camera-path {db:.1} dB");
+        }
     }
 }

@@ -204,7 +204,7 @@ fn run(cli: Cli) -> Result<()> {
         _ if cli.camera_path.is_some() => {
             let path = CameraPathFile::read(cli.camera_path.as_deref().expect("matched Some"))?;
             gif = Some(path.gif());
-            let mut specs = path.frames(&transform);
+            let mut specs = path.frames(&transform, scene.camera(None).pixel_center);
             for f in &mut specs {
                 f.camera = resize(f.camera, cli.width, cli.height)?;
             }

@@ -10,8 +10,11 @@
 //! image size is `render_width × render_height`.
 //!
 //! The camera is nerfstudio's: focal `(render_height / 2) / tan(fov / 2)` on both axes
-//! (`three_js_perspective_camera_focal_length`), principal point at the image centre, rays
-//! through pixel centres ([`PixelCenter::HalfPixel`]).
+//! (`three_js_perspective_camera_focal_length`), principal point at the image centre. Its
+//! pixel-centre convention is not nerfstudio's fixed half pixel but the run's or bundle's
+//! recorded one ([`PixelCenter`]): the field learnt the rays of that convention, so a path's
+//! pose equal to a test pose renders that test view (the Blender scenes train with integer
+//! centres, where half-pixel rays shift the image by half a pixel).
 //!
 //! Poses are in the coordinates of the original capture (the files the run trained on), like
 //! the poses of `--split --data`; [`CameraPathFile::frames`] maps them through the run's or
@@ -103,14 +106,15 @@ impl CameraPathFile {
         Ok(CameraPathFile { path: path.to_path_buf(), width: width as u32, height: height as u32, seconds, cameras })
     }
 
-    /// The views, `frame_00000`, `frame_00001`, …, poses mapped into the field by `placement`.
-    pub fn frames(&self, placement: &SceneTransform) -> Vec<FrameSpec> {
+    /// The views, `frame_00000`, `frame_00001`, …, poses mapped into the field by `placement`,
+    /// rays through `pixel_center` (the run's or bundle's training camera's).
+    pub fn frames(&self, placement: &SceneTransform, pixel_center: PixelCenter) -> Vec<FrameSpec> {
         self.cameras
             .iter()
             .enumerate()
             .map(|(k, c)| FrameSpec {
                 name: format!("frame_{k:05}"),
-                camera: perspective_camera(self.width, self.height, c.fov_degrees),
+                camera: perspective_camera(self.width, self.height, c.fov_degrees, pixel_center),
                 pose: placement.apply_pose(&c.pose),
                 target: None,
             })
@@ -125,9 +129,9 @@ impl CameraPathFile {
 }
 
 /// nerfstudio's perspective camera: `width × height`, vertical field of view `fov_degrees`,
-/// focal `(height / 2) / tan(fov / 2)` on both axes, principal point at the centre, half-pixel
-/// centres. Example: 200 × 100 at 90° → focal 50, principal point (100, 50).
-pub fn perspective_camera(width: u32, height: u32, fov_degrees: f64) -> PinholeCamera {
+/// focal `(height / 2) / tan(fov / 2)` on both axes, principal point at the centre, rays through
+/// `pixel_center`. Example: 200 × 100 at 90° → focal 50, principal point (100, 50).
+pub fn perspective_camera(width: u32, height: u32, fov_degrees: f64, pixel_center: PixelCenter) -> PinholeCamera {
     let focal = (0.5 * height as f64 / (0.5 * fov_degrees.to_radians()).tan()) as f32;
     PinholeCamera {
         width,
@@ -136,7 +140,7 @@ pub fn perspective_camera(width: u32, height: u32, fov_degrees: f64) -> PinholeC
         fy: focal,
         cx: 0.5 * width as f32,
         cy: 0.5 * height as f32,
-        pixel_center: PixelCenter::HalfPixel,
+        pixel_center,
         distortion: None,
     }
 }
@@ -286,21 +290,26 @@ mod tests {
     fn reads_nerfstudio_cameras() {
         let p = parse(PATH).unwrap();
         assert_eq!((p.width, p.height, p.seconds, p.cameras.len()), (200, 100, 0.5, 2));
-        let frames = p.frames(&SceneTransform::identity());
+        let frames = p.frames(&SceneTransform::identity(), PixelCenter::HalfPixel);
         assert_eq!((frames[0].name.as_str(), frames[1].name.as_str()), ("frame_00000", "frame_00001"));
         // 90°: focal = 50 / tan 45° = 50; 60°: 50 / tan 30° = 86.6025.
         let k = frames[0].camera;
         assert_eq!((k.fx, k.fy, k.cx, k.cy, k.pixel_center), (50.0, 50.0, 100.0, 50.0, PixelCenter::HalfPixel));
         assert!((frames[1].camera.fx - 86.602_54).abs() < 1e-3, "{}", frames[1].camera.fx);
-        // The centre pixel's ray (half-pixel centres) looks down −z; the second camera's −z is +x.
+        // The centre ray looks down −z (the second camera's −z is +x): with half-pixel centres
+        // it is pixel (99.5, 49.5)'s, with integer centres pixel (100, 50)'s.
         let d = frames[1].pose.ray_direction(&frames[1].camera, 99.5, 49.5);
+        assert!((d - Vec3::new(-1.0, 0.0, 0.0)).length() < 1e-6, "{d}");
+        let integer = p.frames(&SceneTransform::identity(), PixelCenter::Integer);
+        assert_eq!(integer[1].camera, PinholeCamera { pixel_center: PixelCenter::Integer, ..frames[1].camera });
+        let d = integer[1].pose.ray_direction(&integer[1].camera, 100.0, 50.0);
         assert!((d - Vec3::new(-1.0, 0.0, 0.0)).length() < 1e-6, "{d}");
         assert_eq!(frames[1].pose.origin(), Vec3::new(4.0, 0.0, 0.0));
         // Two cameras over 0.5 s: 250 ms a frame.
         assert_eq!(p.gif(), GifSpec { file: "camera_path.gif".into(), delay_ms: 250 });
         // Poses go through the placement: scale 0.5 about a shifted origin.
         let t = SceneTransform::new(0.5, Mat3::IDENTITY, Vec3::new(0.0, 0.0, -2.0));
-        assert_eq!(p.frames(&t)[0].pose.origin(), Vec3::new(0.0, 0.0, 1.0));
+        assert_eq!(p.frames(&t, PixelCenter::Integer)[0].pose.origin(), Vec3::new(0.0, 0.0, 1.0));
         // No camera_type is perspective, as in nerfstudio.
         let mut v: Value = serde_json::from_str(PATH).unwrap();
         v.as_object_mut().unwrap().remove("camera_type");
