@@ -85,7 +85,7 @@ def test_frame_images(spheres):
 
 def test_bad_options(spheres):
     with pytest.raises(ValueError, match="chunk"):
-        spheres.render(spheres.poses("test")[0], 8, chunk=100_000)
+        spheres.render(spheres.poses("test")[0], 8, chunk=300_000)
     with pytest.raises(ValueError, match="threads"):
         nerf_bundle.Bundle.open(MODELS / "spheres", threads=0)
     with pytest.raises(ValueError, match="width"):
