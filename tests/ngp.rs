@@ -131,6 +131,23 @@ fn ngp_trains_exports_and_renders_the_same_everywhere() {
         std::fs::read(out.join("frame_001.npy")).unwrap()
     };
     assert!(frame(&compact, "compact-frame") == frame(&again, "again-frame"), "the same pixels from either lowering");
+    // `nerf bench --only render` on this bundle: each lowering's CPU split and whole-graph
+    // frame, split into onnxruntime, encoding and loop, the same pixels as the split frame.
+    let json = dir.path().join("bench.json");
+    let (ok, text) = nerf(&["bench", "--only", "render", "--sizes", "8", "--repeats", "1", "--ngp-bundle", s(&again), "--json", s(&json)]);
+    assert!(ok, "{text}");
+    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let frames = report["device_frames"].as_array().unwrap();
+    let rows: Vec<(&str, &str)> = frames.iter().map(|f| (f["lowering"].as_str().unwrap(), f["path"].as_str().unwrap())).collect();
+    assert_eq!(rows, [("bitwise", "split"), ("bitwise", "whole graph"), ("portable", "split"), ("portable", "whole graph")]);
+    for f in frames {
+        let (frame, ort, encoding, rest) = (f["seconds"].as_f64().unwrap(), f["onnxruntime_s"].as_f64().unwrap(), f["encoding_s"].as_f64().unwrap(), f["loop_s"].as_f64().unwrap());
+        assert!(frame > 0.0 && ort > 0.0 && rest >= 0.0 && (ort + encoding + rest - frame).abs() < 1e-9, "{f}");
+        assert_eq!(encoding > 0.0, f["path"] == "split", "{f}");
+        assert_eq!(f["max_abs_vs_cpu"].as_f64(), Some(0.0), "the same pixels: {f}");
+        assert_eq!(f["points_per_pixel"], frames[0]["points_per_pixel"], "one marching: {f}");
+    }
+
     // Only hash-grid bundles: an MLP bundle's field is not read back.
     let (ok, text) = nerf(&["export", "--bundle", s(&PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("models/lego")), "--out", s(&dir.path().join("mlp"))]);
     assert!(!ok && text.contains("models/lego/scene.json: field \"mlp\": only hash-grid bundles"), "{text}");

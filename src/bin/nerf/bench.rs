@@ -161,7 +161,7 @@ pub fn run(options: &BenchOptions, progress: bool) -> Result<()> {
         report.insert("frames".into(), serde_json::to_value(results)?);
         let ngp = ngp_bundle.clone().unwrap_or_else(|| PathBuf::from(DEFAULT_NGP_BUNDLE));
         println!("\nhash-grid frames: {} test view 0 through nerf-render, best of {repeats} after one untimed; loop = frame − onnxruntime − encoding", ngp.display());
-        let frames = super::device_bench::bench_device_frames(&ngp, device, None, *repeats, progress)?;
+        let frames = super::device_bench::bench_device_frames(&ngp, device, *repeats, progress)?;
         println!("{:<8} {:<9} {:<12} {:>9} {:>13} {:>10} {:>8} {:>9} {:>12} {:>14}", "device", "lowering", "path", "frame s", "onnxruntime s", "encoding s", "loop s", "worst s", "points/px", "max |Δ| vs cpu");
         for f in &frames {
             println!(

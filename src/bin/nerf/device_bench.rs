@@ -39,10 +39,10 @@ pub struct DeviceFrame {
     pub max_abs_vs_cpu: f32,
 }
 
-/// Render `bundle`'s first test view (at `size`, default the bundle's) on each of `devices`,
-/// bitwise and portable: the CPU's split path, and the whole graph on each device; `repeats`
-/// timed renders each after one untimed one.
-pub fn bench_device_frames(bundle: &Path, devices: &[Device], size: Option<u32>, repeats: usize, progress: bool) -> Result<Vec<DeviceFrame>> {
+/// Render `bundle`'s first test view on each of `devices`, bitwise and portable: the CPU's split
+/// path, and the whole graph on each device; `repeats` (at least 1) timed renders each after
+/// one untimed one.
+pub fn bench_device_frames(bundle: &Path, devices: &[Device], repeats: usize, progress: bool) -> Result<Vec<DeviceFrame>> {
     let (compiled, tables) = nerf::export::ngp_bundle(bundle)?;
     let Some(view) = compiled.scene.poses.test.first() else { bail!("{}: scene.json has no poses.test to render", bundle.display()) };
     let pose = Pose::from_rows(view.transform_matrix);
@@ -58,11 +58,11 @@ pub fn bench_device_frames(bundle: &Path, devices: &[Device], size: Option<u32>,
         paths.extend(devices.iter().map(|&d| (d, "whole graph", true)));
         for (device, path, whole_graph) in paths {
             let mut ort = OrtScene::open(&dir, &OpenOptions { whole_graph, device, ..OpenOptions::default() })?;
-            let k = ort.camera(size.map(|w| (w, w * ort.camera(None).height / ort.camera(None).width)));
+            let k = ort.camera(None);
             let label = format!("{device} {lowering} {path}");
             let mut image = None;
             let (mut best, mut worst, mut best_split) = (f64::INFINITY, 0.0f64, (0.0, 0.0));
-            for run in 0..=repeats {
+            for run in 0..=repeats.max(1) {
                 let net = &ort.field.graphs[0].1;
                 let (ort_before, encoding_before, evaluated_before) = (net.seconds, net.encoding_seconds, net.evaluated);
                 let (rendered, seconds) = timed_frame(progress, &label, k.num_pixels(), |p| ort.render(&k, &pose, p));
