@@ -134,7 +134,7 @@ impl OrtNetwork {
         let environment = environment_for(threading.device)?;
         if threading.device != Device::Cpu && model.graph.as_ref().is_some_and(|g| g.node.iter().any(|n| n.op_type == "BitwiseXor")) {
             // onnxruntime's CUDA provider has no BitwiseXor kernel (measured on an H200: a
-            // 400×400 lego-ngp frame 0.95 s bitwise, 0.155 s portable).
+            // 400×400 lego-ngp frame 0.88 s bitwise, 0.12 s portable).
             eprintln!(
                 "warning: {}: the bitwise lowering's BitwiseXor nodes run on the CPU, with copies to and from {} (`nerf export --bundle <this bundle> --portable --out <dir>` makes one that runs wholly on the GPU, with the same pixels)",
                 path.display(),
