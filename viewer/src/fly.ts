@@ -34,23 +34,27 @@ export function flyFromPose(m: number[][]): Fly {
   return { eye: col(m, 3), fwd: unit(scale(col(m, 2), -1)) };
 }
 
+/** A capture's up vector: the mean of its poses' (unit) +y axes. */
+export function captureUp(poses: number[][][]): Vec3 {
+  return unit(poses.reduce((t: Vec3, m) => add(t, unit(col(m, 1))), [0, 0, 0]));
+}
+
 /** The region of a capture's poses (c2w, row-major): the box of their eyes grown by
  *  BOX_GROW × its diagonal each side, and the cone around their mean view direction out to the
  *  widest of them plus CONE_GROW. */
 export function captureRegion(poses: number[][][]): Region {
   if (!poses.length) throw new Error("no poses to bound the navigation by");
   const lo: Vec3 = [Infinity, Infinity, Infinity], hi: Vec3 = [-Infinity, -Infinity, -Infinity];
-  let sumF: Vec3 = [0, 0, 0], sumU: Vec3 = [0, 0, 0];
+  let sumF: Vec3 = [0, 0, 0];
   const fwds = poses.map((m) => flyFromPose(m));
-  for (const [i, { eye, fwd }] of fwds.entries()) {
+  for (const { eye, fwd } of fwds) {
     for (let a = 0; a < 3; a++) { lo[a] = Math.min(lo[a], eye[a]); hi[a] = Math.max(hi[a], eye[a]); }
     sumF = add(sumF, fwd);
-    sumU = add(sumU, unit(col(poses[i], 1)));
   }
   const size = Math.hypot(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]), g = BOX_GROW * size;
   const axis = unit(sumF);
   const widest = Math.max(...fwds.map(({ fwd }) => angle(fwd, axis)));
-  return { lo: lo.map((v) => v - g) as Vec3, hi: hi.map((v) => v + g) as Vec3, axis, cone: Math.min(widest + CONE_GROW, Math.PI / 2), up: unit(sumU), size };
+  return { lo: lo.map((v) => v - g) as Vec3, hi: hi.map((v) => v + g) as Vec3, axis, cone: Math.min(widest + CONE_GROW, Math.PI / 2), up: captureUp(poses), size };
 }
 
 /** `f` brought inside the region: the eye clamped to the box, the direction turned (in the

@@ -5,7 +5,7 @@
 import type { FromWorker, FrameMsg, Loaded, ToWorker } from "./protocol";
 import { type Orbit, orbitFromPose, orbitPose, toBytes } from "./view";
 import { isolate } from "./isolation";
-import { type Fly, captureRegion, flyFromPose, flyPose, look, moveBy } from "./fly";
+import { type Fly, captureRegion, captureUp, flyFromPose, flyPose, look, moveBy } from "./fly";
 
 declare global {
   interface Window { nerfStats?: Record<string, unknown>; nerfFrame?: Float32Array; nerfTimeline?: { width: number; height: number; at: number }[];
@@ -96,7 +96,9 @@ function interactive(loaded: Loaded): void {
   for (const [i, c] of choices.entries()) select.add(new Option(c.label, String(i)));
   const width = Number(params.get("width") ?? 0) || Math.min(cam.width, 400);
   const height = Math.round((width * cam.height) / cam.width);
-  let orbit: Orbit = orbitFromPose(choices[0]?.m ?? orbits[0], s.near);
+  // 360° captures orbit about their own up vector (z for the Blender scenes).
+  const upAxis = choices.length ? captureUp(choices.map((c) => c.m)) : [0, 0, 1];
+  let orbit: Orbit = orbitFromPose(choices[0]?.m ?? orbits[0], s.near, upAxis);
   const region = s.ndc && choices.length ? captureRegion(choices.map((c) => c.m)) : null;
   let fly: Fly | null = region ? flyFromPose(choices[0].m) : null;
   let exact: number[][] | null = choices[0]?.m ?? null; // a chosen pose renders exactly, until moved
@@ -135,7 +137,7 @@ function interactive(loaded: Loaded): void {
   };
   const snap = () => {
     exact = choices[Number(select.value)].m;
-    orbit = orbitFromPose(exact, s.near);
+    orbit = orbitFromPose(exact, s.near, upAxis);
     if (region) fly = flyFromPose(exact);
     restart();
   };
