@@ -5,9 +5,12 @@
 import type { FromWorker, FrameMsg, Loaded, ToWorker } from "./protocol";
 import { type Orbit, orbitFromPose, orbitPose, toBytes } from "./view";
 import { isolate } from "./isolation";
+import { type Fly, captureRegion, captureUp, flyFromPose, flyPose, look, moveBy } from "./fly";
 
 declare global {
-  interface Window { nerfStats?: Record<string, unknown>; nerfFrame?: Float32Array; nerfTimeline?: { width: number; height: number; at: number }[] }
+  interface Window { nerfStats?: Record<string, unknown>; nerfFrame?: Float32Array; nerfTimeline?: { width: number; height: number; at: number }[];
+    /** The interactive view's navigation and the c2w of its latest render request (for tests). */
+    nerfCamera?: { nav: "fly" | "orbit"; c2w: number[][] } }
 }
 
 const $ = <T extends HTMLElement>(id: string) => document.getElementById(id) as T;
@@ -80,7 +83,8 @@ function testHook(loaded: Loaded, spec: string): void {
   send({ type: "render", id: 1, width, height, c2w: poses[k].transform_matrix });
 }
 
-/** The interactive viewer: each camera move starts 1/8 → 1/4 → 1/2 → full, cancelling older work. */
+/** The interactive viewer (orbit, or for a forward-facing NDC capture a fly camera bounded to
+ *  the region its poses saw: fly.ts): each camera move starts 1/8 → 1/4 → 1/2 → full, cancelling older work. */
 function interactive(loaded: Loaded): void {
   document.body.classList.add("interactive");
   const scene = loaded.scene, cam = scene.camera, s = scene.sampling;
@@ -92,7 +96,11 @@ function interactive(loaded: Loaded): void {
   for (const [i, c] of choices.entries()) select.add(new Option(c.label, String(i)));
   const width = Number(params.get("width") ?? 0) || Math.min(cam.width, 400);
   const height = Math.round((width * cam.height) / cam.width);
-  let orbit: Orbit = orbitFromPose(choices[0]?.m ?? orbits[0], s.near);
+  // 360° captures orbit about their own up vector (z for the Blender scenes).
+  const upAxis = choices.length ? captureUp(choices.map((c) => c.m)) : [0, 0, 1];
+  let orbit: Orbit = orbitFromPose(choices[0]?.m ?? orbits[0], s.near, upAxis);
+  const region = s.ndc && choices.length ? captureRegion(choices.map((c) => c.m)) : null;
+  let fly: Fly | null = region ? flyFromPose(choices[0].m) : null;
   let exact: number[][] | null = choices[0]?.m ?? null; // a chosen pose renders exactly, until moved
   let depthView = false, last: FrameMsg | null = null, next = 1;
   const levels = [8, 4, 2, 1];
@@ -104,8 +112,9 @@ function interactive(loaded: Loaded): void {
     current = id;
     pending.set(id, level);
     const f = levels[level];
-    send({ type: "render", id, width: Math.max(1, Math.round(width / f)), height: Math.max(1, Math.round(height / f)),
-      c2w: exact ?? orbitPose(orbit) });
+    const c2w = exact ?? (region && fly ? flyPose(fly, region.up) : orbitPose(orbit));
+    window.nerfCamera = { nav: region ? "fly" : "orbit", c2w };
+    send({ type: "render", id, width: Math.max(1, Math.round(width / f)), height: Math.max(1, Math.round(height / f)), c2w });
   };
   const restart = () => {
     if (current) send({ type: "cancel", id: current });
@@ -126,7 +135,14 @@ function interactive(loaded: Loaded): void {
     if (level < levels.length - 1) request(level + 1);
     document.body.dataset.state = level < levels.length - 1 ? "rendering" : "done";
   };
-  select.onchange = () => { exact = choices[Number(select.value)].m; orbit = orbitFromPose(exact, s.near); restart(); };
+  const snap = () => {
+    exact = choices[Number(select.value)].m;
+    orbit = orbitFromPose(exact, s.near, upAxis);
+    if (region) fly = flyFromPose(exact);
+    restart();
+  };
+  select.onchange = snap;
+  $("snap").onclick = snap; // back to the chosen pose in one click, even when it is already chosen
   $("mode").onclick = () => {
     depthView = !depthView;
     $("mode").textContent = depthView ? "rgb" : "depth";
@@ -140,8 +156,20 @@ function interactive(loaded: Loaded): void {
   });
 
   // Pointers: one drags to orbit (shift or right button: pan), two pinch to zoom; the wheel zooms.
+  // Flying: a drag looks around, shift/right-drag moves sideways, the wheel or a pinch moves
+  // forward, WASD / arrows / Q E move; every step is clamped to the region.
   const pointers = new Map<number, { x: number; y: number }>();
   const move = (fn: () => void) => { fn(); exact = null; restart(); };
+  const step = region ? region.size : 0;
+  const flyBy = (right: number, upward: number, forward: number) => move(() => { fly = moveBy(fly!, region!, right, upward, forward); });
+  if (region) window.addEventListener("keydown", (e) => {
+    if (e.target instanceof HTMLSelectElement) return;
+    const k = 0.05 * step, d = ({ w: [0, 0, k], s: [0, 0, -k], a: [-k, 0, 0], d: [k, 0, 0], q: [0, -k, 0], e: [0, k, 0],
+      arrowup: [0, 0, k], arrowdown: [0, 0, -k], arrowleft: [-k, 0, 0], arrowright: [k, 0, 0] } as Record<string, number[]>)[e.key.toLowerCase()];
+    if (!d) return;
+    e.preventDefault();
+    flyBy(d[0], d[1], d[2]);
+  });
   canvas.addEventListener("contextmenu", (e) => e.preventDefault());
   canvas.addEventListener("pointerdown", (e) => { canvas.setPointerCapture(e.pointerId); pointers.set(e.pointerId, { x: e.clientX, y: e.clientY }); });
   const up = (e: PointerEvent) => pointers.delete(e.pointerId);
@@ -155,7 +183,13 @@ function interactive(loaded: Loaded): void {
       const [a, b] = [...pointers.values()];
       const other = a === p ? b : a;
       const before = Math.hypot(p.x - other.x, p.y - other.y), after = Math.hypot(e.clientX - other.x, e.clientY - other.y);
-      if (before > 0 && after > 0) move(() => { orbit.radius *= before / after; });
+      if (before > 0 && after > 0) {
+        if (region) flyBy(0, 0, (after - before) * 0.002 * step);
+        else move(() => { orbit.radius *= before / after; });
+      }
+    } else if (region) {
+      if (e.shiftKey || e.buttons === 2) flyBy(-dx * 0.002 * step, dy * 0.002 * step, 0);
+      else move(() => { fly = look(fly!, region, -dx * 0.003, -dy * 0.003); });
     } else if (e.shiftKey || e.buttons === 2) {
       move(() => panBy(orbit, dx, dy));
     } else {
@@ -163,7 +197,11 @@ function interactive(loaded: Loaded): void {
     }
     p.x = e.clientX; p.y = e.clientY;
   });
-  canvas.addEventListener("wheel", (e) => { e.preventDefault(); move(() => { orbit.radius *= Math.exp(e.deltaY * 0.001); }); }, { passive: false });
+  canvas.addEventListener("wheel", (e) => {
+    e.preventDefault();
+    if (region) flyBy(0, 0, -e.deltaY * 0.001 * step);
+    else move(() => { orbit.radius *= Math.exp(e.deltaY * 0.001); });
+  }, { passive: false });
   const panBy = (o: Orbit, dx: number, dy: number) => {
     const m = orbitPose(o), k = (o.radius * 0.002);
     for (let a = 0; a < 3; a++) o.target[a] += (-dx * m[a][0] + dy * m[a][1]) * k;

@@ -15,7 +15,7 @@
 // scripts/env.sh). Run `npm run build` first.
 import { after, before, test } from "node:test";
 import assert from "node:assert/strict";
-import { spawn } from "node:child_process";
+import { execFileSync, spawn } from "node:child_process";
 import { cpSync, existsSync, mkdtempSync, readFileSync, rmSync, writeFileSync } from "node:fs";
 import { tmpdir } from "node:os";
 import { join, resolve } from "node:path";
@@ -149,6 +149,7 @@ test("interactive page: refines to full size, re-renders after a drag, depth tog
     await done();
     assert.equal(await page.evaluate(() => document.body.dataset.state), "done");
     assert.deepEqual(await page.evaluate(() => [window.nerfStats.width, window.nerfStats.height]), [64, 64]);
+    assert.equal(await page.evaluate(() => window.nerfCamera.nav), "orbit", "a 360° capture orbits");
     assert.ok((await page.locator("#pose option").count()) > 1);
     assert.equal(await page.locator("#isolation").isHidden(), true);
     const before = await page.evaluate(() => document.getElementById("view").toDataURL());
@@ -165,6 +166,100 @@ test("interactive page: refines to full size, re-renders after a drag, depth tog
     await page.click("#mode");
     assert.notEqual(await page.evaluate(() => document.getElementById("view").toDataURL()), afterDrag, "depth view looks like rgb");
   } finally { await page.close(); await server.stop(); }
+});
+
+/** fern as a bundle: the nerf-pytorch checkpoint of tests/fixtures imported (NDC rays, 3 test
+ *  poses) with the LLFF data of $NERF_SHARED/data/real/fern (default ../shared, as the Rust tests). */
+function fernBundle() {
+  const fern = join(process.env.NERF_SHARED ?? join(REPO, "../shared"), "data/real/fern");
+  assert.ok(existsSync(join(fern, "poses_bounds.npy")), `${fern} is missing (CI provides ../shared; NERF_SHARED points elsewhere)`);
+  const dir = mkdtempSync(join(tmpdir(), "nerf-fern-"));
+  const out = join(dir, "fern");
+  execFileSync("bash", ["-c", '. scripts/env.sh && exec "$CARGO_TARGET_DIR/release/nerf" "$@"', "nerf", "import", "nerf-pytorch",
+    "--checkpoint", join(REPO, "tests/fixtures/nerf-pytorch/llff/001500.tar"), "--data", fern, "--out", out],
+    { cwd: REPO, stdio: "pipe", env: { ...process.env } });
+  return { dir, bundle: out };
+}
+
+/** The region the fly camera must keep to, computed here from the poses as docs/viewer.md states
+ *  it: the box of the eyes grown by a tenth of its diagonal, and the cone around the mean view
+ *  direction out to the widest view plus 0.1 rad. */
+function regionOf(poses) {
+  const eye = (m) => [m[0][3], m[1][3], m[2][3]];
+  const fwd = (m) => { const v = [-m[0][2], -m[1][2], -m[2][2]], l = Math.hypot(...v); return v.map((x) => x / l); };
+  const lo = [0, 1, 2].map((a) => Math.min(...poses.map((m) => eye(m)[a]))), hi = [0, 1, 2].map((a) => Math.max(...poses.map((m) => eye(m)[a])));
+  const g = 0.1 * Math.hypot(...hi.map((v, a) => v - lo[a]));
+  const sum = [0, 1, 2].map((a) => poses.reduce((t, m) => t + fwd(m)[a], 0)), l = Math.hypot(...sum), axis = sum.map((v) => v / l);
+  const ang = (v) => Math.acos(Math.min(1, Math.max(-1, v[0] * axis[0] + v[1] * axis[1] + v[2] * axis[2])));
+  return { lo: lo.map((v) => v - g), hi: hi.map((v) => v + g), ang, eye, fwd, cone: Math.max(...poses.map((m) => ang(fwd(m)))) + 0.1 };
+}
+
+test("fern (NDC): flying by drags, wheel and keys keeps the camera inside the captured region; the snap button gives test pose 0", { timeout: 300_000 }, async (t) => {
+  const { dir, bundle } = fernBundle();
+  const scene = JSON.parse(readFileSync(join(bundle, "scene.json"), "utf8"));
+  assert.ok(scene.sampling.ndc, "the imported fern bundle has NDC rays");
+  const poses = scene.poses.test.map((p) => p.transform_matrix);
+  const r = regionOf(poses);
+  const server = await startServer(bundle);
+  const page = await browser.newPage();
+  try {
+    await page.goto(`${server.url}?width=80`);
+    const done = () => page.waitForFunction(() => document.body.dataset.state === "done" || document.body.dataset.state === "error", null, { timeout: 120_000 });
+    await done();
+    assert.equal(await page.evaluate(() => document.body.dataset.state), "done", await page.locator("#error").textContent());
+    const camera = () => page.evaluate(() => window.nerfCamera);
+    const first = await camera();
+    assert.equal(first.nav, "fly");
+    assert.deepEqual(first.c2w, poses[0]);
+    const tol = 1e-6;
+    const where = (c2w) => ({ eye: r.eye(c2w), angle: r.ang(r.fwd(c2w)) });
+    const check = async (what) => {
+      const c = await camera();
+      const w = where(c.c2w);
+      for (let a = 0; a < 3; a++)
+        assert.ok(w.eye[a] >= r.lo[a] - tol && w.eye[a] <= r.hi[a] + tol, `${what}: eye ${w.eye} outside [${r.lo}] .. [${r.hi}]`);
+      assert.ok(w.angle <= r.cone + tol, `${what}: view ${w.angle} rad from the capture's axis, cone ${r.cone}`);
+      return w;
+    };
+    const box = await page.locator("#view").boundingBox();
+    const cx = box.x + box.width / 2, cy = box.y + box.height / 2;
+    const drag = async (dx, dy, button = "left") => {
+      await page.mouse.move(cx, cy);
+      await page.mouse.down({ button });
+      await page.mouse.move(cx + dx, cy + dy, { steps: 8 });
+      await page.mouse.up({ button });
+    };
+    // Far enough that an unbounded camera would leave: 1,500 px of look is 4.5 rad.
+    await drag(1500, 0);
+    let w = await check("look right");
+    assert.ok(Math.abs(w.angle - r.cone) < 1e-6, `a long look stops on the cone's edge: ${w.angle} vs ${r.cone}`);
+    await drag(-700, -900);
+    await check("look up-left");
+    await page.keyboard.down("Shift");
+    await drag(-2000, 1500);
+    await page.keyboard.up("Shift");
+    await check("shift-drag");
+    await drag(3000, -3000, "right");
+    await check("right-drag");
+    for (let i = 0; i < 40; i++) await page.mouse.wheel(0, -2000);
+    w = await check("wheel forward");
+    const onFace = w.eye.some((v, a) => Math.abs(v - r.lo[a]) < 1e-6 || Math.abs(v - r.hi[a]) < 1e-6);
+    assert.ok(onFace, `moving far forward stops on the box: eye ${w.eye}`);
+    await page.locator("#view").click();
+    for (const key of ["w", "w", "a", "a", "a", "e", "e", "ArrowDown", "q", "d", "s"]) for (let i = 0; i < 10; i++) await page.keyboard.press(key);
+    await check("keys");
+    await done();
+    assert.equal(await page.evaluate(() => document.body.dataset.state), "done", "the moved views render");
+    assert.notDeepEqual((await camera()).c2w, poses[0], "the camera moved");
+    t.diagnostic(`fern: region ${r.lo.map((v) => v.toFixed(3))} .. ${r.hi.map((v) => v.toFixed(3))}, cone ${r.cone.toFixed(3)} rad; last eye ${where((await camera()).c2w).eye.map((v) => v.toFixed(3))}`);
+    // One click back to test pose 0, though it is still the chosen pose.
+    await page.click("#snap");
+    assert.deepEqual((await camera()).c2w, poses[0]);
+    await page.selectOption("#pose", "2");
+    assert.deepEqual((await camera()).c2w, poses[2]);
+    await done();
+    assert.equal(await page.evaluate(() => document.body.dataset.state), "done");
+  } finally { await page.close(); await server.stop(); rmSync(dir, { recursive: true, force: true }); }
 });
 
 test("a missing bundle shows its error on the page", { timeout: 120_000 }, async () => {
