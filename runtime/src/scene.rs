@@ -21,11 +21,12 @@ use std::path::{Path, PathBuf};
 /// hash-grid lego frame: 5.54 s at 1024 rays, 5.05 s at 4096).
 pub const DEFAULT_CHUNK: usize = 4096;
 
-/// The chunk a bundle renders with on the CPU unless told otherwise: [`DEFAULT_CHUNK`] rays,
-/// fewer when `samples_per_ray` per call (the dense path's all, marching's
-/// [`MARCH_SEGMENT`]) would take a call past [`limits::MAX_POINTS_PER_CALL`].
-pub fn default_chunk(samples_per_ray: usize) -> usize {
-    DEFAULT_CHUNK.min(limits::MAX_POINTS_PER_CALL / samples_per_ray.max(1)).max(1)
+/// The chunk a bundle renders with on `device` unless told otherwise: [`DEFAULT_CHUNK`] rays
+/// on the CPU, [`GPU_CHUNK`] on a GPU, fewer when `samples_per_ray` per call (the dense path's
+/// all, marching's [`MARCH_SEGMENT`]) would take a call past [`limits::MAX_POINTS_PER_CALL`].
+pub fn default_chunk(samples_per_ray: usize, device: Device) -> usize {
+    let rays = if device == Device::Cpu { DEFAULT_CHUNK } else { GPU_CHUNK };
+    rays.min(limits::MAX_POINTS_PER_CALL / samples_per_ray.max(1)).max(1)
 }
 
 /// How to open a bundle.
@@ -36,8 +37,7 @@ pub struct OpenOptions {
     pub threads: Option<usize>,
     /// The most points per onnxruntime call of one session.
     pub points_per_run: usize,
-    /// Rays per onnxruntime call (bounds memory). `None`: [`DEFAULT_CHUNK`], or as many as keep
-    /// a call of the bundle's samples per ray within the points limit ([`default_chunk`]).
+    /// Rays per onnxruntime call (bounds memory). `None`: [`default_chunk`] for the device.
     pub chunk: Option<usize>,
     /// Use the bundle's occupancy grid (when it has one) to skip empty space, and stop
     /// marching rays whose transmittance is below 1e-4 (early termination).
@@ -97,8 +97,7 @@ impl OrtScene {
                 limits::check_chunk(chunk, samples_per_ray, Origin::Option("--chunk"))?;
                 chunk
             }
-            None if options.device != Device::Cpu => GPU_CHUNK.min(limits::MAX_POINTS_PER_CALL / samples_per_ray.max(1)).max(1),
-            None => default_chunk(samples_per_ray),
+            None => default_chunk(samples_per_ray, options.device),
         };
         if let Some(n) = options.threads {
             limits::check_count(n, limits::MAX_THREADS, "threads", Origin::Option("--threads"))?;
