@@ -17,6 +17,9 @@ from ._validate import (bounded_file, bundle_file, check_chunk, check_count, che
 from .camera import Camera, ndc_rays, reference_orbit
 
 F32 = np.float32
+#: Rays per batch on a GPU unless told otherwise (nerf-render's ``GPU_CHUNK``): a 400×400 frame
+#: marches in one batch.
+GPU_CHUNK = 262_144
 
 
 @dataclass
@@ -211,26 +214,27 @@ class Bundle:
 
     @property
     def default_chunk(self) -> int:
-        """Rays per batch unless told otherwise (nerf-render's ``default_chunk``): DEFAULT_CHUNK,
-        fewer when a batch's samples would pass the points limit."""
-        return max(1, min(DEFAULT_CHUNK, MAX_POINTS_PER_CALL // max(self.samples_per_ray, 1)))
+        """Rays per batch unless told otherwise (nerf-render's ``default_chunk``): DEFAULT_CHUNK
+        on the CPU, GPU_CHUNK on a GPU (a GPU wants large batches), fewer when a batch's samples
+        would pass the points limit."""
+        rays = DEFAULT_CHUNK if self.device == "cpu" else GPU_CHUNK
+        return max(1, min(rays, MAX_POINTS_PER_CALL // max(self.samples_per_ray, 1)))
 
     def check_chunk(self, chunk: Optional[int], what: str = "chunk") -> int:
         """``chunk`` rays per batch (None: :attr:`default_chunk`) within the limits (ValueError
         naming ``what`` otherwise)."""
         return self.default_chunk if chunk is None else check_chunk(chunk, self.samples_per_ray, what)
 
-    def _render_batch(self, o: np.ndarray, d: np.ndarray, view: np.ndarray, chunk: int, stages: R.Stages,
-                      march_batch: Optional[int] = None) -> R.Marched:
+    def _render_batch(self, o: np.ndarray, d: np.ndarray, view: np.ndarray, chunk: int, stages: R.Stages) -> R.Marched:
         """nerf-render's ``render_rays`` for (already NDC-warped) rays, ``chunk`` rays per batch:
-        marched all together (each chunk's field calls as nerf-render makes them; ``march_batch``
-        rays per call instead when given), or dense a chunk at a time."""
+        marched all together (each chunk's field calls as nerf-render makes them), or dense a
+        chunk at a time."""
         min_t = float(R.MIN_TRANSMITTANCE) if self.skip_empty_space else None
         viewdirs = R.unit(view)
         if self.grid is not None:
             stage = "fine" if self.n_fine > 0 else "coarse"
             return R.march_grid(self._graph(stage), self.grid, o, d, viewdirs, self.near, self.far, max(self.march_steps, 1),
-                                min_t, self.white_background, march_batch or chunk, stages)
+                                min_t, self.white_background, chunk, stages)
         parts = [self._render_dense(o[s:s + chunk], d[s:s + chunk], viewdirs[s:s + chunk], min_t) for s in range(0, len(o), chunk)]
         if not parts:
             return R.Marched(np.zeros((0, 3), F32), np.zeros(0, F32), np.zeros(0, F32), None)
@@ -256,25 +260,19 @@ class Bundle:
     def render_rays(self, origins: np.ndarray, directions: np.ndarray, *, chunk: Optional[int] = None) -> Rays:
         """Render world rays ``origins``, ``directions`` [N, 3] (directions not normalised: t is
         along them; NDC-warped first for a forward-facing bundle, as nerf-render does)."""
-        batch = self._march_batch(chunk)
         chunk = self.check_chunk(chunk)
         o = np.asarray(origins, F32).reshape(-1, 3)
         d = np.asarray(directions, F32).reshape(-1, 3)
-        out = self._render_world(o, d, chunk, R.Stages(), batch)
+        out = self._render_world(o, d, chunk, R.Stages())
         return Rays(out.rgb, out.depth, out.acc)
 
-    def _render_world(self, o: np.ndarray, d: np.ndarray, chunk: int, stages: R.Stages, batch: Optional[int]) -> R.Marched:
+    def _render_world(self, o: np.ndarray, d: np.ndarray, chunk: int, stages: R.Stages) -> R.Marched:
         start = time.perf_counter()
         view = d
         if self.ndc is not None:
             o, d = ndc_rays(self.ndc, o, d)
         stages.lap("rays", start)
-        return self._render_batch(o, d, view, chunk, stages, batch)
-
-    def _march_batch(self, chunk: Optional[int]) -> Optional[int]:
-        """Rays per field call when marching on a GPU without a ``chunk``: as many as keep a
-        call within the points limit (a GPU wants large batches); None otherwise."""
-        return MAX_POINTS_PER_CALL // R.MARCH_SEGMENT if self.device != "cpu" and chunk is None else None
+        return self._render_batch(o, d, view, chunk, stages)
 
     def render(self, c2w: np.ndarray, width: Optional[int] = None, height: Optional[int] = None, *,
                chunk: Optional[int] = None) -> Frame:
@@ -282,7 +280,6 @@ class Bundle:
         resolution, or at ``width`` (× ``height``, default keeping the aspect) with the camera
         rescaled as nerf-render's ``--width``/``--height``. ``chunk`` rays per batch (default
         :attr:`default_chunk`)."""
-        batch = self._march_batch(chunk)
         chunk = self.check_chunk(chunk)
         c2w = check_pose(c2w, "c2w", "pose")
         cam = self.camera_at(width, height)
@@ -291,7 +288,7 @@ class Bundle:
         idx = np.arange(cam.width * cam.height)
         o, d = cam.rays(c2w, idx % cam.width, idx // cam.width)
         stages.lap("rays", start)
-        out = self._render_world(o, d, chunk, stages, batch)
+        out = self._render_world(o, d, chunk, stages)
         shape = (cam.height, cam.width)
         return Frame(out.rgb.reshape(shape + (3,)), out.depth.reshape(shape), out.acc.reshape(shape),
                      time.perf_counter() - start, self.field_seconds - field_start, stages)

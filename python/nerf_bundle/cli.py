@@ -43,7 +43,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--height", type=int, help="render at this height (needs --width)")
     r.add_argument("--npy", action="store_true", help="also write <name>.npy: float32 [H, W, 5] = r, g, b, depth, acc")
     r.add_argument("--threads", type=int, help="onnxruntime sessions side by side (default: one per core)")
-    r.add_argument("--chunk", type=int, help="rays per batch (default: 4096, fewer when the bundle's rays have many samples)")
+    r.add_argument("--chunk", type=int, help="rays per batch (default: 4096 on the CPU, 262,144 on a GPU, fewer where a call would pass the points limit)")
     r.add_argument("--dense", action="store_true", help="ignore occupancy.bin (as nerf-render --dense)")
     r.add_argument("--device", help="cpu (default), or cuda / cuda:N: onnxruntime's CUDA provider on GPU N (needs onnxruntime-gpu)")
     b = sub.add_parser("bench", help="time frames: total, inside onnxruntime, outside, and the stages")

@@ -275,6 +275,11 @@ def test_the_default_chunk_keeps_a_call_within_the_points_limit(tmp_path):
     assert rays.rgb.shape == (3, 3)
     dense = nerf_bundle.Bundle.open(SPHERES, threads=1, skip_empty_space=False)
     assert dense.samples_per_ray == 96
+    # On a GPU, as nerf-render: 262,144 rays a batch, fewer where 96 samples a ray pass 2^22.
+    for bundle, gpu_chunk in [(b, 262_144), (dense, 4_194_304 // 96)]:
+        bundle.device = "cuda:0"
+        assert bundle.default_chunk == gpu_chunk
+        bundle.device = "cpu"
     with pytest.raises(ValueError, match="50000 rays × 96 samples = 4800000 points"):
         dense.check_chunk(50000)
 
