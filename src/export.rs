@@ -47,7 +47,7 @@ pub fn export_run(run: &Path, out: &Path, options: &CompileOptions) -> Result<Ve
 /// The hash-grid field of the bundle at `dir` read back (its table and MLPs from `field.onnx`,
 /// its scene and grid as they are), with its table's precision, to compile again with other
 /// options: another lowering or table precision of the same field, the same pixels.
-pub fn ngp_bundle(dir: &Path) -> Result<(Bundle<nerf_core::field::PlainField>, TablePrecision)> {
+pub fn ngp_bundle(dir: &Path) -> Result<(Bundle<nerf_core::field::ngp::PlainNgp>, TablePrecision)> {
     let scene = nerf_bundle::read_scene(dir)?;
     if scene.field != nerf_core::field::FieldKind::Ngp.name() {
         let problem = format!("field {:?}: only hash-grid bundles (field \"ngp\") compile again from their graph; export the run instead (nerf export --run)", scene.field);
@@ -59,7 +59,7 @@ pub fn ngp_bundle(dir: &Path) -> Result<(Bundle<nerf_core::field::PlainField>, T
     let plain = nerf_export::field::ngp::read_ngp(&model).map_err(invalid)?;
     let precision = nerf_bundle::ngp::table_precision(&model).map_err(invalid)?;
     let occupancy = nerf_bundle::read_occupancy(dir, &scene)?;
-    Ok((Bundle { field: nerf_core::field::PlainField::Ngp(plain), scene, occupancy }, precision))
+    Ok((Bundle { field: plain, scene, occupancy }, precision))
 }
 
 /// Compile the hash-grid bundle at `bundle` again into `out` ([`ngp_bundle`]) as `options`

@@ -95,8 +95,7 @@ pub fn bench_ngp_render(bundle: Option<&Path>, steps: usize, data: &Path, progre
         }
     };
     let (read, _) = nerf::export::ngp_bundle(&bundle)?;
-    let nerf_core::field::PlainField::Ngp(plain) = read.field else { bail!("{}: not a hash-grid field", bundle.display()) };
-    let (scene, occupancy) = (read.scene, read.occupancy);
+    let (plain, scene, occupancy) = (read.field, read.scene, read.occupancy);
     let val = load_split(data, Split::Val, 1, true)?;
     let view = &val.views[0];
     let k = view.camera;
