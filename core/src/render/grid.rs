@@ -137,10 +137,11 @@ fn slab(o: [f64; 3], d: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> (f64, f64) {
 /// One ray's marching, resumable: [`RayMarch::advance`] emits its next occupied samples, in
 /// order, exactly those of [`march_ray_every_interval`], testing far fewer steps. Steps before
 /// the grid's box and after it are not tested; at a step in an empty cell, the steps up to where
-/// the ray leaves the empty cube of cells around it ([`Skipper`]) are skipped. Rounding cannot
-/// skip an occupied step: the boxes are grown (the grid's) or shrunk (an empty cube's) by a
-/// margin far above the f32 error of a sample's position and of a step's t, and a jump lands on
-/// the first step at or after the shrunk box's exit.
+/// the ray leaves the empty cube of cells around it ([`Skipper`]) are skipped; at a step in an
+/// occupied cell, the steps up to where it leaves that cell are emitted untested. Rounding
+/// cannot misplace a step: the boxes are grown (the grid's) or shrunk (a cube's, a cell's) by a
+/// margin far above the f32 error of a sample's position and of a step's t, and a run ends
+/// before the first step at or after the shrunk box's exit.
 struct RayMarch {
     ray: March,
     o: [f64; 3],
@@ -151,6 +152,8 @@ struct RayMarch {
     /// The next step to test, and the step after the last that can be occupied.
     k: usize,
     end: usize,
+    /// Steps before this one lie in the occupied cell of the last step tested (emitted untested).
+    occupied_until: usize,
     /// Test every step (rays the skipping does not handle: non-finite inputs, or a
     /// non-positive interval).
     every: bool,
@@ -164,7 +167,7 @@ impl RayMarch {
         let (o, d) = (ray.origin.map(f64::from), ray.direction.map(f64::from));
         // A NaN interval fails `> 0` too.
         if !finite || ray.interval.is_infinite() || ray.interval <= 0.0 || ray.interval.is_nan() {
-            return RayMarch { end: ray.steps, ray, o, d, inv_d: [0.0; 3], margin: 0.0, k: 0, every: true, tested: 0 };
+            return RayMarch { end: ray.steps, ray, o, d, inv_d: [0.0; 3], margin: 0.0, k: 0, occupied_until: 0, every: true, tested: 0 };
         }
         let grid = skipper.grid;
         let r = grid.resolution();
@@ -176,7 +179,7 @@ impl RayMarch {
         let (enter, leave) = slab(o, d, lo, hi);
         // Finite inputs: the slab's ends are numbers (±∞ at most), never NaN.
         let (k, end) = if enter > leave { (0, 0) } else { (ray.step_at(enter, -1.0), ray.step_at(leave, 1.0)) };
-        RayMarch { ray, o, d, inv_d: d.map(|v| 1.0 / v), margin, k, end, every: false, tested: 0 }
+        RayMarch { ray, o, d, inv_d: d.map(|v| 1.0 / v), margin, k, end, occupied_until: 0, every: false, tested: 0 }
     }
 
     /// Whether every step has been marched.
@@ -193,20 +196,22 @@ impl RayMarch {
             let k = self.k;
             let t = ray.t(k);
             let p = point_at(ray.origin, ray.direction, t);
-            let cell = grid.cell_coordinates(p).map(|[i, j, k]| ([i, j, k], (i * r + j) * r + k));
-            self.tested += 1;
-            // `OccupancyGrid::is_occupied` (a reach of 0 is an occupied cell), its cell kept for the jump.
-            if cell.is_some_and(|(_, c)| skipper.reach[c] == 0) {
+            if k < self.occupied_until {
                 emit(t, p);
                 emitted += 1;
                 self.k += 1;
                 continue;
             }
-            let next = match cell {
+            let cell = grid.cell_coordinates(p).map(|[i, j, k]| ([i, j, k], (i * r + j) * r + k));
+            self.tested += 1;
+            // `OccupancyGrid::is_occupied` (a reach of 0 is an occupied cell).
+            let occupied = cell.is_some_and(|(_, c)| skipper.reach[c] == 0);
+            // The steps from this one up to the first at or after `run_end` share its state.
+            let run_end = match cell {
                 Some((cell, c)) if !self.every => {
-                    // The empty cube around the cell, shrunk by the margin: where the exact line
-                    // at t lies inside it, every step up to its exit does too, so lies in empty
-                    // cells; the first step at or after the exit is the next to test.
+                    // The cell (occupied) or the empty cube around it, shrunk by the margin:
+                    // where the exact line at t lies inside it, every step up to its exit does
+                    // too, so lies in cells of the same state.
                     let reach = (skipper.reach[c] as usize).max(1);
                     let (lo, hi) = skipper.cell_box(cell.map(|i| i.saturating_sub(reach - 1)), cell.map(|i| (i + reach).min(r)), -self.margin);
                     let tt = t as f64;
@@ -223,7 +228,14 @@ impl RayMarch {
                 }
                 _ => k + 1,
             };
-            self.k = next.max(k + 1);
+            if occupied {
+                emit(t, p);
+                emitted += 1;
+                self.occupied_until = run_end;
+                self.k += 1;
+            } else {
+                self.k = run_end.max(k + 1);
+            }
         }
         emitted
     }
@@ -304,15 +316,20 @@ pub fn render_rays_in<F: Field>(field: &mut F, skipper: &Skipper, rays: &Rays, o
     if !options.overlap {
         // Compositing a round and marching the next in one pass; finished rays stay in the list
         // (skipped) until they are half of it, then a round composites, drops them and marches.
-        let (mut parts, mut dead, mut done) = (round.march(&mut live), 0, Vec::new());
+        // The parts and the call's inputs are refilled round after round (fresh buffers each
+        // round cost page faults and copies comparable to the marching itself).
+        let (mut parts, mut dead, mut done) = (Vec::new(), 0, Vec::new());
+        let (mut points, mut dirs) = (Vec::new(), Vec::new());
+        round.march(&mut live, &mut parts);
         while !live.is_empty() {
-            let (points, dirs) = gather(&parts);
+            gather(&parts, &mut points, &mut dirs);
             let out = if points.is_empty() { FieldOutput::default() } else { field.evaluate(stage, &points, &dirs)? };
             if dead * 2 >= live.len() {
                 round.composite(&mut live, &parts, &out, &mut outputs);
-                (parts, dead) = (round.march(&mut live), 0);
+                round.march(&mut live, &mut parts);
+                dead = 0;
             } else {
-                parts = round.composite_and_march(&mut live, &parts, &out, &mut done);
+                round.composite_and_march(&mut live, &mut parts, &out, &mut done);
                 dead += done.len();
                 for (r, output) in done.drain(..) {
                     outputs[r] = output;
@@ -325,12 +342,12 @@ pub fn render_rays_in<F: Field>(field: &mut F, skipper: &Skipper, rays: &Rays, o
     // round's parts and field output, to composite before it marches again.
     let second = live.split_off(live.len() / 2);
     let mut ready = (live, Vec::new());
-    ready.1 = round.march(&mut ready.0);
+    round.march(&mut ready.0, &mut ready.1);
     let mut waiting: (Vec<LiveRay>, Vec<RoundPart>, Option<FieldOutput>) = (second, Vec::new(), None);
-    let mut finished = Vec::new();
+    let (mut finished, mut points, mut dirs) = (Vec::new(), Vec::new(), Vec::new());
     loop {
-        let (points, dirs) = gather(&ready.1);
-        let (out, (marched, done)) = std::thread::scope(|scope| {
+        gather(&ready.1, &mut points, &mut dirs);
+        let (out, done) = std::thread::scope(|scope| {
             let other = scope.spawn(|| {
                 let (live, parts, out) = &mut waiting;
                 let mut done = Vec::new();
@@ -338,7 +355,8 @@ pub fn render_rays_in<F: Field>(field: &mut F, skipper: &Skipper, rays: &Rays, o
                     round.composite_into(live, parts, &out, &mut done);
                     live.retain(|l| !l.done);
                 }
-                (round.march(live), done)
+                round.march(live, parts);
+                done
             });
             let out = if points.is_empty() { Ok(FieldOutput::default()) } else { field.evaluate(stage, &points, &dirs) };
             (out, other.join().unwrap_or_else(|e| std::panic::resume_unwind(e)))
@@ -346,7 +364,7 @@ pub fn render_rays_in<F: Field>(field: &mut F, skipper: &Skipper, rays: &Rays, o
         finished.extend(done);
         let out = out?;
         // Swap: the half just evaluated waits to be composited; the other has marched.
-        let evaluated = std::mem::replace(&mut ready, (std::mem::take(&mut waiting.0), marched));
+        let evaluated = std::mem::replace(&mut ready, (std::mem::take(&mut waiting.0), std::mem::take(&mut waiting.1)));
         waiting = (evaluated.0, evaluated.1, Some(out));
         if ready.0.is_empty() && waiting.0.is_empty() {
             break;
@@ -369,16 +387,24 @@ struct Round<'a> {
 }
 
 impl Round<'_> {
-    /// March each live ray to its next samples (at most [`MARCH_SEGMENT`]), in parallel.
-    fn march(&self, live: &mut [LiveRay]) -> Vec<RoundPart> {
-        live.par_chunks_mut(ROUND_RAYS_PER_TASK).map(|chunk| self.march_chunk(chunk)).collect()
+    /// March each live ray to its next samples (at most [`MARCH_SEGMENT`]), in parallel, into
+    /// `parts` (one per task, their buffers reused).
+    fn march(&self, live: &mut [LiveRay], parts: &mut Vec<RoundPart>) {
+        parts.resize_with(live.len().div_ceil(ROUND_RAYS_PER_TASK), RoundPart::default);
+        live.par_chunks_mut(ROUND_RAYS_PER_TASK).zip(parts.par_iter_mut()).for_each(|(chunk, part)| self.march_chunk(chunk, part));
     }
 
-    /// One task's rays' next samples.
-    fn march_chunk(&self, chunk: &mut [LiveRay]) -> RoundPart {
+    /// One task's rays' next samples, in place of `part`'s.
+    fn march_chunk(&self, chunk: &mut [LiveRay], part: &mut RoundPart) {
         let skipper = self.skipper;
         let most = chunk.len() * MARCH_SEGMENT;
-        let mut part = RoundPart { points: Vec::with_capacity(most), dirs: Vec::with_capacity(most), t: Vec::with_capacity(most), counts: Vec::with_capacity(chunk.len()) };
+        for v in [&mut part.points, &mut part.dirs] {
+            v.clear();
+            v.reserve(most);
+        }
+        part.t.clear();
+        part.t.reserve(most);
+        part.counts.clear();
         for l in chunk.iter_mut() {
             if l.done {
                 part.counts.push(0);
@@ -391,7 +417,6 @@ impl Round<'_> {
             part.dirs.extend(std::iter::repeat_n(self.viewdirs[l.r], n));
             part.counts.push(n as u8);
         }
-        part
     }
 
     /// Composite the field's `out` for `parts` (as [`Self::march`] made them from `live`) and
@@ -418,17 +443,21 @@ impl Round<'_> {
         finished.into_iter().for_each(|f| done.extend(f));
     }
 
-    /// [`Self::composite_into`] and the next [`Self::march`] in one pass over the rays.
-    fn composite_and_march(&self, live: &mut [LiveRay], parts: &[RoundPart], out: &FieldOutput, done: &mut Vec<(usize, RayOutput)>) -> Vec<RoundPart> {
+    /// [`Self::composite_into`] and the next [`Self::march`] in one pass over the rays (the
+    /// list unchanged since `parts` were marched from it).
+    fn composite_and_march(&self, live: &mut [LiveRay], parts: &mut [RoundPart], out: &FieldOutput, done: &mut Vec<(usize, RayOutput)>) {
         let starts = part_starts(parts);
-        let (finished, parts): (Vec<_>, Vec<_>) = live
+        let finished: Vec<_> = live
             .par_chunks_mut(ROUND_RAYS_PER_TASK)
             .zip(parts)
             .zip(starts)
-            .map(|((chunk, part), start)| (self.composite_chunk(chunk, part, out, start), self.march_chunk(chunk)))
-            .unzip();
+            .map(|((chunk, part), start)| {
+                let finished = self.composite_chunk(chunk, part, out, start);
+                self.march_chunk(chunk, part);
+                finished
+            })
+            .collect();
         finished.into_iter().for_each(|f| done.extend(f));
-        parts
     }
 
     /// Composite one task's samples (its part's, from `start` in `out`); returns the rays that
@@ -456,15 +485,14 @@ fn part_starts(parts: &[RoundPart]) -> Vec<usize> {
     parts.iter().scan(0, |at, p| Some(std::mem::replace(at, *at + p.t.len()))).collect()
 }
 
-/// The field call's inputs: `parts`' points and directions in order.
-fn gather(parts: &[RoundPart]) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
-    let n = parts.iter().map(|p| p.points.len()).sum();
-    let (mut points, mut dirs) = (Vec::with_capacity(n), Vec::with_capacity(n));
+/// The field call's inputs: `parts`' points and directions in order, in place of the last call's.
+fn gather(parts: &[RoundPart], points: &mut Vec<[f32; 3]>, dirs: &mut Vec<[f32; 3]>) {
+    points.clear();
+    dirs.clear();
     for part in parts {
         points.extend_from_slice(&part.points);
         dirs.extend_from_slice(&part.dirs);
     }
-    (points, dirs)
 }
 
 #[cfg(test)]
