@@ -3,7 +3,9 @@
 // Empty space is skipped by slab tests as grid.rs does it (boxes grown or shrunk by a margin far
 // above f32 rounding), so the samples are those of testing every interval; the box jumped
 // through is the largest empty cube of cells around the cell (up to MAX_REACH cells each way)
-// rather than grid.rs's empty 8³ block or the cell alone: fewer tests, the same samples. Rays march lazily: `next` hands out a ray's next few samples
+// rather than grid.rs's empty 8³ block or the cell alone: fewer tests, the same samples. Inside an
+// occupied cell the steps up to where the ray leaves it (the cell shrunk by the margin) are
+// emitted untested, as grid.rs does. Rays march lazily: `next` hands out a ray's next few samples
 // and remembers where it stopped, so a ray that terminates early never marches the rest.
 
 
@@ -76,6 +78,8 @@ export class RayMarch {
   readonly t: Float32Array;
   readonly cursor: Int32Array;
   readonly end: Int32Array;
+  /** Per ray: steps before this one lie in the occupied cell of the last step tested. */
+  private readonly occupiedUntil: Int32Array;
   /** Steps tested so far, all rays together (the work skipping saves). */
   tested = 0;
   /** Per ray: the margin of its slab tests; NaN where the ray tests every step (non-finite input). */
@@ -89,6 +93,7 @@ export class RayMarch {
     this.t = new Float32Array(steps);
     for (let k = 0; k < steps; k++) this.t[k] = f(near + f(f(k + 0.5) * interval));
     this.cursor = new Int32Array(n); this.end = new Int32Array(n); this.margin = new Float64Array(n);
+    this.occupiedUntil = new Int32Array(n);
     this.reach = emptyReach(grid);
     const b = f(grid.bound), R = grid.res;
     this.cellSide = (2 * b) / R;
@@ -128,26 +133,33 @@ export class RayMarch {
     const ix = 1 / dx, iy = 1 / dy, iz = 1 / dz;
     const margin = this.margin[r], skip = !Number.isNaN(margin);
     const reach = this.reach, side = this.cellSide, near = this.near, interval = this.interval, steps = this.steps;
-    let k = this.cursor[r], n = 0, tested = 0;
+    let k = this.cursor[r], n = 0, tested = 0, occupiedUntil = this.occupiedUntil[r];
     const end = this.end[r];
     while (k < end && n < max) {
       const tk = t[k];
-      tested++;
       const x = f(ox + f(tk * dx)), y = f(oy + f(tk * dy)), z = f(oz + f(tk * dz));
-      const u = f(f(f(x + b) / two) * R), v = f(f(f(y + b) / two) * R), w = f(f(f(z + b) / two) * R);
-      if (!(u >= 0 && u < R && v >= 0 && v < R && w >= 0 && w < R)) { k++; continue; }
-      const i = u | 0, j = v | 0, l = w | 0; // floor: 0 ≤ u < R ≤ 512
-      const c = (i * R + j) * R + l;
-      if (occ[c] !== 0) {
+      if (k < occupiedUntil) {
         const p = at + n;
         pts[3 * p] = x; pts[3 * p + 1] = y; pts[3 * p + 2] = z;
         ks[p] = k; n++; k++;
         continue;
       }
+      tested++;
+      const u = f(f(f(x + b) / two) * R), v = f(f(f(y + b) / two) * R), w = f(f(f(z + b) / two) * R);
+      if (!(u >= 0 && u < R && v >= 0 && v < R && w >= 0 && w < R)) { k++; continue; }
+      const i = u | 0, j = v | 0, l = w | 0; // floor: 0 ≤ u < R ≤ 512
+      const c = (i * R + j) * R + l;
+      const occupied = occ[c] !== 0;
+      if (occupied) {
+        const p = at + n;
+        pts[3 * p] = x; pts[3 * p + 1] = y; pts[3 * p + 2] = z;
+        ks[p] = k; n++;
+      }
       if (!skip) { k++; continue; }
-      // An empty cell: jump to where the ray leaves the empty cube of cells around it, shrunk by
-      // the margin (a slab test written out per axis: this is the hot loop).
-      const h = reach[c] - 1;
+      // Jump to where the ray leaves the cell (occupied: the steps before are emitted untested)
+      // or the empty cube of cells around it (skipped), shrunk by the margin (a slab test
+      // written out per axis: this is the hot loop).
+      const h = occupied ? 0 : reach[c] - 1;
       const lx = -b + (i - h) * side + margin, hx = -b + (i + h + 1) * side - margin;
       const ly = -b + (j - h) * side + margin, hy = -b + (j + h + 1) * side - margin;
       const lz = -b + (l - h) * side + margin, hz = -b + (l + h + 1) * side - margin;
@@ -162,12 +174,15 @@ export class RayMarch {
       // one; the jump lands on the first step at or after the exit. (grid.rs lands one step
       // short; not needed here: a step's f32 t and position are off the exact ones by far less
       // than the margin, and the tests compare the samples with testing every interval.)
-      if (enter <= tk && tk <= leave) {
-        const kl = Math.ceil((leave - near) / interval - 0.5);
-        k = kl > k + 1 ? (kl < steps ? kl : steps) : k + 1;
-      } else k++;
+      const inside = enter <= tk && tk <= leave;
+      const kl = inside ? Math.ceil((leave - near) / interval - 0.5) : 0;
+      if (occupied) {
+        occupiedUntil = kl < steps ? kl : steps;
+        k++;
+      } else k = kl > k + 1 ? (kl < steps ? kl : steps) : k + 1;
     }
     this.cursor[r] = k;
+    this.occupiedUntil[r] = occupiedUntil;
     this.tested += tested;
     return n;
   }
