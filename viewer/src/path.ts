@@ -139,15 +139,19 @@ export function poseOf(r: number[][], o: number[]): Mat4 {
   return [0, 1, 2].map((a) => [r[a][0], r[a][1], r[a][2], o[a]]).concat([[0, 0, 0, 1]]);
 }
 
-/** The camera at u ∈ [0, 1] along the keyframes (an open path or a loop; see the top of the file). */
+/** The camera at u ∈ [0, 1] along the keyframes (an open path or a loop; see the top of the file);
+ *  exactly keyframe i at u = i / segments. */
 export function cameraAt(keys: PathCamera[], loop: boolean, u: number): PathCamera {
   const n = keys.length;
   if (n === 0) throw new Error("the path has no keyframes");
   if (n === 1) return { c2w: keys[0].c2w.map((r) => [...r]), fov: keys[0].fov };
   const segments = loop ? n : n - 1;
   const x = Math.min(Math.max(u, 0), 1) * segments;
-  const i = Math.min(Math.floor(x), segments - 1), s = x - i;
   const at = (j: number) => keys[((j % n) + n) % n];
+  // At its time a keyframe's own pose, not its quaternion's matrix: a keyframe on a test pose
+  // (stored in float32, orthonormal to ~1e-7 only) renders that test view bit for bit.
+  if (Number.isInteger(x)) return { c2w: at(x).c2w.map((r) => [...r]), fov: at(x).fov };
+  const i = Math.floor(x), s = x - i;
   // Neighbours: wrapped on a loop, mirrored past an open path's ends.
   const point = (j: number): number[] => {
     if (loop || (j >= 0 && j < n)) return centre(at(j).c2w);
