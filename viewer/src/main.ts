@@ -6,6 +6,8 @@ import type { FromWorker, FrameMsg, Loaded, ToWorker } from "./protocol";
 import { type Orbit, orbitFromPose, orbitPose, toBytes } from "./view";
 import { isolate } from "./isolation";
 import { type Fly, captureRegion, captureUp, flyFromPose, flyPose, look, moveBy } from "./fly";
+import type { Intrinsics } from "./protocol";
+import { pathPanel } from "./pathpanel";
 
 declare global {
   interface Window { nerfStats?: Record<string, unknown>; nerfFrame?: Float32Array; nerfTimeline?: { width: number; height: number; at: number }[];
@@ -35,11 +37,26 @@ function startWorker(): void {
   worker = new Worker(new URL("./worker.ts", import.meta.url), { type: "module" });
   worker.onmessage = (ev: MessageEvent<FromWorker>) => {
     const m = ev.data;
+    if ("id" in m && m.id !== undefined && pathRenders.has(m.id)) { pathSettle(m); return; }
     if (m.type === "loaded") onLoaded(m);
     else if (m.type === "frame") onFrame(m);
     else if (m.type === "error") fail(m.message);
   };
   worker.onerror = (ev) => fail(`worker: ${ev.message || "failed to start"}`);
+}
+
+// The camera-path panel's renders (pathpanel.ts): ids of their own, answered by promise.
+const pathRenders = new Map<number, { ok: (m: FrameMsg) => void; no: (e: Error) => void }>();
+let pathId = 1 << 30; // far past the interactive view's ids
+function pathRender(width: number, height: number, c2w: number[][], intrinsics: Intrinsics): Promise<FrameMsg> {
+  const id = pathId++;
+  return new Promise((ok, no) => { pathRenders.set(id, { ok, no }); send({ type: "render", id, width, height, c2w, intrinsics }); });
+}
+function pathSettle(m: FromWorker & { id?: number }): void {
+  const p = pathRenders.get(m.id!)!;
+  pathRenders.delete(m.id!);
+  if (m.type === "frame") p.ok(m);
+  else p.no(new Error(m.type === "error" ? m.message : "cancelled"));
 }
 
 /** Draws rgb (or a depth map) 1:1 into the canvas, resizing it to the frame. */
@@ -107,12 +124,13 @@ function interactive(loaded: Loaded): void {
   const pending = new Map<number, number>(); // request id → level index
   let current = 0;
 
+  const view = () => exact ?? (region && fly ? flyPose(fly, region.up) : orbitPose(orbit));
   const request = (level: number) => {
     const id = next++;
     current = id;
     pending.set(id, level);
     const f = levels[level];
-    const c2w = exact ?? (region && fly ? flyPose(fly, region.up) : orbitPose(orbit));
+    const c2w = view();
     window.nerfCamera = { nav: region ? "fly" : "orbit", c2w };
     send({ type: "render", id, width: Math.max(1, Math.round(width / f)), height: Math.max(1, Math.round(height / f)), c2w });
   };
@@ -135,12 +153,13 @@ function interactive(loaded: Loaded): void {
     if (level < levels.length - 1) request(level + 1);
     document.body.dataset.state = level < levels.length - 1 ? "rendering" : "done";
   };
-  const snap = () => {
-    exact = choices[Number(select.value)].m;
+  const goTo = (m: number[][]) => {
+    exact = m;
     orbit = orbitFromPose(exact, s.near, upAxis);
     if (region) fly = flyFromPose(exact);
     restart();
   };
+  const snap = () => goTo(choices[Number(select.value)].m);
   select.onchange = snap;
   $("snap").onclick = snap; // back to the chosen pose in one click, even when it is already chosen
   $("mode").onclick = () => {
@@ -163,7 +182,7 @@ function interactive(loaded: Loaded): void {
   const step = region ? region.size : 0;
   const flyBy = (right: number, upward: number, forward: number) => move(() => { fly = moveBy(fly!, region!, right, upward, forward); });
   if (region) window.addEventListener("keydown", (e) => {
-    if (e.target instanceof HTMLSelectElement) return;
+    if (e.target instanceof HTMLSelectElement || e.target instanceof HTMLInputElement) return;
     const k = 0.05 * step, d = ({ w: [0, 0, k], s: [0, 0, -k], a: [-k, 0, 0], d: [k, 0, 0], q: [0, -k, 0], e: [0, k, 0],
       arrowup: [0, 0, k], arrowdown: [0, 0, -k], arrowleft: [-k, 0, 0], arrowright: [k, 0, 0] } as Record<string, number[]>)[e.key.toLowerCase()];
     if (!d) return;
@@ -206,6 +225,12 @@ function interactive(loaded: Loaded): void {
     const m = orbitPose(o), k = (o.radius * 0.002);
     for (let a = 0; a < 3; a++) o.target[a] += (-dx * m[a][0] + dy * m[a][1]) * k;
   };
+
+  // Camera paths (pathpanel.ts): keyframes from this view; a path frame cancels the view's
+  // refinement, and a move of the view cancels a playing path in turn.
+  pathPanel({ scene, view, goTo, resume: restart,
+    render: (w, h, c2w, intrinsics) => { if (current) send({ type: "cancel", id: current }); current = 0; return pathRender(w, h, c2w, intrinsics); },
+    show: (m) => { draw(m, false, 0, 1); canvas.style.aspectRatio = `${m.width} / ${m.height}`; } });
   request(0);
 }
 

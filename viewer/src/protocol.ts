@@ -5,8 +5,12 @@ export type Provider = "webgpu" | "wasm";
 
 export type ToWorker =
   | { type: "load"; bundleUrl: string; ortUrl: string; dense: boolean; ep: string }
-  | { type: "render"; id: number; width: number; height: number; c2w: number[][] }
+  | { type: "render"; id: number; width: number; height: number; c2w: number[][]; intrinsics?: Intrinsics }
   | { type: "cancel"; id: number };
+
+/** A camera path frame's own pinhole (nerfstudio's: path.ts pathIntrinsics), at exactly
+ *  width × height, no distortion; without it a render uses the bundle's camera resized. */
+export interface Intrinsics { fx: number; fy: number; cx: number; cy: number }
 
 export interface Loaded {
   type: "loaded"; scene: any; threads: number; isolated: boolean; marched: boolean;

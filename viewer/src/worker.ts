@@ -8,7 +8,7 @@ import { cameraRays, ndcRays, outputSize, pinhole, resized } from "./camera";
 import { type GraphInfo, checkScene, graphFiles, graphInfo, isBounded, parseGrid, wholeBox } from "./bundle";
 import type { Grid } from "./march";
 import { type Field, MAX_POINTS, type MarchTiming, renderDense, renderMarch } from "./render";
-import type { FromWorker, Provider, ToWorker } from "./protocol";
+import type { FromWorker, Intrinsics, Provider, ToWorker } from "./protocol";
 import { type Adapter, pickProvider } from "./provider";
 import { emptyReach } from "./march";
 
@@ -111,7 +111,7 @@ async function load(bundleUrl: string, ortUrl: string, dense: boolean, ep: strin
   post({ type: "loaded", scene, threads: ort.env.wasm.numThreads as number, backend: provider, reason, isolated, marched: grid !== null });
 }
 
-async function render(id: number, width: number, height: number, c2w: number[][]): Promise<void> {
+async function render(id: number, width: number, height: number, c2w: number[][], intrinsics?: Intrinsics): Promise<void> {
   if (!bundle) throw new Error("no bundle loaded");
   const { scene, coarse, fine, grid } = bundle;
   const cancelled = () => latest !== id;
@@ -119,8 +119,8 @@ async function render(id: number, width: number, height: number, c2w: number[][]
   const start = performance.now();
   fieldMs = 0;
   const base = pinhole(scene.camera);
-  const [w, h] = outputSize(base, width, height);
-  const cam = resized(base, w, h);
+  const [w, h] = intrinsics ? [width, height] : outputSize(base, width, height);
+  const cam = intrinsics ? { ...base, width, height, ...intrinsics, distortion: null } : resized(base, w, h);
   const rays = cameraRays(cam, c2w);
   let { o, d } = rays;
   const view = d; // viewdirs stay the world direction, also under NDC
@@ -142,7 +142,7 @@ self.onmessage = (ev: MessageEvent<ToWorker>) => {
     load(m.bundleUrl, m.ortUrl, m.dense, m.ep).catch((e) => post({ type: "error", message: String((e as Error).message ?? e) }));
   } else if (m.type === "render") {
     latest = m.id;
-    queue = queue.then(() => render(m.id, m.width, m.height, m.c2w))
+    queue = queue.then(() => render(m.id, m.width, m.height, m.c2w, m.intrinsics))
       .catch((e) => post({ type: "error", id: m.id, message: String((e as Error).message ?? e) }));
   } else if (m.type === "cancel") {
     if (latest === m.id) latest = -1;
