@@ -19,6 +19,9 @@ TRANSMITTANCE_EPS = F32(1e-10)
 #: Consecutive steps a ray tests at once when marching (:meth:`Marcher.next`).
 WINDOW = 16
 
+#: Rays marched together (their working arrays stay in a core's cache).
+MARCH_BLOCK = 32768
+
 FieldFn = Callable[[np.ndarray, np.ndarray], Tuple[np.ndarray, np.ndarray]]
 
 
@@ -121,21 +124,22 @@ class Grid:
         return self.skip_table().take(index)
 
     def t_range(self, o: np.ndarray, d: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
-        """A conservative [t0, t1] (float64) per ray outside which no point lies in the cube."""
+        """A conservative [t0, t1] per ray outside which no point lies in the cube, for ``o``,
+        ``d`` [3, n] float64."""
         b = np.float64(self.bound) * (1 + 1e-3) + 1e-6
-        o64, d64 = o.astype(np.float64), d.astype(np.float64)
         with np.errstate(divide="ignore", invalid="ignore"):
-            a = (-b - o64) / d64
-            c = (b - o64) / d64
+            a = (-b - o) / d
+            c = (b - o) / d
         lo, hi = np.fmin(a, c), np.fmax(a, c)
         # An axis the ray runs along: inside the slab is all t, outside none.
-        parallel = d64 == 0
-        inslab = np.abs(o64) <= b
-        lo = np.where(parallel, np.where(inslab, -np.inf, np.inf), lo)
-        hi = np.where(parallel, np.where(inslab, np.inf, -np.inf), hi)
-        lo = np.where(np.isnan(lo), -np.inf, lo)
-        hi = np.where(np.isnan(hi), np.inf, hi)
-        return lo.max(axis=1), hi.min(axis=1)
+        parallel = d == 0
+        if parallel.any():
+            inslab = np.abs(o) <= b
+            lo[parallel] = np.where(inslab, -np.inf, np.inf)[parallel]
+            hi[parallel] = np.where(inslab, np.inf, -np.inf)[parallel]
+        lo[np.isnan(lo)] = -np.inf
+        hi[np.isnan(hi)] = np.inf
+        return np.maximum(np.maximum(lo[0], lo[1]), lo[2]), np.minimum(np.minimum(hi[0], hi[1]), hi[2])
 
 
 @dataclass
@@ -146,6 +150,12 @@ class Packed:
     t: np.ndarray
     delta: np.ndarray
     offsets: np.ndarray
+
+
+def _as_index(x: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """``x`` (whole numbers, float64) converted into ``out`` (intp)."""
+    np.copyto(out, x, casting="unsafe")
+    return out
 
 
 class Marcher:
@@ -162,6 +172,9 @@ class Marcher:
     of the box (a ray along a cell face, non-finite values) tests a window of steps with the
     exact float32 cell instead. So the samples are those of testing every step, bit for bit.
 
+    All rays asked for probe together, one numpy operation per step of the loop over every
+    ray still marching (finished rays are dropped once they are half of those left).
+
     # Shapes
     ``o``, ``d`` [n, 3] float32."""
 
@@ -174,156 +187,207 @@ class Marcher:
         self.o = np.ascontiguousarray(o.T, F32)[:, :, None]  # [3, n, 1]
         self.d = np.ascontiguousarray(d.T, F32)[:, :, None]
         self.delta = (self.interval * lengths(d)).astype(F32)
-        t0, t1 = grid.t_range(o, d)
-        with np.errstate(invalid="ignore", over="ignore"):
-            k0 = np.floor((t0 - np.float64(near)) / np.float64(self.interval) - 0.5) - 1
-            k1 = np.ceil((t1 - np.float64(near)) / np.float64(self.interval) - 0.5) + 2
-        self.cursor = np.clip(np.nan_to_num(k0, nan=0, posinf=steps, neginf=0), 0, steps).astype(np.int32)
-        self.end = np.clip(np.nan_to_num(k1, nan=steps, posinf=steps, neginf=0), 0, steps).astype(np.int32)
-        self._boxes(o, d, near)
+        self._boxes(self.o[:, :, 0].astype(np.float64), self.d[:, :, 0].astype(np.float64), near)
         self.tests = 0  # steps tested one by one so far (for measuring)
         self.probes = 0  # probes so far (for measuring)
 
     def _boxes(self, o: np.ndarray, d: np.ndarray, near: np.float32) -> None:
-        """Per ray, in cell units u = (x + b)/(2b)·R = α + β·t per axis: ``coef`` [12, n] =
-        α, β, then per axis the terms of the t at which the ray enters and leaves a box of
-        cells shrunk by the margin m (``_box_range``); and the real t of each step."""
-        grid = self.grid
+        """From ``o``, ``d`` [3, n] float64: each ray's first and end step (``cursor``, ``end``:
+        the conservative cube range, :meth:`Grid.t_range`); in cell units u = (x + b)/(2b)·R =
+        α + β·t per axis, ``coef`` [18, n] = α, β, then per axis the terms of the t at which the
+        ray enters and leaves a box of cells shrunk by the margin m; and the real t of each
+        step."""
+        grid, steps = self.grid, self.steps
         r, b = grid.resolution, np.float64(grid.bound)
         scale_u = r / (2.0 * b)
-        o64, d64 = o.astype(np.float64), d.astype(np.float64)
-        interval = np.float64(self.interval)
-        self.t_real = np.float64(near) + (np.arange(self.steps + WINDOW, dtype=np.float64) + 0.5) * interval
-        t_max = float(np.abs(self.t_real[[0, self.steps - 1]]).max()) if self.steps else 0.0
+        interval, near64 = np.float64(self.interval), np.float64(near)
+        self.t_real = near64 + (np.arange(steps + WINDOW, dtype=np.float64) + 0.5) * interval
+        t_max = float(np.abs(self.t_real[[0, steps - 1]]).max()) if steps else 0.0
         with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-            scale = np.maximum(np.abs(o64) + t_max * np.abs(d64), float(b)).max(axis=1)
+            t0, t1 = grid.t_range(o, d)
+            k0 = np.floor((t0 - near64) / interval - 0.5) - 1
+            k1 = np.ceil((t1 - near64) / interval - 0.5) + 2
+            ad = np.abs(d)
+            scale = np.abs(o) + t_max * ad
+            np.maximum(scale, float(b), out=scale)
+            scale = np.maximum(np.maximum(scale[0], scale[1]), scale[2])
             # As core's march_ray: far above the float32 error of a sample's position and cell.
             margin = (1e-3 * 2.0 * b / r + 64.0 * float(np.finfo(F32).eps) * scale) * scale_u
-            alpha = (o64 + b) * scale_u
-            beta = d64 * scale_u
-            inv = 1.0 / beta
-            m = margin[:, None]
+            coef = np.empty((18, o.shape[1]))
+            alpha, beta, inv, per_r, enter, leave = (coef[3 * i:3 * i + 3] for i in range(6))
+            np.multiply(o + b, scale_u, out=alpha)
+            np.multiply(d, scale_u, out=beta)
+            np.divide(1.0, beta, out=inv)
+            np.abs(inv, out=per_r)
             up = beta > 0
-            enter = np.where(up, m - alpha, 1.0 - m - alpha) * inv
-            leave = np.where(up, 1.0 - m - alpha, m - alpha) * inv
-            per_r = np.abs(inv)
+            lo = margin - alpha
+            hi = (1.0 - margin) - alpha
+            np.multiply(np.where(up, lo, hi), inv, out=enter)
+            np.multiply(np.where(up, hi, lo), inv, out=leave)
             # A coordinate that never changes: inside a cell's shrunk box on that axis for every
             # t, or never (within the margin of a face) unless the box is grown by a cell.
             flat = beta == 0
-            frac = alpha - np.floor(alpha)
-            safe = (frac >= m) & (frac <= 1.0 - m)
-            inv = np.where(flat, 0.0, inv)
-            per_r = np.where(flat, np.where(safe, 0.0, 2e300), per_r)
-            enter = np.where(flat, np.where(safe, -1e300, 1e300), enter)
-            leave = np.where(flat, np.where(safe, 1e300, -1e300), leave)
-        # Rays the boxes cannot handle (non-finite, a non-positive interval) only test windows.
-        usable = np.isfinite(o64).all(axis=1) & np.isfinite(d64).all(axis=1) & np.isfinite(scale) & (margin < 0.25)
+            if flat.any():
+                frac = alpha - np.floor(alpha)
+                safe = (frac >= margin) & (frac <= 1.0 - margin)
+                inv[flat] = 0.0
+                per_r[flat] = np.where(safe, 0.0, 2e300)[flat]
+                enter[flat] = np.where(safe, -1e300, 1e300)[flat]
+                leave[flat] = np.where(safe, 1e300, -1e300)[flat]
+            # Rays the boxes cannot handle (non-finite, a non-positive interval) only test windows.
+            usable = np.isfinite(coef).all(axis=0) & np.isfinite(scale) & (margin < 0.25)
         if not (np.isfinite(interval) and interval > 0):
             usable[:] = False
-        enter[~usable] = np.inf
-        self.coef = np.ascontiguousarray(np.concatenate([alpha.T, beta.T, inv.T, per_r.T, enter.T, leave.T]))
-        self.coef = np.nan_to_num(self.coef, nan=0.0)
-        self.coef[12:15, ~usable] = np.inf
-        self.coef[15:18, ~usable] = -np.inf
+        if not usable.all():
+            coef[:, ~usable] = 0.0
+            enter[:, ~usable] = np.inf
+            leave[:, ~usable] = -np.inf
+        self.coef = coef
+        self.cursor = np.clip(np.nan_to_num(k0, nan=0, posinf=steps, neginf=0), 0, steps).astype(np.intp)
+        self.end = np.clip(np.nan_to_num(k1, nan=steps, posinf=steps, neginf=0), 0, steps).astype(np.intp)
 
     def next(self, rays: np.ndarray, n: int = MARCH_SEGMENT) -> Tuple[np.ndarray, np.ndarray]:
         """The next (at most) ``n`` occupied steps of each of ``rays`` (indices, any order):
-        steps [len(rays), n] int32 (row i's first ``counts[i]`` are valid, in order) and counts
-        [len(rays)] int32; fewer than ``n`` means the ray has no more. Moves the rays on."""
+        steps [len(rays), n] int (row i's first ``counts[i]`` are valid, in order) and counts
+        [len(rays)]; fewer than ``n`` means the ray has no more. Moves the rays on."""
+        steps, found = self.advance(rays, n)
+        return steps.T, found
+
+    def advance(self, rays: np.ndarray, n: int = MARCH_SEGMENT) -> Tuple[np.ndarray, np.ndarray]:
+        """:meth:`next`, lane-major: steps [n, len(rays)] (sample j of every ray is row j; past
+        a ray's count, the steps after its last) and counts [len(rays)]."""
         m = len(rays)
-        steps = np.zeros((m, n), np.int32)
-        found = np.zeros(m, np.int32)
+        # A ray's samples are runs of consecutive steps. Each run writes (first step − its
+        # lane) at its first lane; that grows from run to run, so a running maximum down the
+        # lanes plus the lane gives every sample's step.
+        base = np.zeros((n, m), np.intp)
+        found = np.zeros(m, np.intp)
         cursor, end = self.cursor[rays], self.end[rays]
-        doubt = np.zeros(m, bool)
-        runs: List[Tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []  # rows, first step, count, lane
+        pos = np.flatnonzero(cursor < end)
+        if pos.size:
+            for s in range(0, len(pos), MARCH_BLOCK):
+                self._march(rays, pos[s:s + MARCH_BLOCK], cursor, end, found, base, n)
+            self.cursor[rays] = cursor
+        np.maximum.accumulate(base, axis=0, out=base)
+        base += np.arange(n)[:, None]
+        return base, found
+
+    def _march(self, rays: np.ndarray, pos: np.ndarray, cursor: np.ndarray, end: np.ndarray, found: np.ndarray,
+               base: np.ndarray, n: int) -> None:
+        """Move ``rays[pos]`` on to their next ``n`` occupied steps (or their end): the probe
+        loop over all of them at once. Writes ``cursor``, ``found`` and the runs into ``base``."""
         table, radii = self.grid.skip_table(), np.array((0,) + SKIP_RADII, np.float64)
         res, side = self.grid.resolution, self.grid.resolution + 2
+        # +1 per axis for the padding.
+        pad = float(side * side + side + 1)
         inv_interval, t0 = 1.0 / np.float64(self.interval), self.t_real[0]
-        pending = np.nonzero(cursor < end)[0]
-        while pending.size:
-            k = cursor[pending]
-            c = self.coef[:, rays[pending]]
-            t = self.t_real[k]
-            index = np.zeros(len(k), np.int64)
-            cells = []
-            for axis in range(3):
-                u = c[3 + axis] * t
-                u += c[axis]
-                np.floor(u, out=u)
-                np.clip(u, -1, res, out=u)
-                cells.append(u)
-                index *= side
-                index += u.astype(np.int64)
-            level = table.take(index + (side * side + side + 1))
-            r = radii.take(level)
-            enter, leave = np.full(len(k), -np.inf), np.full(len(k), np.inf)
-            for axis in range(3):
-                centre = cells[axis] * c[6 + axis]
-                grow = r * c[9 + axis]
-                np.maximum(enter, centre - grow + c[12 + axis], out=enter)
-                np.minimum(leave, centre + grow + c[15 + axis], out=leave)
-            self.probes += len(k)
-            sure = (enter <= t) & (t <= leave)
-            # The last step inside the box (at least the probe's own step).
-            with np.errstate(invalid="ignore"):
-                last = np.floor((leave - t0) * inv_interval)
-            np.clip(last, k, end[pending] - 1, out=last)
-            through = last.astype(np.int32) + 1
-            # Occupied box: its steps are samples, as many as the ray still needs.
-            fill = sure & (level == 0)
-            rows = pending[fill]
-            count = np.minimum(through[fill] - k[fill], n - found[rows])
-            runs.append((rows, k[fill], count, found[rows]))
-            found[rows] += count
-            cursor[rows] = k[fill] + count
-            # Empty box: skip its steps.
-            empty = sure & (level != 0)
-            cursor[pending[empty]] = through[empty]
+        c = self.coef.take(rays[pos], axis=1)
+        k, e = cursor[pos], end[pos]
+        f = np.zeros(len(pos), np.intp)
+        doubt = np.zeros(len(pos), bool)
+        alive = np.ones(len(pos), bool)
+        # Scratch, reused (sliced to the rays left) rather than allocated each probe.
+        scratch = np.empty((12, len(pos)))
+        index_buf = np.empty(len(pos), np.intp)
+        level_buf = np.empty(len(pos), table.dtype)
+        live = len(pos)
+        while True:
+            w = len(k)
+            self.probes += live
+            u, box, grow = scratch[0:3, :w], scratch[3:6, :w], scratch[6:9, :w]
+            t, enter, leave = scratch[9, :w], scratch[10, :w], scratch[11, :w]
+            self.t_real.take(k, out=t)
+            np.multiply(c[3:6], t, out=u)
+            u += c[0:3]
+            np.floor(u, out=u)
+            np.maximum(u, -1, out=u)
+            np.minimum(u, res, out=u)
+            index = np.multiply(u[0], side, out=enter)
+            index += u[1]
+            index *= side
+            index += u[2]
+            index += pad
+            level = table.take(_as_index(index, index_buf[:w]), out=level_buf[:w])
+            r = radii.take(level, out=leave)
+            u *= c[6:9]
+            np.multiply(c[9:12], r, out=grow)
+            np.subtract(u, grow, out=box)
+            box += c[12:15]
+            np.maximum(box[0], box[1], out=enter)
+            np.maximum(enter, box[2], out=enter)
+            u += grow
+            u += c[15:18]
+            np.minimum(u[0], u[1], out=leave)
+            np.minimum(leave, u[2], out=leave)
+            sure = enter <= t
+            sure &= t <= leave
+            sure &= alive
+            # Steps to the first past the box (at least one), within the ray's end.
+            last = leave
+            last -= t0
+            last *= inv_interval
+            np.floor(last, out=last)
+            np.maximum(last, k, out=last)
+            np.minimum(last, e - 1, out=last)
+            move = last.astype(np.intp)
+            move += 1
+            move -= k
+            # An occupied box gives its steps as samples, as many as the ray still needs; an
+            # empty box is skipped.
+            occupied = level == 0
+            np.minimum(move, n - f, out=move, where=occupied)
+            move *= sure
+            fill = np.flatnonzero(sure & occupied)
+            if fill.size:
+                base[f[fill], pos[fill]] = k[fill] - f[fill]
+                f[fill] += move[fill]
+            k += move
             # Within the margin of the box's faces: test the step exactly (a window of steps
             # for rays whose probe was already unsure, e.g. along a cell face).
-            unsure = pending[~sure]
-            if unsure.size:
-                again = doubt[unsure]
-                doubt[pending] = False
-                doubt[unsure] = True
-                self._window(rays, unsure[~again], cursor, end, found, n, runs, 1)
-                self._window(rays, unsure[again], cursor, end, found, n, runs, WINDOW)
-            else:
-                doubt[pending] = False
-            pending = pending[(found[pending] < n) & (cursor[pending] < end[pending])]
-        self.cursor[rays] = cursor
-        if runs:
-            rows, first, count, offset = (np.concatenate(x) for x in zip(*runs))
-            total = int(count.sum())
-            run = np.repeat(np.arange(len(count)), count)
-            within = np.arange(total) - np.repeat(np.cumsum(count) - count, count)
-            steps[rows[run], offset[run] + within] = first[run] + within
-        return steps, found
+            unsure = alive & ~sure
+            if unsure.any():
+                again = unsure & doubt
+                self._window(rays, np.flatnonzero(unsure & ~doubt), pos, k, e, f, base, n, 1)
+                self._window(rays, np.flatnonzero(again), pos, k, e, f, base, n, WINDOW)
+            doubt = unsure
+            alive &= f < n
+            alive &= k < e
+            live = int(np.count_nonzero(alive))
+            if live < len(alive) // 2 or not live:
+                done = ~alive
+                cursor[pos[done]] = k[done]
+                found[pos[done]] = f[done]
+                if not live:
+                    return
+                c, k, e, f, doubt, pos = c[:, alive], k[alive], e[alive], f[alive], doubt[alive], pos[alive]
+                alive = np.ones(live, bool)
 
-    def _window(self, rays: np.ndarray, rows: np.ndarray, cursor: np.ndarray, end: np.ndarray, found: np.ndarray, n: int,
-                runs: list, width: int) -> None:
-        """Test the next ``width`` (≤ ``WINDOW``) steps of ``rows`` with the exact float32 cell;
-        record the occupied ones (as many as needed) as runs of one step and move the rows on."""
+    def _window(self, rays: np.ndarray, rows: np.ndarray, pos: np.ndarray, k: np.ndarray, e: np.ndarray, f: np.ndarray,
+                base: np.ndarray, n: int, width: int) -> None:
+        """Test the next ``width`` (≤ ``WINDOW``) steps of the marching rays ``rows`` with the
+        exact float32 cell; record the occupied ones (as many as needed) as runs of one step and
+        move the rays on."""
         if not rows.size:
             return
-        ray = rays[rows]
-        k = cursor[rows][:, None] + np.arange(width, dtype=np.int32)
-        level = self.grid.levels_along(self.o[:, ray], self.d[:, ray], self.t[k])
-        self.tests += k.size
-        occupied = (level == 0) & (k < end[rows][:, None])
-        rank = np.cumsum(occupied, axis=1, dtype=np.int32)
-        need = n - found[rows]
+        ray = rays[pos[rows]]
+        kk = k[rows][:, None] + np.arange(width)
+        level = self.grid.levels_along(self.o[:, ray], self.d[:, ray], self.t[kk])
+        self.tests += kk.size
+        occupied = (level == 0) & (kk < e[rows][:, None])
+        rank = np.cumsum(occupied, axis=1)
+        need = n - f[rows]
         take = occupied & (rank <= need[:, None])
         row, col = np.nonzero(take)
-        runs.append((rows[row], k[row, col].astype(np.int32), np.ones(len(row), np.int32), found[rows[row]] + rank[row, col] - 1))
+        lane = f[rows[row]] + rank[row, col] - 1
+        base[lane, pos[rows[row]]] = kk[row, col] - lane
         got = np.minimum(rank[:, -1], need)
-        found[rows] += got
+        f[rows] += got
         full = got == need
         # Past the window; a ray that got all it needs resumes after its last sample.
-        moved = k[:, -1] + 1
+        moved = kk[:, -1] + 1
         last_taken = np.argmax(rank >= need[:, None], axis=1)
-        moved[full] = k[full, last_taken[full]] + 1
-        cursor[rows] = moved
+        moved[full] = kk[full, last_taken[full]] + 1
+        k[rows] = moved
 
 
 def occupied_samples(grid: Grid, o: np.ndarray, d: np.ndarray, near: np.float32, far: np.float32, steps: int) -> Packed:
