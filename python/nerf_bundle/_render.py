@@ -16,11 +16,13 @@ MARCH_SEGMENT = 16
 MIN_TRANSMITTANCE = F32(1e-4)
 LAST_DELTA = F32(1e10)
 TRANSMITTANCE_EPS = F32(1e-10)
-#: Consecutive steps a ray tests at once when marching (:meth:`Marcher.next`).
-WINDOW = 16
-
-#: Rays marched together (their working arrays stay in a core's cache).
-MARCH_BLOCK = 32768
+#: Steps tested one by one, with the exact float32 cell, where a probe falls within the margin
+#: of its box (:class:`Marcher`).
+WINDOW = 8
+#: Rays probed together (a working set small enough to stay in a core's cache).
+MARCH_BLOCK = 16384
+#: The working set takes rays from the queue once at most this fraction of it is still marching.
+MARCH_REFILL = 0.75
 
 FieldFn = Callable[[np.ndarray, np.ndarray], Tuple[np.ndarray, np.ndarray]]
 
@@ -43,8 +45,9 @@ def unit(v: np.ndarray) -> np.ndarray:
 
 
 #: Empty radii (in cells) of the skip table's levels 1, 2, ...: level 1 is an empty cell
-#: (radius 0), level 6 a cell with no occupied cell within 16 cells along every axis.
-SKIP_RADII = (0, 1, 2, 4, 8, 16)
+#: (radius 0), the last a cell with no occupied cell within 16 cells along every axis. Every
+#: radius up to 6, then fewer: each is one more dilation of the grid when the table is made.
+SKIP_RADII = (0, 1, 2, 3, 4, 5, 6, 8, 10, 12, 16)
 
 
 def _dilated(x: np.ndarray, shift: int) -> np.ndarray:
@@ -79,24 +82,25 @@ class Grid:
         """[(R + 2)³] uint8, cached: the grid padded by one empty cell on every side, each cell
         0 where occupied, else 1 + the index in ``SKIP_RADII`` of the largest radius r such that
         no occupied cell lies within r cells along every axis (so a point in that cell can move
-        r cells' length in any direction and stay in empty cells).
+        r cells' length in any direction and stay in empty cells). Outside the cube is empty,
+        so a padding cell's level counts from the occupied cells as any other's.
 
         Example: one occupied cell; a cell 3 cells from it along x (and 0 along y, z) has no
-        occupied cell within 2 but one within 4: level 1 + 2 = 3 (radius 2)."""
+        occupied cell within 2 but one within 3: level 1 + 2 = 3 (radius 2)."""
         cached = self.__dict__.get("_skip_table")
         if cached is not None:
             return cached
         r = self.resolution
-        occupied = self.occupied.reshape(r, r, r)
+        # Outside the cube is empty: the padding's levels count from the occupied cells too.
+        occupied = np.zeros((r + 2,) * 3, bool)
+        occupied[1:-1, 1:-1, 1:-1] = self.occupied.reshape(r, r, r)
         dilated = occupied.copy()
-        level = np.where(occupied, 0, 1).astype(np.uint8)
+        table = np.where(occupied, 0, 1).astype(np.uint8)
         radius = 0
         for target in SKIP_RADII[1:]:
             dilated = _dilated(dilated, target - radius)
             radius = target
-            level += ~dilated
-        table = np.ones((r + 2,) * 3, np.uint8)
-        table[1:-1, 1:-1, 1:-1] = level
+            table += ~dilated
         self.__dict__["_skip_table"] = table.reshape(-1)
         return self.__dict__["_skip_table"]
 
@@ -265,60 +269,60 @@ class Marcher:
         cursor, end = self.cursor[rays], self.end[rays]
         pos = np.flatnonzero(cursor < end)
         if pos.size:
-            for s in range(0, len(pos), MARCH_BLOCK):
-                self._march(rays, pos[s:s + MARCH_BLOCK], cursor, end, found, base, n)
+            self._march(rays, pos, cursor, end, found, base, n)
             self.cursor[rays] = cursor
         np.maximum.accumulate(base, axis=0, out=base)
         base += np.arange(n)[:, None]
         return base, found
 
-    def _march(self, rays: np.ndarray, pos: np.ndarray, cursor: np.ndarray, end: np.ndarray, found: np.ndarray,
+    def _march(self, rays: np.ndarray, queue: np.ndarray, cursor: np.ndarray, end: np.ndarray, found: np.ndarray,
                base: np.ndarray, n: int) -> None:
-        """Move ``rays[pos]`` on to their next ``n`` occupied steps (or their end): the probe
-        loop over all of them at once. Writes ``cursor``, ``found`` and the runs into ``base``."""
+        """Move ``rays[queue]`` on to their next ``n`` occupied steps (or their end): a loop of
+        probes over a working set of up to ``MARCH_BLOCK`` rays, refilled from the queue as its
+        rays finish. Writes ``cursor``, ``found`` and the runs into ``base``."""
         table, radii = self.grid.skip_table(), np.array((0,) + SKIP_RADII, np.float64)
         res, side = self.grid.resolution, self.grid.resolution + 2
-        # +1 per axis for the padding.
+        # Cell (i, j, k) → its place in the table: +1 per axis for the padding.
+        place = np.array([side * side, side, 1], np.float64)
         pad = float(side * side + side + 1)
         inv_interval, t0 = 1.0 / np.float64(self.interval), self.t_real[0]
+        size = min(len(queue), MARCH_BLOCK)
+        pos, queue = queue[:size], queue[size:]
         c = self.coef.take(rays[pos], axis=1)
         k, e = cursor[pos], end[pos]
-        f = np.zeros(len(pos), np.intp)
-        doubt = np.zeros(len(pos), bool)
-        alive = np.ones(len(pos), bool)
-        # Scratch, reused (sliced to the rays left) rather than allocated each probe.
-        scratch = np.empty((12, len(pos)))
-        index_buf = np.empty(len(pos), np.intp)
-        level_buf = np.empty(len(pos), table.dtype)
-        live = len(pos)
+        f = np.zeros(size, np.intp)
+        alive = np.ones(size, bool)
+        # Scratch, reused (sliced to the working set) rather than allocated each probe.
+        scratch = np.empty((14, size))
+        index_buf = np.empty(size, np.intp)
+        level_buf = np.empty(size, table.dtype)
+        live = size
         while True:
             w = len(k)
             self.probes += live
             u, box, grow = scratch[0:3, :w], scratch[3:6, :w], scratch[6:9, :w]
-            t, enter, leave = scratch[9, :w], scratch[10, :w], scratch[11, :w]
+            t, r, enter, leave, index = (scratch[i, :w] for i in range(9, 14))
             self.t_real.take(k, out=t)
             np.multiply(c[3:6], t, out=u)
             u += c[0:3]
             np.floor(u, out=u)
-            np.maximum(u, -1, out=u)
-            np.minimum(u, res, out=u)
-            index = np.multiply(u[0], side, out=enter)
-            index += u[1]
-            index *= side
-            index += u[2]
+            np.clip(u, -1, res, out=u)
+            np.dot(place, u, out=index)
             index += pad
-            level = table.take(_as_index(index, index_buf[:w]), out=level_buf[:w])
-            r = radii.take(level, out=leave)
+            np.copyto(index_buf[:w], index, casting="unsafe")
+            level = table.take(index_buf[:w], out=level_buf[:w])
+            radii.take(level, out=r)
+            # The box's faces in t per axis: the cell's (u·inv) ∓ r cells (r·|inv|), shrunk.
             u *= c[6:9]
             np.multiply(c[9:12], r, out=grow)
-            np.subtract(u, grow, out=box)
-            box += c[12:15]
-            np.maximum(box[0], box[1], out=enter)
-            np.maximum(enter, box[2], out=enter)
-            u += grow
-            u += c[15:18]
-            np.minimum(u[0], u[1], out=leave)
-            np.minimum(leave, u[2], out=leave)
+            np.add(u, grow, out=box)
+            box += c[15:18]
+            np.minimum(box[0], box[1], out=leave)
+            np.minimum(leave, box[2], out=leave)
+            u -= grow
+            u += c[12:15]
+            np.maximum(u[0], u[1], out=enter)
+            np.maximum(enter, u[2], out=enter)
             sure = enter <= t
             sure &= t <= leave
             sure &= alive
@@ -327,8 +331,7 @@ class Marcher:
             last -= t0
             last *= inv_interval
             np.floor(last, out=last)
-            np.maximum(last, k, out=last)
-            np.minimum(last, e - 1, out=last)
+            np.clip(last, k, e - 1, out=last)
             move = last.astype(np.intp)
             move += 1
             move -= k
@@ -342,25 +345,31 @@ class Marcher:
                 base[f[fill], pos[fill]] = k[fill] - f[fill]
                 f[fill] += move[fill]
             k += move
-            # Within the margin of the box's faces: test the step exactly (a window of steps
-            # for rays whose probe was already unsure, e.g. along a cell face).
-            unsure = alive & ~sure
-            if unsure.any():
-                again = unsure & doubt
-                self._window(rays, np.flatnonzero(unsure & ~doubt), pos, k, e, f, base, n, 1)
-                self._window(rays, np.flatnonzero(again), pos, k, e, f, base, n, WINDOW)
-            doubt = unsure
+            # Within the margin of the box's faces: test a window of steps exactly.
+            unsure = np.flatnonzero(alive & ~sure)
+            if unsure.size:
+                self._window(rays, unsure, pos, k, e, f, base, n, WINDOW)
             alive &= f < n
             alive &= k < e
             live = int(np.count_nonzero(alive))
-            if live < len(alive) // 2 or not live:
+            if live <= w * MARCH_REFILL:
                 done = ~alive
                 cursor[pos[done]] = k[done]
                 found[pos[done]] = f[done]
-                if not live:
+                if queue.size:
+                    # Rays from the queue take the finished rays' places.
+                    slots = np.flatnonzero(done)[:len(queue)]
+                    more, queue = queue[:len(slots)], queue[len(slots):]
+                    c[:, slots] = self.coef.take(rays[more], axis=1)
+                    k[slots], e[slots], f[slots], pos[slots] = cursor[more], end[more], 0, more
+                    alive[slots] = True
+                    live += len(slots)
+                elif not live:
                     return
-                c, k, e, f, doubt, pos = c[:, alive], k[alive], e[alive], f[alive], doubt[alive], pos[alive]
-                alive = np.ones(live, bool)
+                else:
+                    # The queue is empty: finished rays leave the working set.
+                    c, k, e, f, pos = c[:, alive], k[alive], e[alive], f[alive], pos[alive]
+                    alive = np.ones(live, bool)
 
     def _window(self, rays: np.ndarray, rows: np.ndarray, pos: np.ndarray, k: np.ndarray, e: np.ndarray, f: np.ndarray,
                 base: np.ndarray, n: int, width: int) -> None:
@@ -508,22 +517,36 @@ def march_grid(field: FieldFn, grid: Grid, o: np.ndarray, d: np.ndarray, viewdir
     now = time.perf_counter()
     marcher = Marcher(grid, o, d, near, far, steps)
     active = np.arange(n)
-    lane = np.arange(MARCH_SEGMENT)
+    s = MARCH_SEGMENT
+    lanes = np.arange(s)[:, None]
     edges = np.arange(0, n + batch, batch)
     while active.size:
-        k, cnt = marcher.next(active)
+        k, cnt = marcher.advance(active, s)
         live = cnt > 0
-        active, k, cnt = active[live], k[live], cnt[live]
+        if not live.all():
+            active, k, cnt = active[live], k[:, live], cnt[live]
         now = stages.lap("march", now)
         if not active.size:
             break
-        valid = lane[None, :] < cnt[:, None]
-        t = marcher.t[k[valid]]
-        points = np.repeat(o[active], cnt, axis=0)
-        points += t[:, None] * np.repeat(d[active], cnt, axis=0)
-        dirs = np.repeat(viewdirs[active], cnt, axis=0)
+        m = len(active)
+        valid = lanes < cnt  # [S, m]
+        t_lanes = marcher.t.take(k, mode="clip")  # lanes past a ray's count may run past the steps
+        np.copyto(t_lanes, F32(0), where=~valid)
+        # The samples ray by ray (the field's order), each with its place in the [S, m] lanes.
+        ray = np.repeat(np.arange(m), cnt)
+        at = np.flatnonzero(valid.T)  # ray·S + lane
+        at -= ray * s
+        at *= m
+        at += ray  # lane·m + ray
+        t = t_lanes.take(at)
+        ray = active.take(ray)
+        points = np.empty((len(t), 3), F32)
+        for axis in range(3):
+            np.multiply(t, marcher.d[axis, :, 0].take(ray), out=points[:, axis])
+            points[:, axis] += marcher.o[axis, :, 0].take(ray)
+        dirs = viewdirs.take(ray, axis=0)
         # The samples of each chunk's rays, a slice each (rays in order).
-        ends = np.zeros(len(active) + 1, np.int64)
+        ends = np.zeros(m + 1, np.int64)
         np.cumsum(cnt, out=ends[1:])
         cuts = ends[np.searchsorted(active, edges)]
         cuts = cuts[np.r_[True, cuts[1:] > cuts[:-1]]]
@@ -533,11 +556,15 @@ def march_grid(field: FieldFn, grid: Grid, o: np.ndarray, d: np.ndarray, viewdir
         for a, b in zip(cuts[:-1], cuts[1:]):
             colour[a:b], sigma[a:b] = field(points[a:b], dirs[a:b])
         now = stages.lap("field", now)
-        alpha = alpha_of(sigma, np.repeat(marcher.delta[active], cnt))
+        alpha = np.zeros((s, m), F32)
+        alpha.reshape(-1)[at] = alpha_of(sigma, marcher.delta.take(ray))
+        lane_colour = np.zeros((3, s, m), F32)
+        for c in range(3):
+            lane_colour[c].reshape(-1)[at] = colour[:, c]
         tr, rg, de, ac = trans[active], rgb[:, active], depth[active], acc[active]
-        composite(_lane_major(alpha, valid), _lane_major(colour, valid), _lane_major(t, valid), tr, rg, de, ac)
+        composite(alpha, lane_colour.transpose(1, 0, 2), t_lanes, tr, rg, de, ac)
         trans[active], rgb[:, active], depth[active], acc[active] = tr, rg, de, ac
-        active = active[(tr >= min_t) & (cnt == MARCH_SEGMENT)]
+        active = active[(tr >= min_t) & (cnt == s)]
         now = stages.lap("composite", now)
     out = np.ascontiguousarray(rgb.T)
     if white_background:

@@ -41,7 +41,7 @@ def every_interval(grid: R.Grid, o: np.ndarray, d: np.ndarray, near, far, steps:
 
 def test_skip_table_levels_by_hand():
     # One occupied cell at (2, 3, 4) of 8³: a cell's level is 1 + the index in SKIP_RADII
-    # (0, 1, 2, 4, 8, 16) of the largest r with no occupied cell within r cells.
+    # (0, 1, 2, 3, 4, 5, 6, 8, ...) of the largest r with no occupied cell within r cells.
     g = grid_of(8, 1.0, [(2, 3, 4)])
     table = g.skip_table().reshape(10, 10, 10)
 
@@ -52,8 +52,12 @@ def test_skip_table_levels_by_hand():
     assert level(3, 3, 4) == 1, "Chebyshev distance 1: empty, radius 0"
     assert level(4, 5, 4) == 2, "distance 2: radius 1"
     assert level(5, 3, 4) == 3, "distance 3: radius 2"
-    assert level(7, 7, 7) == 4, "distance 5: radius 4"
-    assert table[0, 5, 5] == 1 and table[9, 9, 9] == 1, "the padding is empty, radius 0"
+    assert level(7, 7, 7) == 5, "distance 5: radius 4"
+    # The padding (outside the cube, empty) counts from the occupied cell too.
+    assert level(-1, 4, 4) == 3, "distance 3 (−1 − 2 along i)"
+    assert level(8, 8, 8) == 6, "distance 6 (8 − 2 along i)"
+    g = grid_of(40, 1.0, [(0, 0, 0)])
+    assert g.skip_table().reshape(42, 42, 42)[41, 41, 41] == len(R.SKIP_RADII), "distance 40: the largest radius, 16"
 
 
 def test_marcher_by_hand():
