@@ -44,29 +44,16 @@ def unit(v: np.ndarray) -> np.ndarray:
     return (v * (F32(1) / lengths(v))[:, None]).astype(F32)
 
 
-#: Empty radii (in cells) of the skip table's levels 1, 2, ...: level 1 is an empty cell
-#: (radius 0), the last a cell with no occupied cell within 16 cells along every axis. Every
-#: radius up to 6, then fewer: each is one more dilation of the grid when the table is made.
-SKIP_RADII = (0, 1, 2, 3, 4, 5, 6, 8, 10, 12, 16)
+#: Sides (in cells) of the corner tables' empty cubes, levels 1, 2, ...: level 1 is an empty
+#: cell, the last a cube of 32 cells a side. Each side at most doubles the one before, so a
+#: table is three shifted ANDs of the grid per level.
+CORNER_SIDES = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32)
 
 
-def _dilated(x: np.ndarray, shift: int) -> np.ndarray:
-    """``x`` [R, R, R] bool OR-ed with itself shifted by ±``shift`` along each axis (no wrap).
-    When ``x`` is a grid dilated by ``radius`` ≥ ``shift`` − 1 cells (Chebyshev distance), the
-    result is the grid dilated by ``radius + shift``."""
-    out = x
-    for axis in range(3):
-        src = out
-        out = src.copy()
-        n = src.shape[axis]
-        if shift >= n:
-            continue
-        lo = [slice(None)] * 3
-        hi = [slice(None)] * 3
-        lo[axis], hi[axis] = slice(0, n - shift), slice(shift, n)
-        out[tuple(hi)] |= src[tuple(lo)]
-        out[tuple(lo)] |= src[tuple(hi)]
-    return out
+def octant_signs(octant: int) -> Tuple[int, int, int]:
+    """The direction (+1 or −1) along x, y, z of ``octant`` 0..7 (bit 2: x, bit 1: y, bit 0:
+    z; a set bit is +)."""
+    return tuple(1 if octant >> (2 - axis) & 1 else -1 for axis in range(3))  # type: ignore[return-value]
 
 
 @dataclass
@@ -78,35 +65,51 @@ class Grid:
     resolution: int
     bound: np.float32
 
-    def skip_table(self) -> np.ndarray:
-        """[(R + 2)³] uint8, cached: the grid padded by one empty cell on every side, each cell
-        0 where occupied, else 1 + the index in ``SKIP_RADII`` of the largest radius r such that
-        no occupied cell lies within r cells along every axis (so a point in that cell can move
-        r cells' length in any direction and stay in empty cells). Outside the cube is empty,
-        so a padding cell's level counts from the occupied cells as any other's.
+    def padded(self) -> np.ndarray:
+        """[R + 2]³ bool, cached: the grid with one empty cell on every side (outside the cube
+        nothing is occupied)."""
+        cached = self.__dict__.get("_padded")
+        if cached is None:
+            r = self.resolution
+            cached = np.zeros((r + 2,) * 3, bool)
+            cached[1:-1, 1:-1, 1:-1] = self.occupied.reshape(r, r, r)
+            self.__dict__["_padded"] = cached
+        return cached
 
-        Example: one occupied cell; a cell 3 cells from it along x (and 0 along y, z) has no
-        occupied cell within 2 but one within 3: level 1 + 2 = 3 (radius 2)."""
-        cached = self.__dict__.get("_skip_table")
-        if cached is not None:
-            return cached
-        r = self.resolution
-        # Outside the cube is empty: the padding's levels count from the occupied cells too.
-        occupied = np.zeros((r + 2,) * 3, bool)
-        occupied[1:-1, 1:-1, 1:-1] = self.occupied.reshape(r, r, r)
-        dilated = occupied.copy()
-        table = np.where(occupied, 0, 1).astype(np.uint8)
-        radius = 0
-        for target in SKIP_RADII[1:]:
-            dilated = _dilated(dilated, target - radius)
-            radius = target
-            table += ~dilated
-        self.__dict__["_skip_table"] = table.reshape(-1)
-        return self.__dict__["_skip_table"]
+    def corner_table(self, octant: int) -> np.ndarray:
+        """[(R + 2)³] uint8, cached per octant, over the :meth:`padded` grid: 0 where a cell is
+        occupied, else 1 + the index in ``CORNER_SIDES`` of the largest side s such that the
+        cube of s cells a side with this cell at its corner, reaching along the octant's
+        directions (:func:`octant_signs`), holds no occupied cell (cells past the padding are
+        empty). A ray heading into that octant crosses the cube from the cell's side onwards.
 
-    def levels_along(self, o: np.ndarray, d: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """The :meth:`skip_table` level (0: occupied) of the points o + t·d (float32, as
-        ``point_at``) for ``o``, ``d`` [3, m, 1] and ``t`` [m, w] → [m, w]. The cell is
+        Example: one occupied cell, (2, 3, 4); for octant +x+y+z the cube at (1, 1, 1) of side 3
+        (cells 1..3 per axis) is empty, that of side 4 holds (2, 3, 4): level 1 + 2 = 3; for
+        octant −x−y−z every cube at (1, 1, 1) is empty: level 10."""
+        tables = self.__dict__.setdefault("_corner_tables", {})
+        if octant in tables:
+            return tables[octant]
+        empty = ~self.padded()
+        table = empty.astype(np.uint8)
+        side = 1
+        for target in CORNER_SIDES[1:]:
+            # The cube of side + shift at c is the 8 cubes of side at c + shift·{0, 1}³ (shift ≤ side).
+            shift = target - side
+            for axis, sign in enumerate(octant_signs(octant)):
+                n = empty.shape[axis]
+                if shift >= n:
+                    continue
+                near, far = [slice(None)] * 3, [slice(None)] * 3
+                near[axis], far[axis] = (slice(0, n - shift), slice(shift, n)) if sign > 0 else (slice(shift, n), slice(0, n - shift))
+                empty[tuple(near)] &= empty[tuple(far)]
+            side = target
+            table += empty
+        tables[octant] = table.reshape(-1)
+        return tables[octant]
+
+    def occupied_along(self, o: np.ndarray, d: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Whether the points o + t·d (float32, as ``point_at``) lie in occupied cells, for
+        ``o``, ``d`` [3, m, 1] and ``t`` [m, w] → [m, w] bool. The cell is
         ``OccupancyGrid::cell``'s, bit for bit: u = (v + b) / (2b) · R per axis; outside the
         cube (or NaN) falls in the padding, which is empty."""
         b, r = self.bound, self.resolution
@@ -125,7 +128,7 @@ class Grid:
             index += u.astype(np.int32)
         # +1 per axis for the padding.
         index += side * side + side + 1
-        return self.skip_table().take(index)
+        return self.padded().reshape(-1).take(index)
 
     def t_range(self, o: np.ndarray, d: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
         """A conservative [t0, t1] per ray outside which no point lies in the cube, for ``o``,
@@ -169,15 +172,16 @@ class Marcher:
     samples, so a ray that terminates early never marches the rest.
 
     A ray starts where it may enter the grid's cube (a conservative slab test). At each probe
-    step, the ray's cell and its :meth:`Grid.skip_table` level give a box of cells that is all
-    occupied (the cell) or all empty (the cell grown by the level's radius); the steps from the
-    probe to where the ray leaves that box, shrunk by a margin far above float32 rounding, are
-    then all occupied samples or all skipped, without testing each. A probe within the margin
-    of the box (a ray along a cell face, non-finite values) tests a window of steps with the
-    exact float32 cell instead. So the samples are those of testing every step, bit for bit.
+    step, the ray's cell and its :meth:`Grid.corner_table` level (for the octant the ray heads
+    into) give a box of cells that is all occupied (the cell) or all empty (the cube of cells
+    with this one at its corner, reaching along the ray); the steps from the probe to where the
+    ray leaves that box, shrunk by a margin far above float32 rounding, are then all occupied
+    samples or all skipped, without testing each. A probe within the margin of the box (a ray
+    along a cell face, non-finite values) tests a window of steps with the exact float32 cell
+    instead. So the samples are those of testing every step, bit for bit.
 
-    All rays asked for probe together, one numpy operation per step of the loop over every
-    ray still marching (finished rays are dropped once they are half of those left).
+    The rays probe together, one numpy operation per step of the loop over a working set of
+    rays (:meth:`_march`).
 
     # Shapes
     ``o``, ``d`` [n, 3] float32."""
@@ -217,35 +221,45 @@ class Marcher:
             scale = np.maximum(np.maximum(scale[0], scale[1]), scale[2])
             # As core's march_ray: far above the float32 error of a sample's position and cell.
             margin = (1e-3 * 2.0 * b / r + 64.0 * float(np.finfo(F32).eps) * scale) * scale_u
-            coef = np.empty((18, o.shape[1]))
+            coef = np.empty((19, o.shape[1]))
             alpha, beta, inv, per_r, enter, leave = (coef[3 * i:3 * i + 3] for i in range(6))
             np.multiply(o + b, scale_u, out=alpha)
             np.multiply(d, scale_u, out=beta)
             np.divide(1.0, beta, out=inv)
             np.abs(inv, out=per_r)
-            up = beta > 0
-            lo = margin - alpha
-            hi = (1.0 - margin) - alpha
-            np.multiply(np.where(up, lo, hi), inv, out=enter)
-            np.multiply(np.where(up, hi, lo), inv, out=leave)
-            # A coordinate that never changes: inside a cell's shrunk box on that axis for every
-            # t, or never (within the margin of a face) unless the box is grown by a cell.
+            frac = alpha - np.floor(alpha)
             flat = beta == 0
+            # The box reaches along the ray; along a coordinate that never changes, towards the
+            # side of the cell the ray is nearer.
+            up = (beta > 0) | (flat & (frac >= 0.5))
+            np.multiply(np.where(up, margin - alpha, (1.0 - margin) - alpha), inv, out=enter)
+            np.multiply(np.where(up, -margin - alpha, (1.0 + margin) - alpha), inv, out=leave)
             if flat.any():
-                frac = alpha - np.floor(alpha)
+                # Inside the box on that axis for every t, or never (within the margin of a
+                # face) unless the box reaches a cell past the face.
                 safe = (frac >= margin) & (frac <= 1.0 - margin)
                 inv[flat] = 0.0
+                enter[flat] = -1e300
                 per_r[flat] = np.where(safe, 0.0, 2e300)[flat]
-                enter[flat] = np.where(safe, -1e300, 1e300)[flat]
-                leave[flat] = np.where(safe, 1e300, -1e300)[flat]
+                leave[flat] = np.where(safe, 1e300, -3e300)[flat]
             # Rays the boxes cannot handle (non-finite, a non-positive interval) only test windows.
-            usable = np.isfinite(coef).all(axis=0) & np.isfinite(scale) & (margin < 0.25)
+            usable = np.isfinite(coef[:18]).all(axis=0) & np.isfinite(scale) & (margin < 0.25)
         if not (np.isfinite(interval) and interval > 0):
             usable[:] = False
         if not usable.all():
             coef[:, ~usable] = 0.0
             enter[:, ~usable] = np.inf
             leave[:, ~usable] = -np.inf
+        # The corner tables of the octants the rays head into, one after another; each ray's
+        # offset into them (+1 per axis for the padding) in the last row.
+        octant = up[0] * 4 + up[1] * 2 + up[2]
+        used = np.unique(octant[usable]) if usable.any() else np.zeros(1, np.intp)
+        cells = (r + 2) ** 3
+        self.table = np.concatenate([grid.corner_table(int(q)) for q in used])
+        slot = np.zeros(8, np.float64)
+        slot[used] = np.arange(len(used)) * cells
+        coef[18] = slot.take(octant) + ((r + 2) ** 2 + (r + 2) + 1)
+        coef[18, ~usable] = 0.0
         self.coef = coef
         self.cursor = np.clip(np.nan_to_num(k0, nan=0, posinf=steps, neginf=0), 0, steps).astype(np.intp)
         self.end = np.clip(np.nan_to_num(k1, nan=steps, posinf=steps, neginf=0), 0, steps).astype(np.intp)
@@ -280,11 +294,10 @@ class Marcher:
         """Move ``rays[queue]`` on to their next ``n`` occupied steps (or their end): a loop of
         probes over a working set of up to ``MARCH_BLOCK`` rays, refilled from the queue as its
         rays finish. Writes ``cursor``, ``found`` and the runs into ``base``."""
-        table, radii = self.grid.skip_table(), np.array((0,) + SKIP_RADII, np.float64)
+        table, sides = self.table, np.array((1,) + CORNER_SIDES, np.float64)
         res, side = self.grid.resolution, self.grid.resolution + 2
-        # Cell (i, j, k) → its place in the table: +1 per axis for the padding.
+        # Cell (i, j, k) → its place in a table (the ray's offset added).
         place = np.array([side * side, side, 1], np.float64)
-        pad = float(side * side + side + 1)
         inv_interval, t0 = 1.0 / np.float64(self.interval), self.t_real[0]
         size = min(len(queue), MARCH_BLOCK)
         pos, queue = queue[:size], queue[size:]
@@ -293,36 +306,36 @@ class Marcher:
         f = np.zeros(size, np.intp)
         alive = np.ones(size, bool)
         # Scratch, reused (sliced to the working set) rather than allocated each probe.
-        scratch = np.empty((14, size))
+        scratch = np.empty((11, size))
         index_buf = np.empty(size, np.intp)
         level_buf = np.empty(size, table.dtype)
         live = size
         while True:
             w = len(k)
             self.probes += live
-            u, box, grow = scratch[0:3, :w], scratch[3:6, :w], scratch[6:9, :w]
-            t, r, enter, leave, index = (scratch[i, :w] for i in range(9, 14))
+            u, box = scratch[0:3, :w], scratch[3:6, :w]
+            t, reach, enter, leave, index = (scratch[i, :w] for i in range(6, 11))
             self.t_real.take(k, out=t)
             np.multiply(c[3:6], t, out=u)
             u += c[0:3]
             np.floor(u, out=u)
             np.clip(u, -1, res, out=u)
             np.dot(place, u, out=index)
-            index += pad
+            index += c[18]
             np.copyto(index_buf[:w], index, casting="unsafe")
             level = table.take(index_buf[:w], out=level_buf[:w])
-            radii.take(level, out=r)
-            # The box's faces in t per axis: the cell's (u·inv) ∓ r cells (r·|inv|), shrunk.
+            sides.take(level, out=reach)
+            # The box's faces in t per axis: the cell's (u·inv), the far one `reach` cells on
+            # (reach·|inv|), shrunk by the margin.
             u *= c[6:9]
-            np.multiply(c[9:12], r, out=grow)
-            np.add(u, grow, out=box)
+            np.add(u, c[12:15], out=box)
+            np.maximum(box[0], box[1], out=enter)
+            np.maximum(enter, box[2], out=enter)
+            np.multiply(c[9:12], reach, out=box)
             box += c[15:18]
+            box += u
             np.minimum(box[0], box[1], out=leave)
             np.minimum(leave, box[2], out=leave)
-            u -= grow
-            u += c[12:15]
-            np.maximum(u[0], u[1], out=enter)
-            np.maximum(enter, u[2], out=enter)
             sure = enter <= t
             sure &= t <= leave
             sure &= alive
@@ -380,9 +393,9 @@ class Marcher:
             return
         ray = rays[pos[rows]]
         kk = k[rows][:, None] + np.arange(width)
-        level = self.grid.levels_along(self.o[:, ray], self.d[:, ray], self.t[kk])
+        occupied = self.grid.occupied_along(self.o[:, ray], self.d[:, ray], self.t[kk])
         self.tests += kk.size
-        occupied = (level == 0) & (kk < e[rows][:, None])
+        occupied &= kk < e[rows][:, None]
         rank = np.cumsum(occupied, axis=1)
         need = n - f[rows]
         take = occupied & (rank <= need[:, None])
