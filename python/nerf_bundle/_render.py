@@ -18,11 +18,11 @@ LAST_DELTA = F32(1e10)
 TRANSMITTANCE_EPS = F32(1e-10)
 #: Steps tested one by one, with the exact float32 cell, where a probe falls within the margin
 #: of its box (:class:`Marcher`).
-WINDOW = 8
+WINDOW = 4
 #: Rays probed together (a working set small enough to stay in a core's cache).
 MARCH_BLOCK = 16384
 #: The working set takes rays from the queue once at most this fraction of it is still marching.
-MARCH_REFILL = 0.75
+MARCH_REFILL = 0.5
 
 FieldFn = Callable[[np.ndarray, np.ndarray], Tuple[np.ndarray, np.ndarray]]
 
@@ -109,7 +109,7 @@ class Grid:
 
     def occupied_along(self, o: np.ndarray, d: np.ndarray, t: np.ndarray) -> np.ndarray:
         """Whether the points o + t·d (float32, as ``point_at``) lie in occupied cells, for
-        ``o``, ``d`` [3, m, 1] and ``t`` [m, w] → [m, w] bool. The cell is
+        ``o``, ``d`` [3, m] and ``t`` [w, m] → [w, m] bool. The cell is
         ``OccupancyGrid::cell``'s, bit for bit: u = (v + b) / (2b) · R per axis; outside the
         cube (or NaN) falls in the padding, which is empty."""
         b, r = self.bound, self.resolution
@@ -392,23 +392,23 @@ class Marcher:
         if not rows.size:
             return
         ray = rays[pos[rows]]
-        kk = k[rows][:, None] + np.arange(width)
-        occupied = self.grid.occupied_along(self.o[:, ray], self.d[:, ray], self.t[kk])
+        # Lane-major: step j of every ray in row j.
+        kk = k[rows] + np.arange(width)[:, None]
+        occupied = self.grid.occupied_along(self.o[:, ray, 0], self.d[:, ray, 0], self.t[kk])
         self.tests += kk.size
-        occupied &= kk < e[rows][:, None]
-        rank = np.cumsum(occupied, axis=1)
+        occupied &= kk < e[rows]
+        rank = np.cumsum(occupied, axis=0)
         need = n - f[rows]
-        take = occupied & (rank <= need[:, None])
-        row, col = np.nonzero(take)
-        lane = f[rows[row]] + rank[row, col] - 1
-        base[lane, pos[rows[row]]] = kk[row, col] - lane
-        got = np.minimum(rank[:, -1], need)
+        take = occupied & (rank <= need)
+        step, col = np.nonzero(take)
+        lane = f[rows[col]] + rank[step, col] - 1
+        base[lane, pos[rows[col]]] = kk[step, col] - lane
+        got = np.minimum(rank[-1], need)
         f[rows] += got
-        full = got == need
         # Past the window; a ray that got all it needs resumes after its last sample.
-        moved = kk[:, -1] + 1
-        last_taken = np.argmax(rank >= need[:, None], axis=1)
-        moved[full] = kk[full, last_taken[full]] + 1
+        moved = kk[-1] + 1
+        full = np.flatnonzero(got == need)
+        moved[full] = kk[np.argmax(rank[:, full] >= need[full], axis=0), full] + 1
         k[rows] = moved
 
 
