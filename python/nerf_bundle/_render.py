@@ -48,12 +48,36 @@ def unit(v: np.ndarray) -> np.ndarray:
 #: cell, the last a cube of 32 cells a side. Each side at most doubles the one before, so a
 #: table is three shifted ANDs of the grid per level.
 CORNER_SIDES = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32)
+#: A corner table's levels from here on are occupied cells (:meth:`Grid.corner_table`).
+OCCUPIED = 128
 
 
 def octant_signs(octant: int) -> Tuple[int, int, int]:
     """The direction (+1 or −1) along x, y, z of ``octant`` 0..7 (bit 2: x, bit 1: y, bit 0:
     z; a set bit is +)."""
     return tuple(1 if octant >> (2 - axis) & 1 else -1 for axis in range(3))  # type: ignore[return-value]
+
+
+def _corner_sides(cells: np.ndarray, octant: int) -> np.ndarray:
+    """For ``cells`` [n, n, n] bool: per cell, how many sides of ``CORNER_SIDES`` have their
+    cube with the cell at its corner, reaching along ``octant``, all true (past the array counts
+    as true; 0 where the cell is false), uint8."""
+    cube = cells.copy()
+    count = cube.astype(np.uint8)
+    side = 1
+    for target in CORNER_SIDES[1:]:
+        # The cube of side + shift at c is the 8 cubes of side at c + shift·{0, 1}³ (shift ≤ side).
+        shift = target - side
+        for axis, sign in enumerate(octant_signs(octant)):
+            n = cube.shape[axis]
+            if shift >= n:
+                continue
+            near, far = [slice(None)] * 3, [slice(None)] * 3
+            near[axis], far[axis] = (slice(0, n - shift), slice(shift, n)) if sign > 0 else (slice(shift, n), slice(0, n - shift))
+            cube[tuple(near)] &= cube[tuple(far)]
+        side = target
+        count += cube
+    return count
 
 
 @dataclass
@@ -77,34 +101,23 @@ class Grid:
         return cached
 
     def corner_table(self, octant: int) -> np.ndarray:
-        """[(R + 2)³] uint8, cached per octant, over the :meth:`padded` grid: 0 where a cell is
-        occupied, else 1 + the index in ``CORNER_SIDES`` of the largest side s such that the
-        cube of s cells a side with this cell at its corner, reaching along the octant's
-        directions (:func:`octant_signs`), holds no occupied cell (cells past the padding are
-        empty). A ray heading into that octant crosses the cube from the cell's side onwards.
+        """[(R + 2)³] uint8, cached per octant, over the :meth:`padded` grid: for each cell, the
+        largest side s in ``CORNER_SIDES`` such that the cube of s cells a side with this cell
+        at its corner, reaching along the octant's directions (:func:`octant_signs`), is all
+        empty (cells past the padding are) or all occupied, as its cell is: an empty cell's
+        level is 1 + the index of s, an occupied cell's ``OCCUPIED`` + the index. A ray heading
+        into that octant crosses the cube from the cell onwards.
 
         Example: one occupied cell, (2, 3, 4); for octant +x+y+z the cube at (1, 1, 1) of side 3
         (cells 1..3 per axis) is empty, that of side 4 holds (2, 3, 4): level 1 + 2 = 3; for
-        octant −x−y−z every cube at (1, 1, 1) is empty: level 10."""
+        octant −x−y−z every cube at (1, 1, 1) is empty: level 10; (2, 3, 4) itself: 128."""
         tables = self.__dict__.setdefault("_corner_tables", {})
-        if octant in tables:
-            return tables[octant]
-        empty = ~self.padded()
-        table = empty.astype(np.uint8)
-        side = 1
-        for target in CORNER_SIDES[1:]:
-            # The cube of side + shift at c is the 8 cubes of side at c + shift·{0, 1}³ (shift ≤ side).
-            shift = target - side
-            for axis, sign in enumerate(octant_signs(octant)):
-                n = empty.shape[axis]
-                if shift >= n:
-                    continue
-                near, far = [slice(None)] * 3, [slice(None)] * 3
-                near[axis], far[axis] = (slice(0, n - shift), slice(shift, n)) if sign > 0 else (slice(shift, n), slice(0, n - shift))
-                empty[tuple(near)] &= empty[tuple(far)]
-            side = target
-            table += empty
-        tables[octant] = table.reshape(-1)
+        if octant not in tables:
+            occupied = self.padded()
+            empty = _corner_sides(~occupied, octant)
+            full = _corner_sides(occupied, octant)
+            full += OCCUPIED - 1
+            tables[octant] = np.where(occupied, full, empty).reshape(-1)
         return tables[octant]
 
     def occupied_along(self, o: np.ndarray, d: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -173,8 +186,8 @@ class Marcher:
 
     A ray starts where it may enter the grid's cube (a conservative slab test). At each probe
     step, the ray's cell and its :meth:`Grid.corner_table` level (for the octant the ray heads
-    into) give a box of cells that is all occupied (the cell) or all empty (the cube of cells
-    with this one at its corner, reaching along the ray); the steps from the probe to where the
+    into) give a box of cells that is all occupied or all empty (the cube of cells with this
+    one at its corner, reaching along the ray); the steps from the probe to where the
     ray leaves that box, shrunk by a margin far above float32 rounding, are then all occupied
     samples or all skipped, without testing each. A probe within the margin of the box (a ray
     along a cell face, non-finite values) tests a window of steps with the exact float32 cell
@@ -294,7 +307,8 @@ class Marcher:
         """Move ``rays[queue]`` on to their next ``n`` occupied steps (or their end): a loop of
         probes over a working set of up to ``MARCH_BLOCK`` rays, refilled from the queue as its
         rays finish. Writes ``cursor``, ``found`` and the runs into ``base``."""
-        table, sides = self.table, np.array((1,) + CORNER_SIDES, np.float64)
+        table, sides = self.table, np.ones(256)
+        sides[1:1 + len(CORNER_SIDES)] = sides[OCCUPIED:OCCUPIED + len(CORNER_SIDES)] = CORNER_SIDES
         res, side = self.grid.resolution, self.grid.resolution + 2
         # Cell (i, j, k) → its place in a table (the ray's offset added).
         place = np.array([side * side, side, 1], np.float64)
@@ -350,7 +364,7 @@ class Marcher:
             move -= k
             # An occupied box gives its steps as samples, as many as the ray still needs; an
             # empty box is skipped.
-            occupied = level == 0
+            occupied = level >= OCCUPIED
             np.minimum(move, n - f, out=move, where=occupied)
             move *= sure
             fill = np.flatnonzero(sure & occupied)

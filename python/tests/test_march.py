@@ -40,9 +40,9 @@ def every_interval(grid: R.Grid, o: np.ndarray, d: np.ndarray, near, far, steps:
 
 
 def test_corner_table_levels_by_hand():
-    # One occupied cell at (2, 3, 4) of 8³: a cell's level is 1 + the index in CORNER_SIDES
-    # (1, 2, 3, 4, 6, ...) of the largest side s whose cube, with the cell at its corner and
-    # reaching along the octant's directions, holds no occupied cell.
+    # One occupied cell at (2, 3, 4) of 8³: an empty cell's level is 1 + the index in
+    # CORNER_SIDES (1, 2, 3, 4, 6, ...) of the largest side s whose cube, with the cell at its
+    # corner and reaching along the octant's directions, holds no occupied cell.
     assert R.octant_signs(7) == (1, 1, 1) and R.octant_signs(0) == (-1, -1, -1) and R.octant_signs(4) == (1, -1, -1)
     g = grid_of(8, 1.0, [(2, 3, 4)])
     up, down = (g.corner_table(q).reshape(10, 10, 10) for q in (7, 0))
@@ -51,7 +51,7 @@ def test_corner_table_levels_by_hand():
         return int(table[i + 1, j + 1, k + 1])
 
     every = len(R.CORNER_SIDES)
-    assert level(up, 2, 3, 4) == 0 and level(down, 2, 3, 4) == 0, "occupied"
+    assert level(up, 2, 3, 4) == R.OCCUPIED and level(down, 2, 3, 4) == R.OCCUPIED, "occupied, side 1"
     assert level(up, 1, 1, 1) == 3, "+: cells 1..3 empty, 1..4 hold (2, 3, 4): side 3"
     assert level(up, 0, 3, 4) == 2, "+: i 0..1 empty, 0..2 holds it: side 2"
     assert level(down, 1, 1, 1) == every, "−: nothing below (1, 1, 1)"
@@ -61,6 +61,13 @@ def test_corner_table_levels_by_hand():
     assert level(up, -1, 3, 4) == 3, "+: i −1..1 empty, −1..2 holds it: side 3"
     assert level(up, 8, 8, 8) == every and level(down, 8, 8, 8) == 5, "−: side 6 (i 3..8) misses it, 8 holds it"
     assert level(g.corner_table(4).reshape(10, 10, 10), 0, 5, 6) == 2, "+x−y−z: side 3 (i 0..2, j 3..5, k 4..6) holds it"
+    # An occupied cell's level is OCCUPIED + the index of the largest side whose cube is all
+    # occupied: a 3 × 3 × 3 block at 1..3 (the padding around the grid is empty).
+    g = grid_of(4, 1.0, [(i, j, k) for i in range(1, 4) for j in range(1, 4) for k in range(1, 4)])
+    up, down = (g.corner_table(q).reshape(6, 6, 6) for q in (7, 0))
+    assert level(up, 1, 1, 1) == R.OCCUPIED + 2 and level(down, 3, 3, 3) == R.OCCUPIED + 2, "side 3"
+    assert level(up, 2, 2, 2) == R.OCCUPIED + 1 and level(down, 1, 2, 3) == R.OCCUPIED, "side 2; side 1"
+    assert level(up, 3, 3, 3) == R.OCCUPIED, "+: (4, 4, 4) is the padding"
 
 
 def test_marcher_by_hand():
