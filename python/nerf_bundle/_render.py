@@ -215,9 +215,10 @@ class Marcher:
     def _boxes(self, o: np.ndarray, d: np.ndarray, near: np.float32) -> None:
         """From ``o``, ``d`` [3, n] float64: each ray's first and end step (``cursor``, ``end``:
         the conservative cube range, :meth:`Grid.t_range`); in cell units u = (x + b)/(2b)·R =
-        α + β·t per axis, ``coef`` [18, n] = α, β, then per axis the terms of the t at which the
-        ray enters and leaves a box of cells shrunk by the margin m; and the real t of each
-        step."""
+        α + β·t per axis, ``coef`` [n, 19] = α, β, then per axis 1/β, |1/β| and the terms of the
+        t at which the ray enters and leaves a box of cells shrunk by the margin m, and the
+        ray's offset into ``table`` (the corner tables of the octants it heads into); and the
+        real t of each step."""
         grid, steps = self.grid, self.steps
         r, b = grid.resolution, np.float64(grid.bound)
         scale_u = r / (2.0 * b)
@@ -273,7 +274,8 @@ class Marcher:
         slot[used] = np.arange(len(used)) * cells
         coef[18] = slot.take(octant) + ((r + 2) ** 2 + (r + 2) + 1)
         coef[18, ~usable] = 0.0
-        self.coef = coef
+        # Ray by ray: a ray's coefficients are one row to fetch.
+        self.coef = np.ascontiguousarray(coef.T)
         self.cursor = np.clip(np.nan_to_num(k0, nan=0, posinf=steps, neginf=0), 0, steps).astype(np.intp)
         self.end = np.clip(np.nan_to_num(k1, nan=steps, posinf=steps, neginf=0), 0, steps).astype(np.intp)
 
@@ -315,7 +317,7 @@ class Marcher:
         inv_interval, t0 = 1.0 / np.float64(self.interval), self.t_real[0]
         size = min(len(queue), MARCH_BLOCK)
         pos, queue = queue[:size], queue[size:]
-        c = self.coef.take(rays[pos], axis=1)
+        c = np.ascontiguousarray(self.coef.take(rays[pos], axis=0).T)
         k, e = cursor[pos], end[pos]
         f = np.zeros(size, np.intp)
         alive = np.ones(size, bool)
@@ -387,7 +389,9 @@ class Marcher:
                     # Rays from the queue take the finished rays' places.
                     slots = np.flatnonzero(done)[:len(queue)]
                     more, queue = queue[:len(slots)], queue[len(slots):]
-                    c[:, slots] = self.coef.take(rays[more], axis=1)
+                    fresh = self.coef.take(rays[more], axis=0)
+                    for row in range(len(c)):
+                        c[row, slots] = fresh[:, row]
                     k[slots], e[slots], f[slots], pos[slots] = cursor[more], end[more], 0, more
                     alive[slots] = True
                     live += len(slots)
