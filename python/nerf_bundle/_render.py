@@ -19,6 +19,9 @@ TRANSMITTANCE_EPS = F32(1e-10)
 #: Steps tested one by one, with the exact float32 cell, where a probe falls within the margin
 #: of its box (:class:`Marcher`).
 WINDOW = 4
+#: Steps past the last that :class:`Marcher` gives a time (a window's, a lane's past a ray's
+#: last sample).
+PAST = WINDOW + MARCH_SEGMENT
 #: Rays probed together (a working set small enough to stay in a core's cache).
 MARCH_BLOCK = 16384
 #: The working set takes rays from the queue once at most this fraction of it is still marching.
@@ -203,8 +206,9 @@ class Marcher:
         self.grid = grid
         self.steps = steps
         self.interval = F32((far - near) / F32(steps))
-        # Step k samples t = near + (k + 0.5)·interval; past `steps` only ever masked out.
-        self.t = (near + (np.arange(steps + WINDOW, dtype=F32) + F32(0.5)) * self.interval).astype(F32)
+        # Step k samples t = near + (k + 0.5)·interval; past `steps` (windows, lanes past a
+        # ray's last sample) only ever masked out.
+        self.t = (near + (np.arange(steps + PAST, dtype=F32) + F32(0.5)) * self.interval).astype(F32)
         self.o = np.ascontiguousarray(o.T, F32)[:, :, None]  # [3, n, 1]
         self.d = np.ascontiguousarray(d.T, F32)[:, :, None]
         self.delta = (self.interval * lengths(d)).astype(F32)
@@ -223,7 +227,7 @@ class Marcher:
         r, b = grid.resolution, np.float64(grid.bound)
         scale_u = r / (2.0 * b)
         interval, near64 = np.float64(self.interval), np.float64(near)
-        self.t_real = near64 + (np.arange(steps + WINDOW, dtype=np.float64) + 0.5) * interval
+        self.t_real = near64 + (np.arange(steps + PAST, dtype=np.float64) + 0.5) * interval
         t_max = float(np.abs(self.t_real[[0, steps - 1]]).max()) if steps else 0.0
         with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
             t0, t1 = grid.t_range(o, d)
@@ -511,7 +515,12 @@ def composite(alpha: np.ndarray, colour: np.ndarray, t: np.ndarray, trans: np.nd
 
 def alpha_of(sigma: np.ndarray, delta: np.ndarray) -> np.ndarray:
     """``alpha_from_density``: α = 1 − exp(−relu(σ)·δ) in float32 (``expf``)."""
-    return F32(1) - expf(-np.maximum(sigma, F32(0)) * delta)
+    x = np.maximum(sigma, F32(0))
+    x *= delta
+    e = x.astype(np.float64)
+    np.negative(e, out=e)
+    np.exp(e, out=e)
+    return F32(1) - e.astype(F32)
 
 
 def _lane_major(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -561,7 +570,7 @@ def march_grid(field: FieldFn, grid: Grid, o: np.ndarray, d: np.ndarray, viewdir
             break
         m = len(active)
         valid = lanes < cnt  # [S, m]
-        t_lanes = marcher.t.take(k, mode="clip")  # lanes past a ray's count may run past the steps
+        t_lanes = marcher.t.take(k)
         np.copyto(t_lanes, F32(0), where=~valid)
         # The samples ray by ray (the field's order), each with its place in the [S, m] lanes.
         ray = np.repeat(np.arange(m), cnt)
@@ -571,10 +580,11 @@ def march_grid(field: FieldFn, grid: Grid, o: np.ndarray, d: np.ndarray, viewdir
         at += ray  # lane·m + ray
         t = t_lanes.take(at)
         ray = active.take(ray)
-        points = np.empty((len(t), 3), F32)
+        points = np.empty((3, len(t)), F32)
         for axis in range(3):
-            np.multiply(t, marcher.d[axis, :, 0].take(ray), out=points[:, axis])
-            points[:, axis] += marcher.o[axis, :, 0].take(ray)
+            np.multiply(t, marcher.d[axis, :, 0].take(ray), out=points[axis])
+            points[axis] += marcher.o[axis, :, 0].take(ray)
+        points = np.ascontiguousarray(points.T)
         dirs = viewdirs.take(ray, axis=0)
         # The samples of each chunk's rays, a slice each (rays in order).
         ends = np.zeros(m + 1, np.int64)
