@@ -222,24 +222,47 @@ class Marcher:
         α + β·t per axis, ``coef`` [n, 19] = α, β, then per axis 1/β, |1/β| and the terms of the
         t at which the ray enters and leaves a box of cells shrunk by the margin m, and the
         ray's offset into ``table`` (the corner tables of the octants it heads into); and the
-        real t of each step."""
+        real t of each step. Rays a block at a time, so the temporaries stay in cache."""
+        grid, steps, n = self.grid, self.steps, o.shape[1]
+        r = grid.resolution
+        interval, near64 = np.float64(self.interval), np.float64(near)
+        self.t_real = near64 + (np.arange(steps + PAST, dtype=np.float64) + 0.5) * interval
+        self.coef = np.empty((n, 19))
+        self.cursor = np.empty(n, np.intp)
+        self.end = np.empty(n, np.intp)
+        octant = np.empty(n, np.intp)
+        usable = np.empty(n, bool)
+        for s in range(0, n, MARCH_BLOCK):
+            e = min(s + MARCH_BLOCK, n)
+            octant[s:e], usable[s:e] = self._boxes_of(o[:, s:e], d[:, s:e], near64, s)
+        # The corner tables of the octants the rays head into, one after another; each ray's
+        # offset into them (+1 per axis for the padding) in the last column.
+        used = np.unique(octant[usable]) if usable.any() else np.zeros(1, np.intp)
+        self.table = np.concatenate([grid.corner_table(int(q)) for q in used])
+        slot = np.zeros(8, np.float64)
+        slot[used] = np.arange(len(used)) * (r + 2) ** 3
+        self.coef[:, 18] = slot.take(octant) + ((r + 2) ** 2 + (r + 2) + 1)
+        self.coef[~usable, 18] = 0.0
+
+    def _boxes_of(self, o: np.ndarray, d: np.ndarray, near64: np.float64, first: int) -> Tuple[np.ndarray, np.ndarray]:
+        """:meth:`_boxes` for the rays ``first``, ``first + 1``, ... (``o``, ``d`` [3, m]); returns
+        their octants and whether the boxes can handle them."""
         grid, steps = self.grid, self.steps
         r, b = grid.resolution, np.float64(grid.bound)
         scale_u = r / (2.0 * b)
-        interval, near64 = np.float64(self.interval), np.float64(near)
-        self.t_real = near64 + (np.arange(steps + PAST, dtype=np.float64) + 0.5) * interval
+        interval = np.float64(self.interval)
         t_max = float(np.abs(self.t_real[[0, steps - 1]]).max()) if steps else 0.0
+        rows = slice(first, first + o.shape[1])
         with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
             t0, t1 = grid.t_range(o, d)
             k0 = np.floor((t0 - near64) / interval - 0.5) - 1
             k1 = np.ceil((t1 - near64) / interval - 0.5) + 2
-            ad = np.abs(d)
-            scale = np.abs(o) + t_max * ad
+            scale = np.abs(o) + t_max * np.abs(d)
             np.maximum(scale, float(b), out=scale)
             scale = np.maximum(np.maximum(scale[0], scale[1]), scale[2])
             # As core's march_ray: far above the float32 error of a sample's position and cell.
             margin = (1e-3 * 2.0 * b / r + 64.0 * float(np.finfo(F32).eps) * scale) * scale_u
-            coef = np.empty((19, o.shape[1]))
+            coef = np.empty((18, o.shape[1]))
             alpha, beta, inv, per_r, enter, leave = (coef[3 * i:3 * i + 3] for i in range(6))
             np.multiply(o + b, scale_u, out=alpha)
             np.multiply(d, scale_u, out=beta)
@@ -261,27 +284,18 @@ class Marcher:
                 per_r[flat] = np.where(safe, 0.0, 2e300)[flat]
                 leave[flat] = np.where(safe, 1e300, -3e300)[flat]
             # Rays the boxes cannot handle (non-finite, a non-positive interval) only test windows.
-            usable = np.isfinite(coef[:18]).all(axis=0) & np.isfinite(scale) & (margin < 0.25)
+            usable = np.isfinite(coef).all(axis=0) & np.isfinite(scale) & (margin < 0.25)
         if not (np.isfinite(interval) and interval > 0):
             usable[:] = False
         if not usable.all():
             coef[:, ~usable] = 0.0
             enter[:, ~usable] = np.inf
             leave[:, ~usable] = -np.inf
-        # The corner tables of the octants the rays head into, one after another; each ray's
-        # offset into them (+1 per axis for the padding) in the last row.
-        octant = up[0] * 4 + up[1] * 2 + up[2]
-        used = np.unique(octant[usable]) if usable.any() else np.zeros(1, np.intp)
-        cells = (r + 2) ** 3
-        self.table = np.concatenate([grid.corner_table(int(q)) for q in used])
-        slot = np.zeros(8, np.float64)
-        slot[used] = np.arange(len(used)) * cells
-        coef[18] = slot.take(octant) + ((r + 2) ** 2 + (r + 2) + 1)
-        coef[18, ~usable] = 0.0
         # Ray by ray: a ray's coefficients are one row to fetch.
-        self.coef = np.ascontiguousarray(coef.T)
-        self.cursor = np.clip(np.nan_to_num(k0, nan=0, posinf=steps, neginf=0), 0, steps).astype(np.intp)
-        self.end = np.clip(np.nan_to_num(k1, nan=steps, posinf=steps, neginf=0), 0, steps).astype(np.intp)
+        self.coef[rows, :18] = coef.T
+        self.cursor[rows] = np.clip(np.nan_to_num(k0, nan=0, posinf=steps, neginf=0), 0, steps)
+        self.end[rows] = np.clip(np.nan_to_num(k1, nan=steps, posinf=steps, neginf=0), 0, steps)
+        return up[0] * 4 + up[1] * 2 + up[2], usable
 
     def next(self, rays: np.ndarray, n: int = MARCH_SEGMENT) -> Tuple[np.ndarray, np.ndarray]:
         """The next (at most) ``n`` occupied steps of each of ``rays`` (indices, any order):
