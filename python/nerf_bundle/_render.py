@@ -22,6 +22,8 @@ WINDOW = 4
 #: Steps past the last that :class:`Marcher` gives a time (a window's, a lane's past a ray's
 #: last sample).
 PAST = WINDOW + MARCH_SEGMENT
+#: Samples a round evaluates and composites at a time (whole chunks), so their arrays stay in cache.
+ROUND_BLOCK = 32768
 #: Rays probed together (a working set small enough to stay in a core's cache).
 MARCH_BLOCK = 16384
 #: The working set takes rays from the queue once at most this fraction of it is still marching.
@@ -570,61 +572,79 @@ def march_grid(field: FieldFn, grid: Grid, o: np.ndarray, d: np.ndarray, viewdir
     min_t = F32(-np.inf) if min_transmittance is None else F32(min_transmittance)
     now = time.perf_counter()
     marcher = Marcher(grid, o, d, near, far, steps)
+    state = (trans, rgb, depth, acc)
     active = np.arange(n)
-    s = MARCH_SEGMENT
-    lanes = np.arange(s)[:, None]
-    edges = np.arange(0, n + batch, batch)
     while active.size:
-        k, cnt = marcher.advance(active, s)
+        k, cnt = marcher.advance(active)
         live = cnt > 0
         if not live.all():
             active, k, cnt = active[live], k[:, live], cnt[live]
         now = stages.lap("march", now)
         if not active.size:
             break
-        m = len(active)
-        valid = lanes < cnt  # [S, m]
-        t_lanes = marcher.t.take(k)
-        np.copyto(t_lanes, F32(0), where=~valid)
-        # The samples ray by ray (the field's order), each with its place in the [S, m] lanes.
-        ray = np.repeat(np.arange(m), cnt)
-        at = np.flatnonzero(valid.T)  # ray·S + lane
-        at -= ray * s
-        at *= m
-        at += ray  # lane·m + ray
-        t = t_lanes.take(at)
-        ray = active.take(ray)
-        points = np.empty((3, len(t)), F32)
-        for axis in range(3):
-            np.multiply(t, marcher.d[axis, :, 0].take(ray), out=points[axis])
-            points[axis] += marcher.o[axis, :, 0].take(ray)
-        points = np.ascontiguousarray(points.T)
-        dirs = viewdirs.take(ray, axis=0)
-        # The samples of each chunk's rays, a slice each (rays in order).
-        ends = np.zeros(m + 1, np.int64)
+        # Blocks of whole chunks of about ROUND_BLOCK samples, so a block's arrays stay in cache.
+        ends = np.zeros(len(active) + 1, np.int64)
         np.cumsum(cnt, out=ends[1:])
-        cuts = ends[np.searchsorted(active, edges)]
-        cuts = cuts[np.r_[True, cuts[1:] > cuts[:-1]]]
-        now = stages.lap("gather", now)
-        colour = np.empty((len(t), 3), F32)
-        sigma = np.empty(len(t), F32)
-        for a, b in zip(cuts[:-1], cuts[1:]):
-            colour[a:b], sigma[a:b] = field(points[a:b], dirs[a:b])
-        now = stages.lap("field", now)
-        alpha = np.zeros((s, m), F32)
-        alpha.reshape(-1)[at] = alpha_of(sigma, marcher.delta.take(ray))
-        lane_colour = np.zeros((3, s, m), F32)
-        for c in range(3):
-            lane_colour[c].reshape(-1)[at] = colour[:, c]
-        tr, rg, de, ac = trans[active], rgb[:, active], depth[active], acc[active]
-        composite(alpha, lane_colour.transpose(1, 0, 2), t_lanes, tr, rg, de, ac)
-        trans[active], rgb[:, active], depth[active], acc[active] = tr, rg, de, ac
-        active = active[(tr >= min_t) & (cnt == s)]
-        now = stages.lap("composite", now)
+        chunk = active // batch
+        first = np.flatnonzero(np.r_[True, chunk[1:] != chunk[:-1]])
+        block = ends[first] // ROUND_BLOCK
+        bounds = np.r_[first[np.r_[True, block[1:] != block[:-1]]], len(active)]
+        keep = np.empty(len(active), bool)
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            keep[a:b], now = _round_block(field, marcher, viewdirs, k[:, a:b], cnt[a:b], active[a:b], chunk[a:b], state, min_t,
+                                          stages, now)
+        active = active[keep]
     out = np.ascontiguousarray(rgb.T)
     if white_background:
         out += (F32(1) - acc)[:, None]
     return Marched(out, depth, acc, None)
+
+
+def _round_block(field: FieldFn, marcher: Marcher, viewdirs: np.ndarray, k: np.ndarray, cnt: np.ndarray, active: np.ndarray,
+                 chunk: np.ndarray, state: Tuple[np.ndarray, ...], min_t: np.float32, stages: Stages,
+                 now: float) -> Tuple[np.ndarray, float]:
+    """One round of :func:`march_grid` for a block of whole chunks: the field's inputs for the
+    ``active`` rays' next samples (steps ``k`` [S, m], ``cnt`` [m]), one field call per chunk,
+    and the compositing into ``state`` (trans, rgb, depth, acc); returns which rays go on
+    (T ≥ ``min_t`` and a full segment) and the time of the last lap."""
+    s, m = len(k), len(active)
+    valid = np.arange(s)[:, None] < cnt  # [S, m]
+    t_lanes = marcher.t.take(k)
+    np.copyto(t_lanes, F32(0), where=~valid)
+    # The samples ray by ray (the field's order), each with its place in the [S, m] lanes.
+    ray = np.repeat(np.arange(m), cnt)
+    at = np.flatnonzero(valid.T)  # ray·S + lane
+    at -= ray * s
+    at *= m
+    at += ray  # lane·m + ray
+    t = t_lanes.take(at)
+    ray = active.take(ray)
+    points = np.empty((3, len(t)), F32)
+    for axis in range(3):
+        np.multiply(t, marcher.d[axis, :, 0].take(ray), out=points[axis])
+        points[axis] += marcher.o[axis, :, 0].take(ray)
+    points = np.ascontiguousarray(points.T)
+    dirs = viewdirs.take(ray, axis=0)
+    # The samples of each chunk's rays, a slice each (rays in order).
+    ends = np.zeros(m + 1, np.int64)
+    np.cumsum(cnt, out=ends[1:])
+    cuts = ends[np.r_[np.flatnonzero(np.r_[True, chunk[1:] != chunk[:-1]]), m]]
+    now = stages.lap("gather", now)
+    colour = np.empty((len(t), 3), F32)
+    sigma = np.empty(len(t), F32)
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        colour[a:b], sigma[a:b] = field(points[a:b], dirs[a:b])
+    now = stages.lap("field", now)
+    alpha = np.zeros((s, m), F32)
+    alpha.reshape(-1)[at] = alpha_of(sigma, marcher.delta.take(ray))
+    lane_colour = np.zeros((3, s, m), F32)
+    for c in range(3):
+        lane_colour[c].reshape(-1)[at] = colour[:, c]
+    trans, rgb, depth, acc = state
+    tr, rg, de, ac = trans[active], rgb[:, active], depth[active], acc[active]
+    composite(alpha, lane_colour.transpose(1, 0, 2), t_lanes, tr, rg, de, ac)
+    trans[active], rgb[:, active], depth[active], acc[active] = tr, rg, de, ac
+    return (tr >= min_t) & (cnt == s), stages.lap("composite", now)
 
 
 def dense_packed(t: np.ndarray, d: np.ndarray) -> Packed:
