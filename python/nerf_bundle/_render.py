@@ -303,32 +303,43 @@ class Marcher:
         """The next (at most) ``n`` occupied steps of each of ``rays`` (indices, any order):
         steps [len(rays), n] int (row i's first ``counts[i]`` are valid, in order) and counts
         [len(rays)]; fewer than ``n`` means the ray has no more. Moves the rays on."""
-        steps, found = self.advance(rays, n)
-        return steps.T, found
+        steps, live, found = self.advance(rays, n)
+        out = np.zeros((len(rays), n), np.intp)
+        out[live] = steps.T
+        return out, found
 
-    def advance(self, rays: np.ndarray, n: int = MARCH_SEGMENT) -> Tuple[np.ndarray, np.ndarray]:
-        """:meth:`next`, lane-major: steps [n, len(rays)] (sample j of every ray is row j; past
-        a ray's count, the steps after its last) and counts [len(rays)]."""
+    def advance(self, rays: np.ndarray, n: int = MARCH_SEGMENT) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`next`, lane-major and for the rays that found samples only: steps [n, L]
+        (sample j of every such ray is row j; past a ray's count, the steps after its last),
+        their places ``live`` [L] in ``rays``, and the counts [len(rays)] of all."""
         m = len(rays)
-        # A ray's samples are runs of consecutive steps. Each run writes (first step − its
-        # lane) at its first lane; that grows from run to run, so a running maximum down the
-        # lanes plus the lane gives every sample's step.
-        base = np.zeros((n, m), np.intp)
         found = np.zeros(m, np.intp)
         cursor, end = self.cursor[rays], self.end[rays]
         pos = np.flatnonzero(cursor < end)
+        runs: List[Tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         if pos.size:
-            self._march(rays, pos, cursor, end, found, base, n)
+            self._march(rays, pos, cursor, end, found, runs, n)
             self.cursor[rays] = cursor
-        np.maximum.accumulate(base, axis=0, out=base)
-        base += np.arange(n)[:, None]
-        return base, found
+        live = np.flatnonzero(found)
+        # A ray's samples are runs of consecutive steps. Each run writes (first step − its
+        # lane) at its first lane; that grows from run to run, so a running maximum down the
+        # lanes plus the lane gives every sample's step.
+        steps = np.zeros((n, len(live)), np.intp)
+        if runs:
+            column = np.zeros(m, np.intp)
+            column[live] = np.arange(len(live))
+            row, lane, value = (np.concatenate(x) for x in zip(*runs))
+            steps[lane, column.take(row)] = value
+        np.maximum.accumulate(steps, axis=0, out=steps)
+        steps += np.arange(n)[:, None]
+        return steps, live, found
 
     def _march(self, rays: np.ndarray, queue: np.ndarray, cursor: np.ndarray, end: np.ndarray, found: np.ndarray,
-               base: np.ndarray, n: int) -> None:
+               runs: list, n: int) -> None:
         """Move ``rays[queue]`` on to their next ``n`` occupied steps (or their end): a loop of
         probes over a working set of up to ``MARCH_BLOCK`` rays, refilled from the queue as its
-        rays finish. Writes ``cursor``, ``found`` and the runs into ``base``."""
+        rays finish. Writes ``cursor`` and ``found``, and appends the runs of samples found to
+        ``runs`` as (ray's place, first lane, first step − first lane)."""
         table, sides = self.table, np.ones(256)
         sides[1:1 + len(CORNER_SIDES)] = sides[OCCUPIED:OCCUPIED + len(CORNER_SIDES)] = CORNER_SIDES
         res, side = self.grid.resolution, self.grid.resolution + 2
@@ -391,13 +402,13 @@ class Marcher:
             move *= sure
             fill = np.flatnonzero(sure & occupied)
             if fill.size:
-                base[f[fill], pos[fill]] = k[fill] - f[fill]
+                runs.append((pos[fill], f[fill], k[fill] - f[fill]))
                 f[fill] += move[fill]
             k += move
             # Within the margin of the box's faces: test a window of steps exactly.
             unsure = np.flatnonzero(alive & ~sure)
             if unsure.size:
-                self._window(rays, unsure, pos, k, e, f, base, n, WINDOW)
+                self._window(rays, unsure, pos, k, e, f, runs, n, WINDOW)
             alive &= f < n
             alive &= k < e
             live = int(np.count_nonzero(alive))
@@ -423,7 +434,7 @@ class Marcher:
                     alive = np.ones(live, bool)
 
     def _window(self, rays: np.ndarray, rows: np.ndarray, pos: np.ndarray, k: np.ndarray, e: np.ndarray, f: np.ndarray,
-                base: np.ndarray, n: int, width: int) -> None:
+                runs: list, n: int, width: int) -> None:
         """Test the next ``width`` (≤ ``WINDOW``) steps of the marching rays ``rows`` with the
         exact float32 cell; record the occupied ones (as many as needed) as runs of one step and
         move the rays on."""
@@ -440,7 +451,7 @@ class Marcher:
         take = occupied & (rank <= need)
         step, col = np.nonzero(take)
         lane = f[rows[col]] + rank[step, col] - 1
-        base[lane, pos[rows[col]]] = kk[step, col] - lane
+        runs.append((pos[rows[col]], lane, kk[step, col] - lane))
         got = np.minimum(rank[-1], need)
         f[rows] += got
         # Past the window; a ray that got all it needs resumes after its last sample.
@@ -575,10 +586,8 @@ def march_grid(field: FieldFn, grid: Grid, o: np.ndarray, d: np.ndarray, viewdir
     state = (trans, rgb, depth, acc)
     active = np.arange(n)
     while active.size:
-        k, cnt = marcher.advance(active)
-        live = cnt > 0
-        if not live.all():
-            active, k, cnt = active[live], k[:, live], cnt[live]
+        k, live, cnt = marcher.advance(active)
+        active, cnt = active[live], cnt[live]
         now = stages.lap("march", now)
         if not active.size:
             break
