@@ -36,7 +36,9 @@ def expf(x: np.ndarray) -> np.ndarray:
     """float32 exp rounded from float64, i.e. correctly rounded like glibc's ``expf`` (which
     Rust's ``f32::exp`` calls); numpy's own float32 SIMD exp can be an ulp off, enough to move
     an importance sample across a CDF step."""
-    return np.exp(x.astype(np.float64)).astype(F32)
+    e = x.astype(np.float64)
+    np.exp(e, out=e)
+    return e.astype(F32)
 
 
 def lengths(d: np.ndarray) -> np.ndarray:
@@ -211,10 +213,10 @@ class Marcher:
         # Step k samples t = near + (k + 0.5)·interval; past `steps` (windows, lanes past a
         # ray's last sample) only ever masked out.
         self.t = (near + (np.arange(steps + PAST, dtype=F32) + F32(0.5)) * self.interval).astype(F32)
-        self.o = np.ascontiguousarray(o.T, F32)[:, :, None]  # [3, n, 1]
-        self.d = np.ascontiguousarray(d.T, F32)[:, :, None]
+        self.o = np.ascontiguousarray(o.T, F32)  # [3, n]
+        self.d = np.ascontiguousarray(d.T, F32)
         self.delta = (self.interval * lengths(d)).astype(F32)
-        self._boxes(self.o[:, :, 0].astype(np.float64), self.d[:, :, 0].astype(np.float64), near)
+        self._boxes(self.o.astype(np.float64), self.d.astype(np.float64), near)
         self.tests = 0  # steps tested one by one so far (for measuring)
         self.probes = 0  # probes so far (for measuring)
 
@@ -443,7 +445,7 @@ class Marcher:
         ray = rays[pos[rows]]
         # Lane-major: step j of every ray in row j.
         kk = k[rows] + np.arange(width)[:, None]
-        occupied = self.grid.occupied_along(self.o[:, ray, 0], self.d[:, ray, 0], self.t[kk])
+        occupied = self.grid.occupied_along(self.o[:, ray], self.d[:, ray], self.t[kk])
         self.tests += kk.size
         occupied &= kk < e[rows]
         rank = np.cumsum(occupied, axis=0)
@@ -544,10 +546,8 @@ def alpha_of(sigma: np.ndarray, delta: np.ndarray) -> np.ndarray:
     """``alpha_from_density``: α = 1 − exp(−relu(σ)·δ) in float32 (``expf``)."""
     x = np.maximum(sigma, F32(0))
     x *= delta
-    e = x.astype(np.float64)
-    np.negative(e, out=e)
-    np.exp(e, out=e)
-    return F32(1) - e.astype(F32)
+    np.negative(x, out=x)
+    return F32(1) - expf(x)
 
 
 def _lane_major(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -630,8 +630,8 @@ def _round_block(field: FieldFn, marcher: Marcher, viewdirs: np.ndarray, k: np.n
     ray = active.take(ray)
     points = np.empty((3, len(t)), F32)
     for axis in range(3):
-        np.multiply(t, marcher.d[axis, :, 0].take(ray), out=points[axis])
-        points[axis] += marcher.o[axis, :, 0].take(ray)
+        np.multiply(t, marcher.d[axis].take(ray), out=points[axis])
+        points[axis] += marcher.o[axis].take(ray)
     points = np.ascontiguousarray(points.T)
     dirs = viewdirs.take(ray, axis=0)
     # The samples of each chunk's rays, a slice each (rays in order).
