@@ -134,18 +134,20 @@ class Grid:
         cube (or NaN) falls in the padding, which is empty."""
         b, r = self.bound, self.resolution
         two_b, rf, side = F32(2) * b, F32(r), r + 2
-        index = np.zeros(t.shape, np.int32)
-        for axis in range(3):
-            u = o[axis] + t * d[axis]
-            u += b
-            u /= two_b
-            u *= rf
-            # fmax/fmin turn NaN into -1 (the padding) as Rust's `!(u >= 0)` rejects it.
-            np.fmax(u, F32(-1), out=u)
-            np.fmin(u, rf, out=u)
-            np.floor(u, out=u)
-            index *= side
-            index += u.astype(np.int32)
+        u = t * d[:, None, :]  # [3, w, m]
+        u += o[:, None, :]
+        u += b
+        u /= two_b
+        u *= rf
+        # fmax/fmin turn NaN into -1 (the padding) as Rust's `!(u >= 0)` rejects it.
+        np.fmax(u, F32(-1), out=u)
+        np.fmin(u, rf, out=u)
+        np.floor(u, out=u)
+        cell = u.astype(np.int32)
+        index = cell[0] * side
+        index += cell[1]
+        index *= side
+        index += cell[2]
         # +1 per axis for the padding.
         index += side * side + side + 1
         return self.padded().reshape(-1).take(index)
