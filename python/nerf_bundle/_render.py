@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Callable, List, Optional, Tuple
+from typing import Callable, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -118,14 +118,27 @@ class Grid:
         Example: one occupied cell, (2, 3, 4); for octant +x+y+z the cube at (1, 1, 1) of side 3
         (cells 1..3 per axis) is empty, that of side 4 holds (2, 3, 4): level 1 + 2 = 3; for
         octant −x−y−z every cube at (1, 1, 1) is empty: level 10; (2, 3, 4) itself: 128."""
-        tables = self.__dict__.setdefault("_corner_tables", {})
-        if octant not in tables:
-            occupied = self.padded()
-            empty = _corner_sides(~occupied, octant)
-            full = _corner_sides(occupied, octant)
-            full += OCCUPIED - 1
-            tables[octant] = np.where(occupied, full, empty).reshape(-1)
-        return tables[octant]
+        cells = (self.resolution + 2) ** 3
+        return self.corner_tables([octant])[octant * cells:(octant + 1) * cells]
+
+    def corner_tables(self, octants: Sequence[int]) -> np.ndarray:
+        """[8·(R + 2)³] uint8, cached: the :meth:`corner_table` of octant q at q·(R + 2)³, made
+        for ``octants`` (and any asked before); the others unset (their memory is not touched)."""
+        cells = (self.resolution + 2) ** 3
+        tables = self.__dict__.get("_corner_tables")
+        if tables is None:
+            tables = self.__dict__["_corner_tables"] = np.empty(8 * cells, np.uint8)
+            self.__dict__["_octants"] = set()
+        made = self.__dict__["_octants"]
+        for q in octants:
+            if q not in made:
+                occupied = self.padded()
+                empty = _corner_sides(~occupied, q)
+                full = _corner_sides(occupied, q)
+                full += OCCUPIED - 1
+                tables[q * cells:(q + 1) * cells] = np.where(occupied, full, empty).reshape(-1)
+                made.add(q)
+        return tables
 
     def occupied_along(self, o: np.ndarray, d: np.ndarray, t: np.ndarray) -> np.ndarray:
         """Whether the points o + t·d (float32, as ``point_at``) lie in occupied cells, for
@@ -227,8 +240,8 @@ class Marcher:
         the conservative cube range, :meth:`Grid.t_range`); in cell units u = (x + b)/(2b)·R =
         α + β·t per axis, ``coef`` [n, 19] = α, β, then per axis 1/β, |1/β| and the terms of the
         t at which the ray enters and leaves a box of cells shrunk by the margin m, and the
-        ray's offset into ``table`` (the corner tables of the octants it heads into); and the
-        real t of each step. Rays a block at a time, so the temporaries stay in cache."""
+        ray's offset into ``table`` (:meth:`Grid.corner_tables`, at the octant it heads into);
+        and the real t of each step. Rays a block at a time, so the temporaries stay in cache."""
         grid, steps, n = self.grid, self.steps, o.shape[1]
         r = grid.resolution
         interval, near64 = np.float64(self.interval), np.float64(near)
@@ -241,14 +254,14 @@ class Marcher:
         for s in range(0, n, MARCH_BLOCK):
             e = min(s + MARCH_BLOCK, n)
             octant[s:e], usable[s:e] = self._boxes_of(o[:, s:e], d[:, s:e], near64, s)
-        # The corner tables of the octants the rays head into, one after another; each ray's
-        # offset into them (+1 per axis for the padding) in the last column.
-        used = np.unique(octant[usable]) if usable.any() else np.zeros(1, np.intp)
-        self.table = np.concatenate([grid.corner_table(int(q)) for q in used])
-        slot = np.zeros(8, np.float64)
-        slot[used] = np.arange(len(used)) * (r + 2) ** 3
-        self.coef[:, 18] = slot.take(octant) + ((r + 2) ** 2 + (r + 2) + 1)
-        self.coef[~usable, 18] = 0.0
+        # The corner tables of the octants the rays head into; each ray's offset into them (+1
+        # per axis for the padding) in the last column.
+        used = [int(q) for q in np.unique(octant[usable])] or [0]
+        self.table = grid.corner_tables(used)
+        octant[~usable] = used[0]  # only ever test windows, but read a table that is made
+        offset = octant * float((r + 2) ** 3)
+        offset += (r + 2) ** 2 + (r + 2) + 1
+        self.coef[:, 18] = offset
 
     def _boxes_of(self, o: np.ndarray, d: np.ndarray, near64: np.float64, first: int) -> Tuple[np.ndarray, np.ndarray]:
         """:meth:`_boxes` for the rays ``first``, ``first + 1``, ... (``o``, ``d`` [3, m]); returns

@@ -239,10 +239,13 @@ def test_rays_whose_samples_run_to_the_last_step_are_marched_as_chunk_by_chunk()
     new, old = Ball(), Ball()
     got = R.march_grid(new, grid, o, d, view, near, far, steps, None, False, 64)
     samples = every_interval(grid, o, d, near, far, steps)
-    assert (np.diff(samples.offsets) % R.MARCH_SEGMENT != 0).all() and samples.t.max() == R.Marcher(
-        grid, o, d, near, far, steps).t[steps - 1], "rays end between rounds, at the last step"
-    want = np.concatenate([R.march_front_to_back(old, o[s:s + 64], d[s:s + 64], view[s:s + 64],
-                                                 every_interval(grid, o[s:s + 64], d[s:s + 64], near, far, steps), None, False).rgb
-                           for s in range(0, n, 64)])
-    assert np.array_equal(got.rgb, want)
+    last = R.Marcher(grid, o, d, near, far, steps).t[steps - 1]
+    assert (np.diff(samples.offsets) % R.MARCH_SEGMENT != 0).all(), "every ray ends between rounds"
+    assert samples.t.max() == last, "at the last step"
+    parts = []
+    for s in range(0, n, 64):
+        sl = slice(s, s + 64)
+        packed = every_interval(grid, o[sl], d[sl], near, far, steps)
+        parts.append(R.march_front_to_back(old, o[sl], d[sl], view[sl], packed, None, False))
+    assert np.array_equal(got.rgb, np.concatenate([p.rgb for p in parts]))
     assert sorted(c.tobytes() for c in new.calls) == sorted(c.tobytes() for c in old.calls)
