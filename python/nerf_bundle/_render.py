@@ -194,12 +194,6 @@ class Packed:
     offsets: np.ndarray
 
 
-def _as_index(x: np.ndarray, out: np.ndarray) -> np.ndarray:
-    """``x`` (whole numbers, float64) converted into ``out`` (intp)."""
-    np.copyto(out, x, casting="unsafe")
-    return out
-
-
 class Marcher:
     """The occupied samples of rays, produced lazily front to back (``occupied_samples``'
     samples: ``steps`` equal intervals over [near, far], a sample at each middle, kept where it
