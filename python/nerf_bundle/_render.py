@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Callable, List, Optional, Tuple
+from typing import Callable, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -16,8 +16,18 @@ MARCH_SEGMENT = 16
 MIN_TRANSMITTANCE = F32(1e-4)
 LAST_DELTA = F32(1e10)
 TRANSMITTANCE_EPS = F32(1e-10)
-#: Consecutive steps a ray tests at once when marching (:meth:`Marcher.next`).
-WINDOW = 16
+#: Steps tested one by one, with the exact float32 cell, where a probe falls within the margin
+#: of its box (:class:`Marcher`).
+WINDOW = 4
+#: Steps past the last that :class:`Marcher` gives a time (a window's, a lane's past a ray's
+#: last sample).
+PAST = WINDOW + MARCH_SEGMENT
+#: Samples a round evaluates and composites at a time (whole chunks), so their arrays stay in cache.
+ROUND_BLOCK = 32768
+#: Rays probed together (a working set small enough to stay in a core's cache).
+MARCH_BLOCK = 16384
+#: The working set takes rays from the queue once at most this fraction of it is still marching.
+MARCH_REFILL = 0.5
 
 FieldFn = Callable[[np.ndarray, np.ndarray], Tuple[np.ndarray, np.ndarray]]
 
@@ -26,7 +36,9 @@ def expf(x: np.ndarray) -> np.ndarray:
     """float32 exp rounded from float64, i.e. correctly rounded like glibc's ``expf`` (which
     Rust's ``f32::exp`` calls); numpy's own float32 SIMD exp can be an ulp off, enough to move
     an importance sample across a CDF step."""
-    return np.exp(x.astype(np.float64)).astype(F32)
+    e = x.astype(np.float64)
+    np.exp(e, out=e)
+    return e.astype(F32)
 
 
 def lengths(d: np.ndarray) -> np.ndarray:
@@ -39,28 +51,40 @@ def unit(v: np.ndarray) -> np.ndarray:
     return (v * (F32(1) / lengths(v))[:, None]).astype(F32)
 
 
-#: Empty radii (in cells) of the skip table's levels 1, 2, ...: level 1 is an empty cell
-#: (radius 0), level 6 a cell with no occupied cell within 16 cells along every axis.
-SKIP_RADII = (0, 1, 2, 4, 8, 16)
+#: Sides (in cells) of the corner tables' empty cubes, levels 1, 2, ...: level 1 is an empty
+#: cell, the last a cube of 32 cells a side. Each side at most doubles the one before, so a
+#: table is three shifted ANDs of the grid per level.
+CORNER_SIDES = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32)
+#: A corner table's levels from here on are occupied cells (:meth:`Grid.corner_table`).
+OCCUPIED = 128
 
 
-def _dilated(x: np.ndarray, shift: int) -> np.ndarray:
-    """``x`` [R, R, R] bool OR-ed with itself shifted by ±``shift`` along each axis (no wrap).
-    When ``x`` is a grid dilated by ``radius`` ≥ ``shift`` − 1 cells (Chebyshev distance), the
-    result is the grid dilated by ``radius + shift``."""
-    out = x
-    for axis in range(3):
-        src = out
-        out = src.copy()
-        n = src.shape[axis]
-        if shift >= n:
-            continue
-        lo = [slice(None)] * 3
-        hi = [slice(None)] * 3
-        lo[axis], hi[axis] = slice(0, n - shift), slice(shift, n)
-        out[tuple(hi)] |= src[tuple(lo)]
-        out[tuple(lo)] |= src[tuple(hi)]
-    return out
+def octant_signs(octant: int) -> Tuple[int, int, int]:
+    """The direction (+1 or −1) along x, y, z of ``octant`` 0..7 (bit 2: x, bit 1: y, bit 0:
+    z; a set bit is +)."""
+    return tuple(1 if octant >> (2 - axis) & 1 else -1 for axis in range(3))  # type: ignore[return-value]
+
+
+def _corner_sides(cells: np.ndarray, octant: int) -> np.ndarray:
+    """For ``cells`` [n, n, n] bool: per cell, how many sides of ``CORNER_SIDES`` have their
+    cube with the cell at its corner, reaching along ``octant``, all true (past the array counts
+    as true; 0 where the cell is false), uint8."""
+    cube = cells.copy()
+    count = cube.astype(np.uint8)
+    side = 1
+    for target in CORNER_SIDES[1:]:
+        # The cube of side + shift at c is the 8 cubes of side at c + shift·{0, 1}³ (shift ≤ side).
+        shift = target - side
+        for axis, sign in enumerate(octant_signs(octant)):
+            n = cube.shape[axis]
+            if shift >= n:
+                continue
+            near, far = [slice(None)] * 3, [slice(None)] * 3
+            near[axis], far[axis] = (slice(0, n - shift), slice(shift, n)) if sign > 0 else (slice(shift, n), slice(0, n - shift))
+            cube[tuple(near)] &= cube[tuple(far)]
+        side = target
+        count += cube
+    return count
 
 
 @dataclass
@@ -72,70 +96,92 @@ class Grid:
     resolution: int
     bound: np.float32
 
-    def skip_table(self) -> np.ndarray:
-        """[(R + 2)³] uint8, cached: the grid padded by one empty cell on every side, each cell
-        0 where occupied, else 1 + the index in ``SKIP_RADII`` of the largest radius r such that
-        no occupied cell lies within r cells along every axis (so a point in that cell can move
-        r cells' length in any direction and stay in empty cells).
+    def padded(self) -> np.ndarray:
+        """[R + 2]³ bool, cached: the grid with one empty cell on every side (outside the cube
+        nothing is occupied)."""
+        cached = self.__dict__.get("_padded")
+        if cached is None:
+            r = self.resolution
+            cached = np.zeros((r + 2,) * 3, bool)
+            cached[1:-1, 1:-1, 1:-1] = self.occupied.reshape(r, r, r)
+            self.__dict__["_padded"] = cached
+        return cached
 
-        Example: one occupied cell; a cell 3 cells from it along x (and 0 along y, z) has no
-        occupied cell within 2 but one within 4: level 1 + 2 = 3 (radius 2)."""
-        cached = self.__dict__.get("_skip_table")
-        if cached is not None:
-            return cached
-        r = self.resolution
-        occupied = self.occupied.reshape(r, r, r)
-        dilated = occupied.copy()
-        level = np.where(occupied, 0, 1).astype(np.uint8)
-        radius = 0
-        for target in SKIP_RADII[1:]:
-            dilated = _dilated(dilated, target - radius)
-            radius = target
-            level += ~dilated
-        table = np.ones((r + 2,) * 3, np.uint8)
-        table[1:-1, 1:-1, 1:-1] = level
-        self.__dict__["_skip_table"] = table.reshape(-1)
-        return self.__dict__["_skip_table"]
+    def corner_table(self, octant: int) -> np.ndarray:
+        """[(R + 2)³] uint8, cached per octant, over the :meth:`padded` grid: for each cell, the
+        largest side s in ``CORNER_SIDES`` such that the cube of s cells a side with this cell
+        at its corner, reaching along the octant's directions (:func:`octant_signs`), is all
+        empty (cells past the padding are) or all occupied, as its cell is: an empty cell's
+        level is 1 + the index of s, an occupied cell's ``OCCUPIED`` + the index. A ray heading
+        into that octant crosses the cube from the cell onwards.
 
-    def levels_along(self, o: np.ndarray, d: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """The :meth:`skip_table` level (0: occupied) of the points o + t·d (float32, as
-        ``point_at``) for ``o``, ``d`` [3, m, 1] and ``t`` [m, w] → [m, w]. The cell is
+        Example: one occupied cell, (2, 3, 4); for octant +x+y+z the cube at (1, 1, 1) of side 3
+        (cells 1..3 per axis) is empty, that of side 4 holds (2, 3, 4): level 1 + 2 = 3; for
+        octant −x−y−z every cube at (1, 1, 1) is empty: level 10; (2, 3, 4) itself: 128."""
+        cells = (self.resolution + 2) ** 3
+        return self.corner_tables([octant])[octant * cells:(octant + 1) * cells]
+
+    def corner_tables(self, octants: Sequence[int]) -> np.ndarray:
+        """[8·(R + 2)³] uint8, cached: the :meth:`corner_table` of octant q at q·(R + 2)³, made
+        for ``octants`` (and any asked before); the others unset (their memory is not touched)."""
+        cells = (self.resolution + 2) ** 3
+        tables = self.__dict__.get("_corner_tables")
+        if tables is None:
+            tables = self.__dict__["_corner_tables"] = np.empty(8 * cells, np.uint8)
+            self.__dict__["_octants"] = set()
+        made = self.__dict__["_octants"]
+        for q in octants:
+            if q not in made:
+                occupied = self.padded()
+                empty = _corner_sides(~occupied, q)
+                full = _corner_sides(occupied, q)
+                full += OCCUPIED - 1
+                tables[q * cells:(q + 1) * cells] = np.where(occupied, full, empty).reshape(-1)
+                made.add(q)
+        return tables
+
+    def occupied_along(self, o: np.ndarray, d: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Whether the points o + t·d (float32, as ``point_at``) lie in occupied cells, for
+        ``o``, ``d`` [3, m] and ``t`` [w, m] → [w, m] bool. The cell is
         ``OccupancyGrid::cell``'s, bit for bit: u = (v + b) / (2b) · R per axis; outside the
         cube (or NaN) falls in the padding, which is empty."""
         b, r = self.bound, self.resolution
         two_b, rf, side = F32(2) * b, F32(r), r + 2
-        index = np.zeros(t.shape, np.int32)
-        for axis in range(3):
-            u = o[axis] + t * d[axis]
-            u += b
-            u /= two_b
-            u *= rf
-            # fmax/fmin turn NaN into -1 (the padding) as Rust's `!(u >= 0)` rejects it.
-            np.fmax(u, F32(-1), out=u)
-            np.fmin(u, rf, out=u)
-            np.floor(u, out=u)
-            index *= side
-            index += u.astype(np.int32)
+        u = t * d[:, None, :]  # [3, w, m]
+        u += o[:, None, :]
+        u += b
+        u /= two_b
+        u *= rf
+        # fmax/fmin turn NaN into -1 (the padding) as Rust's `!(u >= 0)` rejects it.
+        np.fmax(u, F32(-1), out=u)
+        np.fmin(u, rf, out=u)
+        np.floor(u, out=u)
+        cell = u.astype(np.int32)
+        index = cell[0] * side
+        index += cell[1]
+        index *= side
+        index += cell[2]
         # +1 per axis for the padding.
         index += side * side + side + 1
-        return self.skip_table().take(index)
+        return self.padded().reshape(-1).take(index)
 
     def t_range(self, o: np.ndarray, d: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
-        """A conservative [t0, t1] (float64) per ray outside which no point lies in the cube."""
+        """A conservative [t0, t1] per ray outside which no point lies in the cube, for ``o``,
+        ``d`` [3, n] float64."""
         b = np.float64(self.bound) * (1 + 1e-3) + 1e-6
-        o64, d64 = o.astype(np.float64), d.astype(np.float64)
         with np.errstate(divide="ignore", invalid="ignore"):
-            a = (-b - o64) / d64
-            c = (b - o64) / d64
+            a = (-b - o) / d
+            c = (b - o) / d
         lo, hi = np.fmin(a, c), np.fmax(a, c)
         # An axis the ray runs along: inside the slab is all t, outside none.
-        parallel = d64 == 0
-        inslab = np.abs(o64) <= b
-        lo = np.where(parallel, np.where(inslab, -np.inf, np.inf), lo)
-        hi = np.where(parallel, np.where(inslab, np.inf, -np.inf), hi)
-        lo = np.where(np.isnan(lo), -np.inf, lo)
-        hi = np.where(np.isnan(hi), np.inf, hi)
-        return lo.max(axis=1), hi.min(axis=1)
+        parallel = d == 0
+        if parallel.any():
+            inslab = np.abs(o) <= b
+            lo[parallel] = np.where(inslab, -np.inf, np.inf)[parallel]
+            hi[parallel] = np.where(inslab, np.inf, -np.inf)[parallel]
+        lo[np.isnan(lo)] = -np.inf
+        hi[np.isnan(hi)] = np.inf
+        return np.maximum(np.maximum(lo[0], lo[1]), lo[2]), np.minimum(np.minimum(hi[0], hi[1]), hi[2])
 
 
 @dataclass
@@ -155,12 +201,16 @@ class Marcher:
     samples, so a ray that terminates early never marches the rest.
 
     A ray starts where it may enter the grid's cube (a conservative slab test). At each probe
-    step, the ray's cell and its :meth:`Grid.skip_table` level give a box of cells that is all
-    occupied (the cell) or all empty (the cell grown by the level's radius); the steps from the
-    probe to where the ray leaves that box, shrunk by a margin far above float32 rounding, are
-    then all occupied samples or all skipped, without testing each. A probe within the margin
-    of the box (a ray along a cell face, non-finite values) tests a window of steps with the
-    exact float32 cell instead. So the samples are those of testing every step, bit for bit.
+    step, the ray's cell and its :meth:`Grid.corner_table` level (for the octant the ray heads
+    into) give a box of cells that is all occupied or all empty (the cube of cells with this
+    one at its corner, reaching along the ray); the steps from the probe to where the
+    ray leaves that box, shrunk by a margin far above float32 rounding, are then all occupied
+    samples or all skipped, without testing each. A probe within the margin of the box (a ray
+    along a cell face, non-finite values) tests a window of steps with the exact float32 cell
+    instead. So the samples are those of testing every step, bit for bit.
+
+    The rays probe together, one numpy operation per step of the loop over a working set of
+    rays (:meth:`_march`).
 
     # Shapes
     ``o``, ``d`` [n, 3] float32."""
@@ -169,161 +219,257 @@ class Marcher:
         self.grid = grid
         self.steps = steps
         self.interval = F32((far - near) / F32(steps))
-        # Step k samples t = near + (k + 0.5)·interval; past `steps` only ever masked out.
-        self.t = (near + (np.arange(steps + WINDOW, dtype=F32) + F32(0.5)) * self.interval).astype(F32)
-        self.o = np.ascontiguousarray(o.T, F32)[:, :, None]  # [3, n, 1]
-        self.d = np.ascontiguousarray(d.T, F32)[:, :, None]
+        # Step k samples t = near + (k + 0.5)·interval; past `steps` (windows, lanes past a
+        # ray's last sample) only ever masked out.
+        self.t = (near + (np.arange(steps + PAST, dtype=F32) + F32(0.5)) * self.interval).astype(F32)
+        self.o = np.ascontiguousarray(o.T, F32)  # [3, n]
+        self.d = np.ascontiguousarray(d.T, F32)
         self.delta = (self.interval * lengths(d)).astype(F32)
-        t0, t1 = grid.t_range(o, d)
-        with np.errstate(invalid="ignore", over="ignore"):
-            k0 = np.floor((t0 - np.float64(near)) / np.float64(self.interval) - 0.5) - 1
-            k1 = np.ceil((t1 - np.float64(near)) / np.float64(self.interval) - 0.5) + 2
-        self.cursor = np.clip(np.nan_to_num(k0, nan=0, posinf=steps, neginf=0), 0, steps).astype(np.int32)
-        self.end = np.clip(np.nan_to_num(k1, nan=steps, posinf=steps, neginf=0), 0, steps).astype(np.int32)
-        self._boxes(o, d, near)
+        self._boxes(self.o.astype(np.float64), self.d.astype(np.float64), near)
         self.tests = 0  # steps tested one by one so far (for measuring)
         self.probes = 0  # probes so far (for measuring)
 
     def _boxes(self, o: np.ndarray, d: np.ndarray, near: np.float32) -> None:
-        """Per ray, in cell units u = (x + b)/(2b)·R = α + β·t per axis: ``coef`` [12, n] =
-        α, β, then per axis the terms of the t at which the ray enters and leaves a box of
-        cells shrunk by the margin m (``_box_range``); and the real t of each step."""
-        grid = self.grid
+        """From ``o``, ``d`` [3, n] float64: each ray's first and end step (``cursor``, ``end``:
+        the conservative cube range, :meth:`Grid.t_range`); in cell units u = (x + b)/(2b)·R =
+        α + β·t per axis, ``coef`` [n, 19] = α, β, then per axis 1/β, |1/β| and the terms of the
+        t at which the ray enters and leaves a box of cells shrunk by the margin m, and the
+        ray's offset into ``table`` (:meth:`Grid.corner_tables`, at the octant it heads into);
+        and the real t of each step. Rays a block at a time, so the temporaries stay in cache."""
+        grid, steps, n = self.grid, self.steps, o.shape[1]
+        r = grid.resolution
+        interval, near64 = np.float64(self.interval), np.float64(near)
+        self.t_real = near64 + (np.arange(steps + PAST, dtype=np.float64) + 0.5) * interval
+        self.coef = np.empty((n, 19))
+        self.cursor = np.empty(n, np.intp)
+        self.end = np.empty(n, np.intp)
+        octant = np.empty(n, np.intp)
+        usable = np.empty(n, bool)
+        for s in range(0, n, MARCH_BLOCK):
+            e = min(s + MARCH_BLOCK, n)
+            octant[s:e], usable[s:e] = self._boxes_of(o[:, s:e], d[:, s:e], near64, s)
+        # The corner tables of the octants the rays head into; each ray's offset into them (+1
+        # per axis for the padding) in the last column.
+        used = [int(q) for q in np.unique(octant[usable])] or [0]
+        self.table = grid.corner_tables(used)
+        octant[~usable] = used[0]  # only ever test windows, but read a table that is made
+        offset = octant * float((r + 2) ** 3)
+        offset += (r + 2) ** 2 + (r + 2) + 1
+        self.coef[:, 18] = offset
+
+    def _boxes_of(self, o: np.ndarray, d: np.ndarray, near64: np.float64, first: int) -> Tuple[np.ndarray, np.ndarray]:
+        """:meth:`_boxes` for the rays ``first``, ``first + 1``, ... (``o``, ``d`` [3, m]); returns
+        their octants and whether the boxes can handle them."""
+        grid, steps = self.grid, self.steps
         r, b = grid.resolution, np.float64(grid.bound)
         scale_u = r / (2.0 * b)
-        o64, d64 = o.astype(np.float64), d.astype(np.float64)
         interval = np.float64(self.interval)
-        self.t_real = np.float64(near) + (np.arange(self.steps + WINDOW, dtype=np.float64) + 0.5) * interval
-        t_max = float(np.abs(self.t_real[[0, self.steps - 1]]).max()) if self.steps else 0.0
+        t_max = float(np.abs(self.t_real[[0, steps - 1]]).max()) if steps else 0.0
+        rows = slice(first, first + o.shape[1])
         with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-            scale = np.maximum(np.abs(o64) + t_max * np.abs(d64), float(b)).max(axis=1)
+            t0, t1 = grid.t_range(o, d)
+            k0 = np.floor((t0 - near64) / interval - 0.5) - 1
+            k1 = np.ceil((t1 - near64) / interval - 0.5) + 2
+            scale = np.abs(o) + t_max * np.abs(d)
+            np.maximum(scale, float(b), out=scale)
+            scale = np.maximum(np.maximum(scale[0], scale[1]), scale[2])
             # As core's march_ray: far above the float32 error of a sample's position and cell.
             margin = (1e-3 * 2.0 * b / r + 64.0 * float(np.finfo(F32).eps) * scale) * scale_u
-            alpha = (o64 + b) * scale_u
-            beta = d64 * scale_u
-            inv = 1.0 / beta
-            m = margin[:, None]
-            up = beta > 0
-            enter = np.where(up, m - alpha, 1.0 - m - alpha) * inv
-            leave = np.where(up, 1.0 - m - alpha, m - alpha) * inv
-            per_r = np.abs(inv)
-            # A coordinate that never changes: inside a cell's shrunk box on that axis for every
-            # t, or never (within the margin of a face) unless the box is grown by a cell.
-            flat = beta == 0
+            coef = np.empty((18, o.shape[1]))
+            alpha, beta, inv, per_r, enter, leave = (coef[3 * i:3 * i + 3] for i in range(6))
+            np.multiply(o + b, scale_u, out=alpha)
+            np.multiply(d, scale_u, out=beta)
+            np.divide(1.0, beta, out=inv)
+            np.abs(inv, out=per_r)
             frac = alpha - np.floor(alpha)
-            safe = (frac >= m) & (frac <= 1.0 - m)
-            inv = np.where(flat, 0.0, inv)
-            per_r = np.where(flat, np.where(safe, 0.0, 2e300), per_r)
-            enter = np.where(flat, np.where(safe, -1e300, 1e300), enter)
-            leave = np.where(flat, np.where(safe, 1e300, -1e300), leave)
-        # Rays the boxes cannot handle (non-finite, a non-positive interval) only test windows.
-        usable = np.isfinite(o64).all(axis=1) & np.isfinite(d64).all(axis=1) & np.isfinite(scale) & (margin < 0.25)
+            flat = beta == 0
+            # The box reaches along the ray; along a coordinate that never changes, towards the
+            # side of the cell the ray is nearer.
+            up = (beta > 0) | (flat & (frac >= 0.5))
+            np.multiply(np.where(up, margin - alpha, (1.0 - margin) - alpha), inv, out=enter)
+            np.multiply(np.where(up, -margin - alpha, (1.0 + margin) - alpha), inv, out=leave)
+            if flat.any():
+                # Inside the box on that axis for every t, or never (within the margin of a
+                # face) unless the box reaches a cell past the face.
+                safe = (frac >= margin) & (frac <= 1.0 - margin)
+                inv[flat] = 0.0
+                enter[flat] = -1e300
+                per_r[flat] = np.where(safe, 0.0, 2e300)[flat]
+                leave[flat] = np.where(safe, 1e300, -3e300)[flat]
+            # Rays the boxes cannot handle (non-finite, a non-positive interval) only test windows.
+            usable = np.isfinite(coef).all(axis=0) & np.isfinite(scale) & (margin < 0.25)
         if not (np.isfinite(interval) and interval > 0):
             usable[:] = False
-        enter[~usable] = np.inf
-        self.coef = np.ascontiguousarray(np.concatenate([alpha.T, beta.T, inv.T, per_r.T, enter.T, leave.T]))
-        self.coef = np.nan_to_num(self.coef, nan=0.0)
-        self.coef[12:15, ~usable] = np.inf
-        self.coef[15:18, ~usable] = -np.inf
+        if not usable.all():
+            coef[:, ~usable] = 0.0
+            enter[:, ~usable] = np.inf
+            leave[:, ~usable] = -np.inf
+        # Ray by ray: a ray's coefficients are one row to fetch.
+        self.coef[rows, :18] = coef.T
+        self.cursor[rows] = np.clip(np.nan_to_num(k0, nan=0, posinf=steps, neginf=0), 0, steps)
+        self.end[rows] = np.clip(np.nan_to_num(k1, nan=steps, posinf=steps, neginf=0), 0, steps)
+        return up[0] * 4 + up[1] * 2 + up[2], usable
 
     def next(self, rays: np.ndarray, n: int = MARCH_SEGMENT) -> Tuple[np.ndarray, np.ndarray]:
         """The next (at most) ``n`` occupied steps of each of ``rays`` (indices, any order):
-        steps [len(rays), n] int32 (row i's first ``counts[i]`` are valid, in order) and counts
-        [len(rays)] int32; fewer than ``n`` means the ray has no more. Moves the rays on."""
-        m = len(rays)
-        steps = np.zeros((m, n), np.int32)
-        found = np.zeros(m, np.int32)
-        cursor, end = self.cursor[rays], self.end[rays]
-        doubt = np.zeros(m, bool)
-        runs: List[Tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []  # rows, first step, count, lane
-        table, radii = self.grid.skip_table(), np.array((0,) + SKIP_RADII, np.float64)
-        res, side = self.grid.resolution, self.grid.resolution + 2
-        inv_interval, t0 = 1.0 / np.float64(self.interval), self.t_real[0]
-        pending = np.nonzero(cursor < end)[0]
-        while pending.size:
-            k = cursor[pending]
-            c = self.coef[:, rays[pending]]
-            t = self.t_real[k]
-            index = np.zeros(len(k), np.int64)
-            cells = []
-            for axis in range(3):
-                u = c[3 + axis] * t
-                u += c[axis]
-                np.floor(u, out=u)
-                np.clip(u, -1, res, out=u)
-                cells.append(u)
-                index *= side
-                index += u.astype(np.int64)
-            level = table.take(index + (side * side + side + 1))
-            r = radii.take(level)
-            enter, leave = np.full(len(k), -np.inf), np.full(len(k), np.inf)
-            for axis in range(3):
-                centre = cells[axis] * c[6 + axis]
-                grow = r * c[9 + axis]
-                np.maximum(enter, centre - grow + c[12 + axis], out=enter)
-                np.minimum(leave, centre + grow + c[15 + axis], out=leave)
-            self.probes += len(k)
-            sure = (enter <= t) & (t <= leave)
-            # The last step inside the box (at least the probe's own step).
-            with np.errstate(invalid="ignore"):
-                last = np.floor((leave - t0) * inv_interval)
-            np.clip(last, k, end[pending] - 1, out=last)
-            through = last.astype(np.int32) + 1
-            # Occupied box: its steps are samples, as many as the ray still needs.
-            fill = sure & (level == 0)
-            rows = pending[fill]
-            count = np.minimum(through[fill] - k[fill], n - found[rows])
-            runs.append((rows, k[fill], count, found[rows]))
-            found[rows] += count
-            cursor[rows] = k[fill] + count
-            # Empty box: skip its steps.
-            empty = sure & (level != 0)
-            cursor[pending[empty]] = through[empty]
-            # Within the margin of the box's faces: test the step exactly (a window of steps
-            # for rays whose probe was already unsure, e.g. along a cell face).
-            unsure = pending[~sure]
-            if unsure.size:
-                again = doubt[unsure]
-                doubt[pending] = False
-                doubt[unsure] = True
-                self._window(rays, unsure[~again], cursor, end, found, n, runs, 1)
-                self._window(rays, unsure[again], cursor, end, found, n, runs, WINDOW)
-            else:
-                doubt[pending] = False
-            pending = pending[(found[pending] < n) & (cursor[pending] < end[pending])]
-        self.cursor[rays] = cursor
-        if runs:
-            rows, first, count, offset = (np.concatenate(x) for x in zip(*runs))
-            total = int(count.sum())
-            run = np.repeat(np.arange(len(count)), count)
-            within = np.arange(total) - np.repeat(np.cumsum(count) - count, count)
-            steps[rows[run], offset[run] + within] = first[run] + within
-        return steps, found
+        steps [len(rays), n] int (row i's first ``counts[i]`` are valid, in order) and counts
+        [len(rays)]; fewer than ``n`` means the ray has no more. Moves the rays on."""
+        steps, live, found = self.advance(rays, n)
+        out = np.zeros((len(rays), n), np.intp)
+        out[live] = steps.T
+        return out, found
 
-    def _window(self, rays: np.ndarray, rows: np.ndarray, cursor: np.ndarray, end: np.ndarray, found: np.ndarray, n: int,
-                runs: list, width: int) -> None:
-        """Test the next ``width`` (≤ ``WINDOW``) steps of ``rows`` with the exact float32 cell;
-        record the occupied ones (as many as needed) as runs of one step and move the rows on."""
+    def advance(self, rays: np.ndarray, n: int = MARCH_SEGMENT) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`next`, lane-major and for the rays that found samples only: steps [n, L]
+        (sample j of every such ray is row j; past a ray's count, the steps after its last),
+        their places ``live`` [L] in ``rays``, and the counts [len(rays)] of all."""
+        m = len(rays)
+        found = np.zeros(m, np.intp)
+        cursor, end = self.cursor[rays], self.end[rays]
+        pos = np.flatnonzero(cursor < end)
+        runs: List[Tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        if pos.size:
+            self._march(rays, pos, cursor, end, found, runs, n)
+            self.cursor[rays] = cursor
+        live = np.flatnonzero(found)
+        # A ray's samples are runs of consecutive steps. Each run writes (first step − its
+        # lane) at its first lane; that grows from run to run, so a running maximum down the
+        # lanes plus the lane gives every sample's step.
+        steps = np.zeros((n, len(live)), np.intp)
+        if runs:
+            column = np.zeros(m, np.intp)
+            column[live] = np.arange(len(live))
+            row, lane, value = (np.concatenate(x) for x in zip(*runs))
+            steps[lane, column.take(row)] = value
+        np.maximum.accumulate(steps, axis=0, out=steps)
+        steps += np.arange(n)[:, None]
+        return steps, live, found
+
+    def _march(self, rays: np.ndarray, queue: np.ndarray, cursor: np.ndarray, end: np.ndarray, found: np.ndarray,
+               runs: list, n: int) -> None:
+        """Move ``rays[queue]`` on to their next ``n`` occupied steps (or their end): a loop of
+        probes over a working set of up to ``MARCH_BLOCK`` rays, refilled from the queue as its
+        rays finish. Writes ``cursor`` and ``found``, and appends the runs of samples found to
+        ``runs`` as (ray's place, first lane, first step − first lane)."""
+        table, sides = self.table, np.ones(256)
+        sides[1:1 + len(CORNER_SIDES)] = sides[OCCUPIED:OCCUPIED + len(CORNER_SIDES)] = CORNER_SIDES
+        res, side = self.grid.resolution, self.grid.resolution + 2
+        # Cell (i, j, k) → its place in a table (the ray's offset added).
+        place = np.array([side * side, side, 1], np.float64)
+        inv_interval, t0 = 1.0 / np.float64(self.interval), self.t_real[0]
+        size = min(len(queue), MARCH_BLOCK)
+        pos, queue = queue[:size], queue[size:]
+        c = np.ascontiguousarray(self.coef.take(rays[pos], axis=0).T)
+        k, e = cursor[pos], end[pos]
+        f = np.zeros(size, np.intp)
+        alive = np.ones(size, bool)
+        # Scratch, reused (sliced to the working set) rather than allocated each probe.
+        scratch = np.empty((11, size))
+        index_buf = np.empty(size, np.intp)
+        level_buf = np.empty(size, table.dtype)
+        live = size
+        while True:
+            w = len(k)
+            self.probes += live
+            u, box = scratch[0:3, :w], scratch[3:6, :w]
+            t, reach, enter, leave, index = (scratch[i, :w] for i in range(6, 11))
+            self.t_real.take(k, out=t)
+            np.multiply(c[3:6], t, out=u)
+            u += c[0:3]
+            np.floor(u, out=u)
+            np.clip(u, -1, res, out=u)
+            np.dot(place, u, out=index)
+            index += c[18]
+            np.copyto(index_buf[:w], index, casting="unsafe")
+            level = table.take(index_buf[:w], out=level_buf[:w])
+            sides.take(level, out=reach)
+            # The box's faces in t per axis: the cell's (u·inv), the far one `reach` cells on
+            # (reach·|inv|), shrunk by the margin.
+            u *= c[6:9]
+            np.add(u, c[12:15], out=box)
+            np.maximum(box[0], box[1], out=enter)
+            np.maximum(enter, box[2], out=enter)
+            np.multiply(c[9:12], reach, out=box)
+            box += c[15:18]
+            box += u
+            np.minimum(box[0], box[1], out=leave)
+            np.minimum(leave, box[2], out=leave)
+            sure = enter <= t
+            sure &= t <= leave
+            sure &= alive
+            # Steps to the first past the box (at least one), within the ray's end.
+            last = leave
+            last -= t0
+            last *= inv_interval
+            np.floor(last, out=last)
+            np.clip(last, k, e - 1, out=last)
+            move = last.astype(np.intp)
+            move += 1
+            move -= k
+            # An occupied box gives its steps as samples, as many as the ray still needs; an
+            # empty box is skipped.
+            occupied = level >= OCCUPIED
+            np.minimum(move, n - f, out=move, where=occupied)
+            move *= sure
+            fill = np.flatnonzero(sure & occupied)
+            if fill.size:
+                runs.append((pos[fill], f[fill], k[fill] - f[fill]))
+                f[fill] += move[fill]
+            k += move
+            # Within the margin of the box's faces: test a window of steps exactly.
+            unsure = np.flatnonzero(alive & ~sure)
+            if unsure.size:
+                self._window(rays, unsure, pos, k, e, f, runs, n, WINDOW)
+            alive &= f < n
+            alive &= k < e
+            live = int(np.count_nonzero(alive))
+            if live <= w * MARCH_REFILL:
+                done = ~alive
+                cursor[pos[done]] = k[done]
+                found[pos[done]] = f[done]
+                if queue.size:
+                    # Rays from the queue take the finished rays' places.
+                    slots = np.flatnonzero(done)[:len(queue)]
+                    more, queue = queue[:len(slots)], queue[len(slots):]
+                    fresh = self.coef.take(rays[more], axis=0)
+                    for row in range(len(c)):
+                        c[row, slots] = fresh[:, row]
+                    k[slots], e[slots], f[slots], pos[slots] = cursor[more], end[more], 0, more
+                    alive[slots] = True
+                    live += len(slots)
+                elif not live:
+                    return
+                else:
+                    # The queue is empty: finished rays leave the working set.
+                    c, k, e, f, pos = c[:, alive], k[alive], e[alive], f[alive], pos[alive]
+                    alive = np.ones(live, bool)
+
+    def _window(self, rays: np.ndarray, rows: np.ndarray, pos: np.ndarray, k: np.ndarray, e: np.ndarray, f: np.ndarray,
+                runs: list, n: int, width: int) -> None:
+        """Test the next ``width`` (≤ ``WINDOW``) steps of the marching rays ``rows`` with the
+        exact float32 cell; record the occupied ones (as many as needed) as runs of one step and
+        move the rays on."""
         if not rows.size:
             return
-        ray = rays[rows]
-        k = cursor[rows][:, None] + np.arange(width, dtype=np.int32)
-        level = self.grid.levels_along(self.o[:, ray], self.d[:, ray], self.t[k])
-        self.tests += k.size
-        occupied = (level == 0) & (k < end[rows][:, None])
-        rank = np.cumsum(occupied, axis=1, dtype=np.int32)
-        need = n - found[rows]
-        take = occupied & (rank <= need[:, None])
-        row, col = np.nonzero(take)
-        runs.append((rows[row], k[row, col].astype(np.int32), np.ones(len(row), np.int32), found[rows[row]] + rank[row, col] - 1))
-        got = np.minimum(rank[:, -1], need)
-        found[rows] += got
-        full = got == need
+        ray = rays[pos[rows]]
+        # Lane-major: step j of every ray in row j.
+        kk = k[rows] + np.arange(width)[:, None]
+        occupied = self.grid.occupied_along(self.o[:, ray], self.d[:, ray], self.t[kk])
+        self.tests += kk.size
+        occupied &= kk < e[rows]
+        rank = np.cumsum(occupied, axis=0)
+        need = n - f[rows]
+        take = occupied & (rank <= need)
+        step, col = np.nonzero(take)
+        lane = f[rows[col]] + rank[step, col] - 1
+        runs.append((pos[rows[col]], lane, kk[step, col] - lane))
+        got = np.minimum(rank[-1], need)
+        f[rows] += got
         # Past the window; a ray that got all it needs resumes after its last sample.
-        moved = k[:, -1] + 1
-        last_taken = np.argmax(rank >= need[:, None], axis=1)
-        moved[full] = k[full, last_taken[full]] + 1
-        cursor[rows] = moved
+        moved = kk[-1] + 1
+        full = np.flatnonzero(got == need)
+        moved[full] = kk[np.argmax(rank[:, full] >= need[full], axis=0), full] + 1
+        k[rows] = moved
 
 
 def occupied_samples(grid: Grid, o: np.ndarray, d: np.ndarray, near: np.float32, far: np.float32, steps: int) -> Packed:
@@ -407,7 +553,10 @@ def composite(alpha: np.ndarray, colour: np.ndarray, t: np.ndarray, trans: np.nd
 
 def alpha_of(sigma: np.ndarray, delta: np.ndarray) -> np.ndarray:
     """``alpha_from_density``: α = 1 − exp(−relu(σ)·δ) in float32 (``expf``)."""
-    return F32(1) - expf(-np.maximum(sigma, F32(0)) * delta)
+    x = np.maximum(sigma, F32(0))
+    x *= delta
+    np.negative(x, out=x)
+    return F32(1) - expf(x)
 
 
 def _lane_major(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -443,42 +592,77 @@ def march_grid(field: FieldFn, grid: Grid, o: np.ndarray, d: np.ndarray, viewdir
     min_t = F32(-np.inf) if min_transmittance is None else F32(min_transmittance)
     now = time.perf_counter()
     marcher = Marcher(grid, o, d, near, far, steps)
+    state = (trans, rgb, depth, acc)
     active = np.arange(n)
-    lane = np.arange(MARCH_SEGMENT)
-    edges = np.arange(0, n + batch, batch)
     while active.size:
-        k, cnt = marcher.next(active)
-        live = cnt > 0
-        active, k, cnt = active[live], k[live], cnt[live]
+        k, live, cnt = marcher.advance(active)
+        active, cnt = active[live], cnt[live]
         now = stages.lap("march", now)
         if not active.size:
             break
-        valid = lane[None, :] < cnt[:, None]
-        t = marcher.t[k[valid]]
-        points = np.repeat(o[active], cnt, axis=0)
-        points += t[:, None] * np.repeat(d[active], cnt, axis=0)
-        dirs = np.repeat(viewdirs[active], cnt, axis=0)
-        # The samples of each chunk's rays, a slice each (rays in order).
+        # Blocks of whole chunks of about ROUND_BLOCK samples, so a block's arrays stay in cache.
         ends = np.zeros(len(active) + 1, np.int64)
         np.cumsum(cnt, out=ends[1:])
-        cuts = ends[np.searchsorted(active, edges)]
-        cuts = cuts[np.r_[True, cuts[1:] > cuts[:-1]]]
-        now = stages.lap("gather", now)
-        colour = np.empty((len(t), 3), F32)
-        sigma = np.empty(len(t), F32)
-        for a, b in zip(cuts[:-1], cuts[1:]):
-            colour[a:b], sigma[a:b] = field(points[a:b], dirs[a:b])
-        now = stages.lap("field", now)
-        alpha = alpha_of(sigma, np.repeat(marcher.delta[active], cnt))
-        tr, rg, de, ac = trans[active], rgb[:, active], depth[active], acc[active]
-        composite(_lane_major(alpha, valid), _lane_major(colour, valid), _lane_major(t, valid), tr, rg, de, ac)
-        trans[active], rgb[:, active], depth[active], acc[active] = tr, rg, de, ac
-        active = active[(tr >= min_t) & (cnt == MARCH_SEGMENT)]
-        now = stages.lap("composite", now)
+        chunk = active // batch
+        first = np.flatnonzero(np.r_[True, chunk[1:] != chunk[:-1]])
+        block = ends[first] // ROUND_BLOCK
+        bounds = np.r_[first[np.r_[True, block[1:] != block[:-1]]], len(active)]
+        keep = np.empty(len(active), bool)
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            keep[a:b], now = _round_block(field, marcher, viewdirs, k[:, a:b], cnt[a:b], active[a:b], chunk[a:b], state, min_t,
+                                          stages, now)
+        active = active[keep]
     out = np.ascontiguousarray(rgb.T)
     if white_background:
         out += (F32(1) - acc)[:, None]
     return Marched(out, depth, acc, None)
+
+
+def _round_block(field: FieldFn, marcher: Marcher, viewdirs: np.ndarray, k: np.ndarray, cnt: np.ndarray, active: np.ndarray,
+                 chunk: np.ndarray, state: Tuple[np.ndarray, ...], min_t: np.float32, stages: Stages,
+                 now: float) -> Tuple[np.ndarray, float]:
+    """One round of :func:`march_grid` for a block of whole chunks: the field's inputs for the
+    ``active`` rays' next samples (steps ``k`` [S, m], ``cnt`` [m]), one field call per chunk,
+    and the compositing into ``state`` (trans, rgb, depth, acc); returns which rays go on
+    (T ≥ ``min_t`` and a full segment) and the time of the last lap."""
+    s, m = len(k), len(active)
+    valid = np.arange(s)[:, None] < cnt  # [S, m]
+    t_lanes = marcher.t.take(k)
+    np.copyto(t_lanes, F32(0), where=~valid)
+    # The samples ray by ray (the field's order), each with its place in the [S, m] lanes.
+    ray = np.repeat(np.arange(m), cnt)
+    at = np.flatnonzero(valid.T)  # ray·S + lane
+    at -= ray * s
+    at *= m
+    at += ray  # lane·m + ray
+    t = t_lanes.take(at)
+    ray = active.take(ray)
+    points = np.empty((3, len(t)), F32)
+    for axis in range(3):
+        np.multiply(t, marcher.d[axis].take(ray), out=points[axis])
+        points[axis] += marcher.o[axis].take(ray)
+    points = np.ascontiguousarray(points.T)
+    dirs = viewdirs.take(ray, axis=0)
+    # The samples of each chunk's rays, a slice each (rays in order).
+    ends = np.zeros(m + 1, np.int64)
+    np.cumsum(cnt, out=ends[1:])
+    cuts = ends[np.r_[np.flatnonzero(np.r_[True, chunk[1:] != chunk[:-1]]), m]]
+    now = stages.lap("gather", now)
+    colour = np.empty((len(t), 3), F32)
+    sigma = np.empty(len(t), F32)
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        colour[a:b], sigma[a:b] = field(points[a:b], dirs[a:b])
+    now = stages.lap("field", now)
+    alpha = np.zeros((s, m), F32)
+    alpha.reshape(-1)[at] = alpha_of(sigma, marcher.delta.take(ray))
+    lane_colour = np.zeros((3, s, m), F32)
+    for c in range(3):
+        lane_colour[c].reshape(-1)[at] = colour[:, c]
+    trans, rgb, depth, acc = state
+    tr, rg, de, ac = trans[active], rgb[:, active], depth[active], acc[active]
+    composite(alpha, lane_colour.transpose(1, 0, 2), t_lanes, tr, rg, de, ac)
+    trans[active], rgb[:, active], depth[active], acc[active] = tr, rg, de, ac
+    return (tr >= min_t) & (cnt == s), stages.lap("composite", now)
 
 
 def dense_packed(t: np.ndarray, d: np.ndarray) -> Packed:

@@ -39,21 +39,35 @@ def every_interval(grid: R.Grid, o: np.ndarray, d: np.ndarray, near, far, steps:
     return R.Packed(np.concatenate(ts), delta.astype(F32), np.array(offsets))
 
 
-def test_skip_table_levels_by_hand():
-    # One occupied cell at (2, 3, 4) of 8³: a cell's level is 1 + the index in SKIP_RADII
-    # (0, 1, 2, 4, 8, 16) of the largest r with no occupied cell within r cells.
+def test_corner_table_levels_by_hand():
+    # One occupied cell at (2, 3, 4) of 8³: an empty cell's level is 1 + the index in
+    # CORNER_SIDES (1, 2, 3, 4, 6, ...) of the largest side s whose cube, with the cell at its
+    # corner and reaching along the octant's directions, holds no occupied cell.
+    assert R.octant_signs(7) == (1, 1, 1) and R.octant_signs(0) == (-1, -1, -1) and R.octant_signs(4) == (1, -1, -1)
     g = grid_of(8, 1.0, [(2, 3, 4)])
-    table = g.skip_table().reshape(10, 10, 10)
+    up, down = (g.corner_table(q).reshape(10, 10, 10) for q in (7, 0))
 
-    def level(i, j, k):
+    def level(table, i, j, k):
         return int(table[i + 1, j + 1, k + 1])
 
-    assert level(2, 3, 4) == 0, "occupied"
-    assert level(3, 3, 4) == 1, "Chebyshev distance 1: empty, radius 0"
-    assert level(4, 5, 4) == 2, "distance 2: radius 1"
-    assert level(5, 3, 4) == 3, "distance 3: radius 2"
-    assert level(7, 7, 7) == 4, "distance 5: radius 4"
-    assert table[0, 5, 5] == 1 and table[9, 9, 9] == 1, "the padding is empty, radius 0"
+    every = len(R.CORNER_SIDES)
+    assert level(up, 2, 3, 4) == R.OCCUPIED and level(down, 2, 3, 4) == R.OCCUPIED, "occupied, side 1"
+    assert level(up, 1, 1, 1) == 3, "+: cells 1..3 empty, 1..4 hold (2, 3, 4): side 3"
+    assert level(up, 0, 3, 4) == 2, "+: i 0..1 empty, 0..2 holds it: side 2"
+    assert level(down, 1, 1, 1) == every, "−: nothing below (1, 1, 1)"
+    assert level(up, 3, 3, 4) == every, "+: nothing above i = 3"
+    assert level(down, 3, 3, 4) == 1, "−: i 2..3 holds it: side 1"
+    # The padding (outside the cube, empty) has levels as any cell; past it all is empty.
+    assert level(up, -1, 3, 4) == 3, "+: i −1..1 empty, −1..2 holds it: side 3"
+    assert level(up, 8, 8, 8) == every and level(down, 8, 8, 8) == 5, "−: side 6 (i 3..8) misses it, 8 holds it"
+    assert level(g.corner_table(4).reshape(10, 10, 10), 0, 5, 6) == 2, "+x−y−z: side 3 (i 0..2, j 3..5, k 4..6) holds it"
+    # An occupied cell's level is OCCUPIED + the index of the largest side whose cube is all
+    # occupied: a 3 × 3 × 3 block at 1..3 (the padding around the grid is empty).
+    g = grid_of(4, 1.0, [(i, j, k) for i in range(1, 4) for j in range(1, 4) for k in range(1, 4)])
+    up, down = (g.corner_table(q).reshape(6, 6, 6) for q in (7, 0))
+    assert level(up, 1, 1, 1) == R.OCCUPIED + 2 and level(down, 3, 3, 3) == R.OCCUPIED + 2, "side 3"
+    assert level(up, 2, 2, 2) == R.OCCUPIED + 1 and level(down, 1, 2, 3) == R.OCCUPIED, "side 2; side 1"
+    assert level(up, 3, 3, 3) == R.OCCUPIED, "+: (4, 4, 4) is the padding"
 
 
 def test_marcher_by_hand():
@@ -132,6 +146,31 @@ def test_marching_equals_testing_every_interval_bit_for_bit(seed):
     assert np.array_equal(got.delta, want.delta)
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_marching_sparse_grids_with_large_empty_cubes_bit_for_bit(seed):
+    # A few occupied cells in a large grid: the corner cubes reach their largest sides (32),
+    # rays cross the padding and jump far; every sample still as testing every interval.
+    rng = np.random.default_rng(100 + seed)
+    resolution = int(rng.choice([40, 64]))
+    bound = float(rng.choice([1.0, 1.5]))
+    occ = np.zeros(resolution ** 3, bool)
+    occ[rng.choice(resolution ** 3, int(rng.integers(1, 12)), replace=False)] = True
+    grid = R.Grid(occ, resolution, F32(bound))
+    o, d = random_rays(rng, 300, bound, resolution)
+    # A third aimed at an occupied cell's centre.
+    cells = np.stack(np.unravel_index(np.flatnonzero(occ), (resolution,) * 3), axis=1)
+    centre = (cells[rng.integers(0, len(cells), 100)] + 0.5) / resolution * 2 * bound - bound
+    d[:100] = (centre - o[:100]).astype(F32)
+    near, far = F32(rng.uniform(0, 1)), F32(rng.uniform(2, 8))
+    steps = int(rng.choice([512, 2048]))
+    with np.errstate(invalid="ignore", over="ignore"):
+        got = R.occupied_samples(grid, o, d, near, far, steps)
+    want = every_interval(grid, o, d, near, far, steps)
+    assert np.array_equal(got.offsets, want.offsets), "samples per ray"
+    assert np.array_equal(got.t, want.t), "sample distances, bit for bit"
+    assert np.diff(want.offsets).max() > 0, "some rays hit an occupied cell"
+
+
 def test_composite_by_hand():
     # The docstring's example: α = 0.5, 0.5 (colour 1, t = 1, 2) from T = 1.
     alpha = np.array([[0.5], [0.5]], F32)
@@ -184,3 +223,29 @@ def test_a_frame_is_marched_with_the_batches_of_chunk_by_chunk():
     key = sorted(c.tobytes() for c in new.calls)
     assert key == sorted(c.tobytes() for c in old.calls), "the same batches of points"
     assert len(old.calls) > n // chunk, "more than one round"
+
+
+def test_rays_whose_samples_run_to_the_last_step_are_marched_as_chunk_by_chunk():
+    """Rays that end inside the ball (far = 3.1), so their last round has fewer than 16
+    samples up to the very last step: the same pixels and calls as the old path."""
+    r = 16
+    grid = R.Grid(np.ones(r ** 3, bool), r, F32(1))
+    n = 90
+    rng = np.random.default_rng(3)
+    o = np.tile(np.array([[0.0, 0.0, 3.0]], F32), (n, 1))
+    d = np.concatenate([rng.uniform(-0.1, 0.1, (n, 2)), -np.ones((n, 1))], axis=1).astype(F32)
+    view = R.unit(d)
+    near, far, steps = F32(2), F32(3.1), 83
+    new, old = Ball(), Ball()
+    got = R.march_grid(new, grid, o, d, view, near, far, steps, None, False, 64)
+    samples = every_interval(grid, o, d, near, far, steps)
+    last = R.Marcher(grid, o, d, near, far, steps).t[steps - 1]
+    assert (np.diff(samples.offsets) % R.MARCH_SEGMENT != 0).all(), "every ray ends between rounds"
+    assert samples.t.max() == last, "at the last step"
+    parts = []
+    for s in range(0, n, 64):
+        sl = slice(s, s + 64)
+        packed = every_interval(grid, o[sl], d[sl], near, far, steps)
+        parts.append(R.march_front_to_back(old, o[sl], d[sl], view[sl], packed, None, False))
+    assert np.array_equal(got.rgb, np.concatenate([p.rgb for p in parts]))
+    assert sorted(c.tobytes() for c in new.calls) == sorted(c.tobytes() for c in old.calls)
