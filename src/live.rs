@@ -6,9 +6,10 @@
 //!   server in another process can report a run trained without `--serve`.
 //! - `live/<step>/`: a bundle of the field at that step ([`write_snapshot`]), written whole then
 //!   renamed into place, after which every other snapshot is removed (the last one kept).
-//!   `nerf train --serve` writes one [`SnapshotOptions::first_after_s`] into training, then every
-//!   [`SnapshotOptions::every_s`], at each validation and at the end; `nerf view` writes one
-//!   from each new checkpoint of a run whose trainer writes none.
+//!   `nerf train --serve` writes one [`SnapshotOptions::first_after_s`] into training, then at
+//!   intervals that double up to [`SnapshotOptions::every_s`] (the field changes fastest at
+//!   first), at each validation and at the end; `nerf view` writes one from each new checkpoint
+//!   of a run whose trainer writes none.
 //! - [`LiveStatus`]: what the page polls, made from the two and `curve.csv`.
 
 use crate::config::TrainConfig;
@@ -19,7 +20,7 @@ use crate::run_dir::RunDir;
 use nerf_core::PinholeCamera;
 use nerf_core::io::atomic::{remove_stale_temporaries, temp_sibling, write_atomic};
 use nerf_core::sample::occupancy::OccupancyGrid;
-use nerf_export::{CompileOptions, write_bundle};
+use nerf_export::{CompileOptions, TablePrecision, write_bundle};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 use std::time::{Duration, Instant, SystemTime};
@@ -100,18 +101,28 @@ impl ProgressLog {
     }
 }
 
-/// When `nerf train --serve` writes snapshots.
+/// When `nerf train --serve` writes snapshots: after `first_after_s`, then at intervals of twice
+/// the last one up to `every_s` (5, 15, 35, 75, 135, 195, … s by default), besides those at
+/// each validation and at the end. A lego snapshot takes 0.27 s and a page renders it in about
+/// 0.7 s: 13 in a 10-minute run cost about 2% of its steps (docs/viewer.md).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SnapshotOptions {
     /// Seconds of stepping before the first one (small, so the page shows the field early).
     pub first_after_s: f64,
-    /// Seconds between two (besides those at each validation and at the end).
+    /// The longest interval between two.
     pub every_s: f64,
 }
 
 impl Default for SnapshotOptions {
     fn default() -> Self {
-        SnapshotOptions { first_after_s: 5.0, every_s: 30.0 }
+        SnapshotOptions { first_after_s: 5.0, every_s: 60.0 }
+    }
+}
+
+impl SnapshotOptions {
+    /// The interval after one of `last` seconds.
+    fn next_interval(&self, last: f64) -> f64 {
+        (2.0 * last).min(self.every_s)
     }
 }
 
@@ -120,15 +131,20 @@ pub(crate) struct Snapshots {
     run: RunDir,
     camera: PinholeCamera,
     scene: RunScene,
-    every_s: f64,
+    options: SnapshotOptions,
     next_s: f64,
+    /// The interval before `next_s`.
+    interval_s: f64,
+    /// Snapshots written, and the seconds they took on the training thread.
+    written: usize,
+    seconds: f64,
 }
 
 impl Snapshots {
     /// For a session whose stepping starts at `seconds` of training.
     pub(crate) fn new(run: &RunDir, options: SnapshotOptions, seconds: f64) -> Result<Self> {
         let scene = RunScene::read(run.read_source()?.as_ref());
-        Ok(Snapshots { run: run.clone(), camera: run.read_camera()?, scene, every_s: options.every_s, next_s: seconds + options.first_after_s })
+        Ok(Snapshots { run: run.clone(), camera: run.read_camera()?, scene, options, next_s: seconds + options.first_after_s, interval_s: options.first_after_s, written: 0, seconds: 0.0 })
     }
 
     /// Whether one is due at `seconds`.
@@ -136,20 +152,32 @@ impl Snapshots {
         seconds >= self.next_s
     }
 
-    /// Write the trainer's field now; the next one is due `every_s` from `seconds`. A snapshot
-    /// that cannot be written is a warning (`say` prints it): training goes on.
+    /// Write the trainer's field now; the next one is due twice the last interval from
+    /// `seconds`, at most `every_s`. A snapshot that cannot be written is a warning (`say`
+    /// prints it): training goes on.
     pub(crate) fn write(&mut self, trainer: &dyn FieldTrainer, seconds: f64, say: &dyn Fn(String)) {
-        self.next_s = seconds + self.every_s;
+        self.interval_s = self.options.next_interval(self.interval_s);
+        self.next_s = seconds + self.interval_s;
+        let start = Instant::now();
         let field = trainer.snapshot();
         let written = write_snapshot(&self.run, trainer.steps_done(), field.as_ref(), trainer.config(), &self.camera, trainer.occupancy().cloned(), &self.scene);
-        if let Err(e) = written {
-            say(format!("warning: no live snapshot at step {}: {e}", trainer.steps_done()));
+        self.seconds += start.elapsed().as_secs_f64();
+        match written {
+            Ok(_) => self.written += 1,
+            Err(e) => say(format!("warning: no live snapshot at step {}: {e}", trainer.steps_done())),
         }
+    }
+
+    /// What the snapshots cost, over `total_s` seconds of this session's training.
+    pub(crate) fn summary(&self, total_s: f64) -> String {
+        let each = self.seconds / self.written.max(1) as f64;
+        format!("{} live snapshots, {each:.2} s each: {:.1}% of this session's {total_s:.0} s", self.written, 100.0 * self.seconds / total_s.max(1e-9))
     }
 }
 
 /// Write the bundle of `field` at `step` into `run`'s `live/<step>/` (whole, then renamed into
-/// place), then remove every other snapshot; returns the folder and the time it took.
+/// place; as `nerf export --tables f16` writes it), then remove every other snapshot; returns
+/// the folder and the time it took.
 pub fn write_snapshot(
     run: &RunDir,
     step: usize,
@@ -163,7 +191,8 @@ pub fn write_snapshot(
     let dir = run.live_dir().join(step.to_string());
     let mut bundle = field_bundle(field, config, camera, occupancy);
     scene.apply(&mut bundle.scene);
-    write_bundle(&dir, &bundle, &CompileOptions::default())?;
+    // A float16 table: half the bytes to write and for the page to load, at well under 0.05 dB.
+    write_bundle(&dir, &bundle, &CompileOptions { tables: TablePrecision::F16, ..CompileOptions::default() })?;
     prune_snapshots(run, step);
     Ok((dir, start.elapsed()))
 }
@@ -266,6 +295,20 @@ pub fn status(run: &RunDir, note: Option<String>) -> LiveStatus {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn snapshots_come_5_s_in_then_at_doubling_intervals_up_to_every_s() {
+        let options = SnapshotOptions::default();
+        let mut times = vec![options.first_after_s];
+        let mut interval = options.first_after_s;
+        while times.len() < 7 {
+            interval = options.next_interval(interval);
+            times.push(times.last().unwrap() + interval);
+        }
+        assert_eq!(times, [5.0, 15.0, 35.0, 75.0, 135.0, 195.0, 255.0]);
+        let every_2 = SnapshotOptions { first_after_s: 0.5, every_s: 2.0 };
+        assert_eq!([0.5, 1.0, 2.0, 4.0].map(|i| every_2.next_interval(i)), [1.0, 2.0, 2.0, 2.0]);
+    }
 
     #[test]
     fn a_snapshot_is_a_folder_named_by_its_step_in_usize_digits() {

@@ -90,10 +90,11 @@ fn live_names(run: &Path) -> Vec<String> {
     names
 }
 
-/// `nerf export` of `run` equals the snapshot in `snapshot`: the same files, byte for byte.
+/// `nerf export --tables f16` of `run` equals the snapshot in `snapshot`: the same files, byte
+/// for byte.
 fn assert_is_the_runs_export(run: &Path, snapshot: &Path, dir: &Path) {
     let export = dir.join("export");
-    let (ok, text) = nerf(&["export", "--run", s(run), "--out", s(&export)]);
+    let (ok, text) = nerf(&["export", "--run", s(run), "--out", s(&export), "--tables", "f16"]);
     assert!(ok, "{text}");
     let files = |d: &Path| {
         let mut f: Vec<(String, Vec<u8>)> = std::fs::read_dir(d).unwrap().map(|e| e.unwrap()).map(|e| (e.file_name().into_string().unwrap(), std::fs::read(e.path()).unwrap())).collect();

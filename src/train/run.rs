@@ -122,6 +122,7 @@ pub fn train_live(options: &TrainOptions, snapshots: Option<SnapshotOptions>) ->
     refresh_curve_plot(&run, &bar);
     if let Some(live) = &mut live {
         live.write(trainer.as_ref(), clock.seconds(), &say);
+        eprintln!("{}", live.summary(clock.start.elapsed().as_secs_f64()));
     }
     let mut last = progress.progress(trainer.as_ref(), clock.seconds(), budget_s, loss, recent.mean(), val_psnr);
     last.done = true;

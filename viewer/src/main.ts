@@ -6,6 +6,7 @@ import type { FromWorker, FrameMsg, Loaded, ToWorker } from "./protocol";
 import { type Orbit, orbitFromPose, orbitPose, toBytes } from "./view";
 import { isolate } from "./isolation";
 import { type Fly, captureRegion, captureUp, flyFromPose, flyPose, look, moveBy } from "./fly";
+import { LIVE_WIDTH, probeLive, startLive } from "./live";
 
 declare global {
   interface Window { nerfStats?: Record<string, unknown>; nerfFrame?: Float32Array; nerfTimeline?: { width: number; height: number; at: number }[];
@@ -28,6 +29,8 @@ let worker: Worker; // started once the page knows it will not reload for isolat
 const send = (m: ToWorker) => worker.postMessage(m);
 let onLoaded: (m: Loaded) => void = () => {};
 let onFrame: (m: FrameMsg) => void = () => {};
+/** Live training (live.ts): told when a snapshot loads or fails to. */
+let live: ReturnType<typeof startLive> | null = null;
 /** Why onnxruntime runs on one thread (not cross-origin isolated), for the stats line. */
 let singleThreadWhy: string | null = null;
 
@@ -37,6 +40,7 @@ function startWorker(): void {
     const m = ev.data;
     if (m.type === "loaded") onLoaded(m);
     else if (m.type === "frame") onFrame(m);
+    else if (m.type === "error" && live && m.id === undefined) live.failed(m.message); // a snapshot that did not load
     else if (m.type === "error") fail(m.message);
   };
   worker.onerror = (ev) => fail(`worker: ${ev.message || "failed to start"}`);
@@ -84,8 +88,9 @@ function testHook(loaded: Loaded, spec: string): void {
 }
 
 /** The interactive viewer (orbit, or for a forward-facing NDC capture a fly camera bounded to
- *  the region its poses saw: fly.ts): each camera move starts 1/8 → 1/4 → 1/2 → full, cancelling older work. */
-function interactive(loaded: Loaded): void {
+ *  the region its poses saw: fly.ts): each camera move starts 1/8 → 1/4 → 1/2 → full, cancelling older work.
+ *  Returns what renders the current view again (a live snapshot loaded: same camera, new field). */
+function interactive(loaded: Loaded, maxWidth = 400): () => void {
   document.body.classList.add("interactive");
   const scene = loaded.scene, cam = scene.camera, s = scene.sampling;
   const tests: { name?: string; transform_matrix: number[][] }[] = scene.poses?.test ?? [];
@@ -94,7 +99,7 @@ function interactive(loaded: Loaded): void {
   const choices = tests.length ? tests.map((p, i) => ({ label: p.name ?? `test ${i}`, m: p.transform_matrix }))
     : orbits.map((m, i) => ({ label: `orbit ${i}`, m }));
   for (const [i, c] of choices.entries()) select.add(new Option(c.label, String(i)));
-  const width = Number(params.get("width") ?? 0) || Math.min(cam.width, 400);
+  const width = Number(params.get("width") ?? 0) || Math.min(cam.width, maxWidth);
   const height = Math.round((width * cam.height) / cam.width);
   // 360° captures orbit about their own up vector (z for the Blender scenes).
   const upAxis = choices.length ? captureUp(choices.map((c) => c.m)) : [0, 0, 1];
@@ -116,10 +121,10 @@ function interactive(loaded: Loaded): void {
     window.nerfCamera = { nav: region ? "fly" : "orbit", c2w };
     send({ type: "render", id, width: Math.max(1, Math.round(width / f)), height: Math.max(1, Math.round(height / f)), c2w });
   };
-  const restart = () => {
+  const restart = (from = 0) => {
     if (current) send({ type: "cancel", id: current });
     document.body.dataset.state = "rendering";
-    request(0);
+    request(from);
   };
   onFrame = (m) => {
     const level = pending.get(m.id);
@@ -207,6 +212,8 @@ function interactive(loaded: Loaded): void {
     for (let a = 0; a < 3; a++) o.target[a] += (-dx * m[a][0] + dy * m[a][1]) * k;
   };
   request(0);
+  // A new live snapshot: the full size at once, the old frame staying until then (no previews).
+  return () => restart(levels.length - 1);
 }
 
 async function start(): Promise<void> {
@@ -218,13 +225,20 @@ async function start(): Promise<void> {
   const ortUrl = new URL("ort/", document.baseURI).href;
   $("isolation").hidden = crossOriginIsolated;
   if (singleThreadWhy) $("isolation").textContent += ` (${singleThreadWhy})`;
+  const load = (url: string) => send({ type: "load", bundleUrl: url, ortUrl, dense: params.get("dense") === "1", ep: params.get("ep") ?? "auto" });
+  let rerender: (() => void) | null = null;
   onLoaded = (loaded) => {
+    live?.loaded();
+    if (rerender) return rerender(); // a newer live snapshot: the user's view again
     const pose = params.get("pose");
     if (pose && pose.startsWith("test:")) testHook(loaded, pose);
     else if (pose) fail(`pose ${pose}: expected test:K`);
-    else interactive(loaded);
+    else rerender = interactive(loaded, live ? LIVE_WIDTH : 400);
   };
-  send({ type: "load", bundleUrl, ortUrl, dense: params.get("dense") === "1", ep: params.get("ep") ?? "auto" });
+  // Live training: the run's snapshots (live/<id>/) as they come, instead of bundle/.
+  const status = params.has("bundle") ? null : await probeLive(document.baseURI);
+  if (status) live = startLive(document.baseURI, status, { load });
+  else load(bundleUrl);
 }
 
 start().catch((e) => fail(`start: ${(e as Error).message}`));

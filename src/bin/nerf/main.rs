@@ -76,7 +76,8 @@ enum Command {
         /// The built viewer's directory (default: $NERF_VIEWER, else ~/.cache/nerf-rs/viewer).
         #[arg(long, requires = "serve")]
         viewer: Option<PathBuf>,
-        /// Seconds of training between two live snapshots (besides one 5 s in, one at each
+        /// The longest interval, in seconds of training, between two live snapshots: the first
+        /// comes 5 s in, the next ones at intervals that double up to this (besides one at each
         /// validation and one at the end).
         #[arg(long, requires = "serve", default_value_t = nerf::live::SnapshotOptions::default().every_s)]
         snapshot_every: f64,
