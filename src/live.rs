@@ -44,8 +44,8 @@ pub struct Progress {
     pub remaining_s: Option<f64>,
     /// Steps per second in this session.
     pub steps_per_s: f64,
-    /// The last step's loss.
-    pub loss: f32,
+    /// The last step's loss (`None` before a step of this session).
+    pub loss: Option<f32>,
     /// Mean training-batch PSNR (dB) over the last steps.
     pub train_psnr: f32,
     /// The last quick validation PSNR (dB).
@@ -76,7 +76,7 @@ impl ProgressLog {
     }
 
     /// The progress now.
-    pub(crate) fn progress(&self, trainer: &dyn FieldTrainer, seconds: f64, budget_s: Option<f64>, loss: f32, train_psnr: f32, val_psnr: Option<f32>) -> Progress {
+    pub(crate) fn progress(&self, trainer: &dyn FieldTrainer, seconds: f64, budget_s: Option<f64>, loss: Option<f32>, train_psnr: f32, val_psnr: Option<f32>) -> Progress {
         let (step, iters) = (trainer.steps_done(), trainer.config().iters);
         let session_s = self.start.1.elapsed().as_secs_f64();
         let steps_per_s = if session_s > 0.0 { (step - self.start.0) as f64 / session_s } else { 0.0 };

@@ -76,7 +76,7 @@ pub fn train_live(options: &TrainOptions, snapshots: Option<SnapshotOptions>) ->
     let mut progress = ProgressLog::new(&run, snapshots.is_some(), trainer.steps_done());
     let mut live = snapshots.map(|o| Snapshots::new(&run, o, clock.seconds())).transpose()?;
     let say = |m: String| bar.println(m);
-    let mut loss = f32::NAN;
+    let mut loss = None;
     while trainer.steps_done() < config.iters && !budget_s.is_some_and(|b| clock.seconds() >= b) {
         let done = budget_s.map_or(0.0, |b| clock.seconds() / b).max(trainer.steps_done() as f64 / config.iters as f64);
         let lr = config.learning_rate(trainer.steps_done(), done);
@@ -85,7 +85,7 @@ pub fn train_live(options: &TrainOptions, snapshots: Option<SnapshotOptions>) ->
             trainer.save(&run, clock.seconds())?;
             return Err(Error::Diverged { step: trainer.steps_done(), loss: stats.loss });
         }
-        loss = stats.loss;
+        loss = Some(stats.loss);
         recent.push(stats.psnr);
         let now = clock.seconds();
         if progress.due(now) {

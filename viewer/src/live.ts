@@ -7,7 +7,7 @@
 /** progress.json as the trainer writes it (src/live.rs). */
 export interface Progress {
   step: number; iters: number; elapsed_s: number; budget_s: number | null; remaining_s: number | null;
-  steps_per_s: number; loss: number; train_psnr: number; val_psnr: number | null; snapshots: boolean; done: boolean;
+  steps_per_s: number; loss: number | null; train_psnr: number; val_psnr: number | null; snapshots: boolean; done: boolean;
 }
 /** A row of the run's curve.csv. */
 export interface CurveRow { step: number; minutes: number; train_psnr: number; val_psnr: number | null }
@@ -50,7 +50,7 @@ export function progressLine(st: LiveStatus): string {
   if (p.done) parts.push("done");
   else if (st.progress_age_s !== null && st.progress_age_s > STALE_S) parts.push(`not training (last update ${duration(st.progress_age_s)} ago)`);
   else if (p.remaining_s !== null) parts.push(`${duration(p.remaining_s)} left`);
-  if (Number.isFinite(p.loss)) parts.push(`loss ${p.loss.toFixed(4)}`);
+  if (p.loss !== null) parts.push(`loss ${p.loss.toFixed(4)}`);
   parts.push(`train ${p.train_psnr.toFixed(2)} dB`);
   if (p.val_psnr !== null) parts.push(`val ${p.val_psnr.toFixed(2)} dB`);
   return parts.join(" · ") + (st.note ? ` · ${st.note}` : "");

@@ -22,6 +22,7 @@ describe("live progress", () => {
   });
   it("a finished run says done, a stalled one how long ago it stopped, and a run without progress the note", () => {
     expect(progressLine(status({ done: true }))).toContain("trained · done · loss");
+    expect(progressLine(status({ loss: null }))).toBe("step 1,200 / 100,000 · 2 min 40 s trained · 7 min 20 s left · train 24.51 dB");
     expect(progressLine(status({}, { progress_age_s: 95 }))).toContain("not training (last update 1 min 35 s ago)");
     expect(progressLine(status({}, { progress: null, note: "exporting the checkpoint of step 1000" }))).toBe("exporting the checkpoint of step 1000");
   });
