@@ -102,9 +102,9 @@ impl ProgressLog {
 }
 
 /// When `nerf train --serve` writes snapshots: after `first_after_s`, then at intervals of twice
-/// the last one up to `every_s` (5, 15, 35, 75, 135, 195, … s by default), besides those at
-/// each validation and at the end. A lego snapshot takes 0.27 s and a page renders it in about
-/// 0.7 s: 13 in a 10-minute run cost about 2% of its steps (docs/viewer.md).
+/// the last one up to `every_s` (5, 15, 35, 75, 155, 245, … s by default), besides those at
+/// each validation and at the end: 11 in a 10-minute run, which with a page attached cost about
+/// 2.5% of its steps (docs/viewer.md).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SnapshotOptions {
     /// Seconds of stepping before the first one (small, so the page shows the field early).
@@ -115,7 +115,7 @@ pub struct SnapshotOptions {
 
 impl Default for SnapshotOptions {
     fn default() -> Self {
-        SnapshotOptions { first_after_s: 5.0, every_s: 60.0 }
+        SnapshotOptions { first_after_s: 5.0, every_s: 90.0 }
     }
 }
 
@@ -305,7 +305,7 @@ mod tests {
             interval = options.next_interval(interval);
             times.push(times.last().unwrap() + interval);
         }
-        assert_eq!(times, [5.0, 15.0, 35.0, 75.0, 135.0, 195.0, 255.0]);
+        assert_eq!(times, [5.0, 15.0, 35.0, 75.0, 155.0, 245.0, 335.0]);
         let every_2 = SnapshotOptions { first_after_s: 0.5, every_s: 2.0 };
         assert_eq!([0.5, 1.0, 2.0, 4.0].map(|i| every_2.next_interval(i)), [1.0, 2.0, 2.0, 2.0]);
     }
