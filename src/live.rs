@@ -104,7 +104,7 @@ impl ProgressLog {
 /// When `nerf train --serve` writes snapshots: after `first_after_s`, then at intervals of twice
 /// the last one up to `every_s` (5, 15, 35, 75, 155, 245, … s by default), besides those at
 /// each validation and at the end: 11 in a 10-minute run, which with a page attached cost about
-/// 2.5% of its steps (docs/viewer.md).
+/// 3% of its steps (docs/viewer.md).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SnapshotOptions {
     /// Seconds of stepping before the first one (small, so the page shows the field early).

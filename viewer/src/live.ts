@@ -20,6 +20,11 @@ export const POLL_MS = 2000;
 /** The live view's width: a sixteenth of the pixels of a 400-wide view, so that rendering each
  *  snapshot takes little from the trainer on the same machine (?width= overrides). */
 export const LIVE_WIDTH = 100;
+/** The most field samples of a live pass the view refines to: early in training the occupancy
+ *  grid is still full and nothing stops a ray (lego at 5 s: about 1,400 samples a ray, where a
+ *  trained field takes 18), so a live view stays coarse until the field sparsens. A trained
+ *  lego's 100×100 view takes 176,693. */
+export const LIVE_POINTS = 200_000;
 /** A progress.json older than this (seconds) is a trainer that stopped without finishing. */
 const STALE_S = 30;
 

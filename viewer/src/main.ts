@@ -6,7 +6,7 @@ import type { FromWorker, FrameMsg, Loaded, ToWorker } from "./protocol";
 import { type Orbit, orbitFromPose, orbitPose, toBytes } from "./view";
 import { isolate } from "./isolation";
 import { type Fly, captureRegion, captureUp, flyFromPose, flyPose, look, moveBy } from "./fly";
-import { LIVE_WIDTH, probeLive, startLive } from "./live";
+import { LIVE_POINTS, LIVE_WIDTH, probeLive, startLive } from "./live";
 
 declare global {
   interface Window { nerfStats?: Record<string, unknown>; nerfFrame?: Float32Array; nerfTimeline?: { width: number; height: number; at: number }[];
@@ -88,9 +88,10 @@ function testHook(loaded: Loaded, spec: string): void {
 }
 
 /** The interactive viewer (orbit, or for a forward-facing NDC capture a fly camera bounded to
- *  the region its poses saw: fly.ts): each camera move starts 1/8 → 1/4 → 1/2 → full, cancelling older work.
+ *  the region its poses saw: fly.ts): each camera move starts 1/8 → 1/4 → 1/2 → full, cancelling older work;
+ *  a pass is refined only while the next would take at most `maxPoints` field samples (live.ts).
  *  Returns what renders the current view again (a live snapshot loaded: same camera, new field). */
-function interactive(loaded: Loaded, maxWidth = 400): () => void {
+function interactive(loaded: Loaded, maxWidth = 400, maxPoints = Infinity): () => void {
   document.body.classList.add("interactive");
   const scene = loaded.scene, cam = scene.camera, s = scene.sampling;
   const tests: { name?: string; transform_matrix: number[][] }[] = scene.poses?.test ?? [];
@@ -111,6 +112,7 @@ function interactive(loaded: Loaded, maxWidth = 400): () => void {
   const levels = [8, 4, 2, 1];
   const pending = new Map<number, number>(); // request id → level index
   let current = 0;
+  let reached = 0; // the level of the frame shown
 
   const request = (level: number) => {
     const id = next++;
@@ -131,14 +133,18 @@ function interactive(loaded: Loaded, maxWidth = 400): () => void {
     pending.delete(m.id);
     if (m.id !== current || level === undefined) return; // stale
     last = m;
+    reached = level;
+    // A pass has about 4× the samples of the one before.
+    const finest = level === levels.length - 1 || 4 * m.points > maxPoints;
     draw(m, depthView, s.near, s.far);
     // When each pass was drawn (ms since the page started loading): time to a first preview.
     (window.nerfTimeline ??= []).push({ width: m.width, height: m.height, at: performance.now() });
     canvas.style.aspectRatio = `${width} / ${height}`;
     window.nerfStats = statsOf(m, loaded);
-    $("stats").textContent = statsLine(window.nerfStats as any, loaded) + (level < levels.length - 1 ? " · refining" : "");
-    if (level < levels.length - 1) request(level + 1);
-    document.body.dataset.state = level < levels.length - 1 ? "rendering" : "done";
+    $("stats").textContent = statsLine(window.nerfStats as any, loaded) +
+      (!finest ? " · refining" : level < levels.length - 1 ? ` · stopped here: the next size passes the live view's ${maxPoints / 1e3}k samples` : "");
+    if (!finest) request(level + 1);
+    document.body.dataset.state = finest ? "done" : "rendering";
   };
   const snap = () => {
     exact = choices[Number(select.value)].m;
@@ -212,8 +218,8 @@ function interactive(loaded: Loaded, maxWidth = 400): () => void {
     for (let a = 0; a < 3; a++) o.target[a] += (-dx * m[a][0] + dy * m[a][1]) * k;
   };
   request(0);
-  // A new live snapshot: the full size at once, the old frame staying until then (no previews).
-  return () => restart(levels.length - 1);
+  // A new live snapshot: at the size shown, the old frame staying until then (no previews).
+  return () => restart(reached);
 }
 
 async function start(): Promise<void> {
@@ -233,7 +239,7 @@ async function start(): Promise<void> {
     const pose = params.get("pose");
     if (pose && pose.startsWith("test:")) testHook(loaded, pose);
     else if (pose) fail(`pose ${pose}: expected test:K`);
-    else rerender = interactive(loaded, live ? LIVE_WIDTH : 400);
+    else rerender = live ? interactive(loaded, LIVE_WIDTH, LIVE_POINTS) : interactive(loaded);
   };
   // Live training: the run's snapshots (live/<id>/) as they come, instead of bundle/.
   const status = params.has("bundle") ? null : await probeLive(document.baseURI);

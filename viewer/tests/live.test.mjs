@@ -3,7 +3,8 @@
 // progress.json). The page shows the first snapshot and the run's step; the user turns the
 // camera; then a newer snapshot (another field) appears: the page loads it by itself, renders it
 // from the camera the user left (not reset), and shows the new step. The live view's render
-// time is printed (what a page attached costs the trainer per snapshot). Needs chromium, the
+// time is printed (what a page attached costs the trainer per snapshot), and a page asking for a
+// larger view stops refining at the live view's budget of samples. Needs chromium, the
 // built dist/ and the `nerf` binary (NERF, else $CARGO_TARGET_DIR/release/nerf after
 // scripts/env.sh), as browser.test.mjs.
 import { after, before, test } from "node:test";
@@ -110,6 +111,16 @@ test("a live page loads the newer snapshot by itself and keeps the user's camera
   assert.notDeepEqual(turned.c2w, first.c2w, "the drag moved the camera");
   t.diagnostic(`live view ${first.stats.width}×${first.stats.height} of lego-ngp: loaded in ${first.loadMs.toFixed(0)} ms, ` +
     `its passes (1/8 to full) rendered in ${first.renderMs.toFixed(0)} ms, the full one ${first.stats.ms.toFixed(0)} ms (${first.stats.points} points)`);
+
+  // Asked for 200 wide, the live view stops refining where the next pass would pass its budget of
+  // field samples (100×100: 176,693; 200×200 would be about four times as many).
+  const wide = await browser.newPage();
+  await wide.goto(url + "?width=200");
+  const capped = await shown(wide, "100");
+  assert.equal(capped.state, "done", `page error: ${capped.error}`);
+  assert.deepEqual([capped.stats.width, capped.stats.height], [100, 100]);
+  assert.match(await wide.evaluate(() => document.getElementById("stats").textContent), /stopped here: the next size passes the live view's 200k samples/);
+  await wide.close();
 
   // A newer snapshot, another field; the older one removed, as the trainer does.
   snapshot(SECOND, 200, 100);
