@@ -9,19 +9,48 @@ use nerf_bundle::scene::{NamedPose, SceneDescription};
 use nerf_bundle::{WrittenFile, pose_matrix};
 use nerf_core::PinholeCamera;
 use nerf_core::camera::{ORBIT_FRAMES, Pose};
-use nerf_core::dataset::{CaptureFormat, CaptureSplit};
-use nerf_core::frames::views::{Images, SplitChoice};
+use crate::run_dir::RunSource;
+use nerf_core::dataset::{Background, CaptureFormat, CaptureSplit, ScenePlacement};
+use nerf_core::frames::views::{Images, SplitChoice, orbit_poses, split_views};
 use nerf_core::sample::occupancy::OccupancyGrid;
 use nerf_export::{Bundle, CompileField, CompileOptions, TablePrecision, write_bundle};
 use std::path::Path;
 
-/// The test poses of the run's dataset, in the field's frame, when it is recorded and still there.
-fn test_poses(loaded: &LoadedRun) -> Vec<NamedPose> {
-    let Some(source) = &loaded.source else { return vec![] };
-    let choice = SplitChoice { dir: source.data.clone(), format: source.placement.as_ref().map(|p| p.format), split: CaptureSplit::Test, downscale: source.downscale };
-    match loaded.split_views(&choice, Images::Skip) {
-        Ok(test) => test.iter().map(|v| NamedPose { name: v.name.clone(), transform_matrix: pose_matrix(&v.pose) }).collect(),
-        Err(_) => vec![],
+/// What a run's bundle records beside its field: the test poses of its dataset (when recorded
+/// and still there), its orbit and a capture's placement. Read once per run: live snapshots
+/// reuse it.
+#[derive(Debug, Clone, Default)]
+pub struct RunScene {
+    test: Vec<NamedPose>,
+    orbit: Vec<[[f32; 4]; 4]>,
+    placement: Option<ScenePlacement>,
+}
+
+impl RunScene {
+    /// Read from the run's recorded source (`None`: an older run, Blender as it is).
+    pub fn read(source: Option<&RunSource>) -> Self {
+        let placement = source.and_then(|s| s.placement.as_ref());
+        let test = match source {
+            Some(source) => {
+                let choice = SplitChoice { dir: source.data.clone(), format: placement.map(|p| p.format), split: CaptureSplit::Test, downscale: source.downscale };
+                // The background does not matter: no images are read.
+                match split_views(&choice, source.transform(), Background::from_white(true), Images::Skip) {
+                    Ok(test) => test.iter().map(|v| NamedPose { name: v.name.clone(), transform_matrix: pose_matrix(&v.pose) }).collect(),
+                    Err(_) => vec![],
+                }
+            }
+            None => vec![],
+        };
+        let orbit = orbit_poses(placement.and_then(|p| p.orbit.as_ref()), ORBIT_FRAMES).iter().map(pose_matrix).collect();
+        // A capture's placement; Blender scenes are used as they are.
+        RunScene { test, orbit, placement: placement.filter(|p| p.format != CaptureFormat::Blender).cloned() }
+    }
+
+    /// Record it in `scene`.
+    pub fn apply(&self, scene: &mut SceneDescription) {
+        scene.poses.test = self.test.clone();
+        scene.poses.orbit = self.orbit.clone();
+        scene.placement = self.placement.clone();
     }
 }
 
@@ -37,10 +66,7 @@ pub fn field_bundle<'a>(field: &'a dyn TrainedField, config: &TrainConfig, camer
 pub fn export_run(run: &Path, out: &Path, options: &CompileOptions) -> Result<Vec<WrittenFile>> {
     let loaded = LoadedRun::open(run)?;
     let mut bundle = field_bundle(loaded.model.as_ref(), &loaded.config, &loaded.camera, loaded.occupancy.clone());
-    bundle.scene.poses.test = test_poses(&loaded);
-    bundle.scene.poses.orbit = loaded.orbit(ORBIT_FRAMES).iter().map(pose_matrix).collect();
-    // A capture's placement; Blender scenes are used as they are.
-    bundle.scene.placement = loaded.placement().filter(|p| p.format != CaptureFormat::Blender).cloned();
+    RunScene::read(loaded.source.as_ref()).apply(&mut bundle.scene);
     Ok(write_bundle(out, &bundle, options)?)
 }
 

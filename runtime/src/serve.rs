@@ -10,6 +10,12 @@
 //! chunks, with their length from the file's metadata. Every response carries the
 //! cross-origin isolation headers (COOP same-origin, COEP require-corp, CORP same-origin) that
 //! multi-threaded WASM needs.
+//!
+//! A site may also be live ([`Live`]: a run being trained, `nerf train --serve`, `nerf view`):
+//! `/live/status.json` is then the run's progress, made at each request, and
+//! `/live/<id>/<name>` the files of its snapshot `<id>` as [`bundle_files`] lists them, looked up
+//! at each request (snapshots come and go as training goes); the page finds the newest id in
+//! the status.
 
 use crate::error::{Result, RuntimeError};
 use axum::body::{Body, Bytes, HttpBody};
@@ -86,10 +92,26 @@ pub fn scene_file(dir: &Path) -> Result<PathBuf> {
     Ok(path)
 }
 
-/// The files served, by request path.
-#[derive(Debug, Default)]
+/// What a live site serves beside its fixed files: a run's progress and its latest snapshot.
+pub trait Live: Send + Sync {
+    /// The body of `/live/status.json` (a JSON object; its fields are the page's business).
+    fn status(&self) -> Vec<u8>;
+    /// The bundle directory of snapshot `id`, when it is one of the run's now (`id` is a plain
+    /// name: no `/`, no leading dot).
+    fn snapshot(&self, id: &str) -> Option<PathBuf>;
+}
+
+/// The files served, by request path, and the live run, if any.
+#[derive(Default)]
 pub struct Site {
     files: HashMap<String, PathBuf>,
+    live: Option<Arc<dyn Live>>,
+}
+
+impl std::fmt::Debug for Site {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Site").field("files", &self.files).field("live", &self.live.is_some()).finish()
+    }
 }
 
 impl Site {
@@ -134,9 +156,25 @@ impl Site {
         Ok(())
     }
 
-    /// The file served at `path`, if any.
-    pub fn file(&self, path: &str) -> Option<&Path> {
-        self.files.get(path).map(PathBuf::as_path)
+    /// The site serving `live` under `/live/` too.
+    pub fn with_live(mut self, live: Arc<dyn Live>) -> Self {
+        self.live = Some(live);
+        self
+    }
+
+    /// The file served at `path`, if any (a live snapshot's file: when that snapshot is there
+    /// now and loads as a bundle).
+    pub fn file(&self, path: &str) -> Option<PathBuf> {
+        if let Some(file) = self.files.get(path) {
+            return Some(file.clone());
+        }
+        let (id, name) = path.strip_prefix("/live/")?.split_once('/')?;
+        if !plain(id) || !plain(name) {
+            return None;
+        }
+        let dir = self.live.as_ref()?.snapshot(id)?;
+        // The snapshot's own files only, as for `/bundle/`; one that does not load serves nothing.
+        bundle_files(&dir).ok()?.into_iter().find(|(n, _)| n == name).map(|(_, p)| p)
     }
 
     /// Every file served, by request path (`/` once, as `/index.html`), sorted by path.
@@ -230,15 +268,23 @@ async fn file_body(file: &Path, head: bool) -> std::io::Result<(Body, u64)> {
     Ok((Body::new(FileBody { file, left: meta.len() }), meta.len()))
 }
 
+/// The path of a live site's status.
+pub const LIVE_STATUS: &str = "/live/status.json";
+
 /// The response to `method path` (the path as requested, query excluded).
 pub async fn respond(site: &Site, method: &Method, path: &str) -> Response<Body> {
     let text = "text/plain; charset=utf-8";
     let (status, body, kind, length) = if method != Method::GET && method != Method::HEAD {
         (StatusCode::METHOD_NOT_ALLOWED, Body::from("only GET and HEAD\n"), text, None)
+    } else if let (LIVE_STATUS, Some(live)) = (path, &site.live) {
+        let status = live.status();
+        let length = status.len() as u64;
+        let body = if method == Method::HEAD { Body::empty() } else { Body::from(status) };
+        (StatusCode::OK, body, content_type(path), Some(length))
     } else {
         match site.file(path) {
             None => (StatusCode::NOT_FOUND, Body::from("not found\n"), text, None),
-            Some(file) => match file_body(file, method == Method::HEAD).await {
+            Some(file) => match file_body(&file, method == Method::HEAD).await {
                 Ok((body, length)) => (StatusCode::OK, body, content_type(path), Some(length)),
                 Err(e) => {
                     eprintln!("{}: {e}", file.display());
@@ -268,27 +314,56 @@ pub async fn respond(site: &Site, method: &Method, path: &str) -> Response<Body>
 /// Serve `site` on `host:port` (port 0: any free port) until the process ends; prints the URL
 /// to open (then flushes stdout, so a script can read it).
 pub fn serve(site: Site, host: IpAddr, port: u16) -> Result<()> {
-    if !host.is_loopback() {
-        eprintln!("warning: serving on {host}, reachable from other machines: the bundle's files can be read by anyone who can reach this address");
-    }
-    let runtime = tokio::runtime::Builder::new_current_thread().enable_io().build().map_err(|e| RuntimeError::Other(format!("cannot start the server: {e}")))?;
-    runtime.block_on(async move {
-        let listener = tokio::net::TcpListener::bind(SocketAddr::new(host, port)).await.map_err(|e| RuntimeError::Other(format!("cannot listen on {host}:{port}: {e}")))?;
+    let listener = Listener::bind(host, port)?;
+    println!("viewer: {}", listener.url());
+    use std::io::Write;
+    std::io::stdout().flush().ok();
+    listener.serve(site)
+}
+
+/// A port bound for the viewer, not yet served: binding first lets a command that serves
+/// beside other work (`nerf train --serve`) fail on a taken port before it starts.
+#[derive(Debug)]
+pub struct Listener {
+    listener: std::net::TcpListener,
+    address: SocketAddr,
+}
+
+impl Listener {
+    /// Listen on `host:port` (port 0: any free port); a port in use or an address that is not
+    /// this machine's is an error naming it. A host other than loopback is warned about.
+    pub fn bind(host: IpAddr, port: u16) -> Result<Self> {
+        if !host.is_loopback() {
+            eprintln!("warning: serving on {host}, reachable from other machines: the bundle's files can be read by anyone who can reach this address");
+        }
+        let listener = std::net::TcpListener::bind(SocketAddr::new(host, port)).map_err(|e| RuntimeError::Other(format!("cannot listen on {host}:{port}: {e}")))?;
+        listener.set_nonblocking(true).map_err(|e| RuntimeError::Other(format!("{host}:{port}: {e}")))?;
         let address = listener.local_addr().map_err(|e| RuntimeError::Other(e.to_string()))?;
-        let host = match address.ip() {
+        Ok(Listener { listener, address })
+    }
+
+    /// The page's URL.
+    pub fn url(&self) -> String {
+        let host = match self.address.ip() {
             IpAddr::V6(ip) => format!("[{ip}]"),
             ip => ip.to_string(),
         };
-        println!("viewer: http://{host}:{}/", address.port());
-        use std::io::Write;
-        std::io::stdout().flush().ok();
-        let site = Arc::new(site);
-        let app = axum::Router::new().fallback(move |request: Request<Body>| {
-            let site = site.clone();
-            async move { respond(&site, request.method(), request.uri().path()).await }
-        });
-        axum::serve(listener, app).await.map_err(|e| RuntimeError::Other(format!("the server stopped: {e}")))
-    })
+        format!("http://{host}:{}/", self.address.port())
+    }
+
+    /// Serve `site` until the process ends.
+    pub fn serve(self, site: Site) -> Result<()> {
+        let runtime = tokio::runtime::Builder::new_current_thread().enable_io().build().map_err(|e| RuntimeError::Other(format!("cannot start the server: {e}")))?;
+        runtime.block_on(async move {
+            let listener = tokio::net::TcpListener::from_std(self.listener).map_err(|e| RuntimeError::Other(format!("cannot serve on {}: {e}", self.address)))?;
+            let site = Arc::new(site);
+            let app = axum::Router::new().fallback(move |request: Request<Body>| {
+                let site = site.clone();
+                async move { respond(&site, request.method(), request.uri().path()).await }
+            });
+            axum::serve(listener, app).await.map_err(|e| RuntimeError::Other(format!("the server stopped: {e}")))
+        })
+    }
 }
 
 #[cfg(test)]
@@ -332,5 +407,48 @@ mod tests {
             let (bytes, err) = drain(body(1000).await).await;
             assert!(bytes == data[..1000] && err.is_none(), "{} bytes, {err:?}", bytes.len());
         });
+    }
+
+    /// A run with one snapshot, `7`: a copy of `models/spheres` with a stray file beside it.
+    struct OneSnapshot(PathBuf);
+
+    impl Live for OneSnapshot {
+        fn status(&self) -> Vec<u8> {
+            br#"{"snapshot":"7"}"#.to_vec()
+        }
+        fn snapshot(&self, id: &str) -> Option<PathBuf> {
+            (id == "7").then(|| self.0.clone())
+        }
+    }
+
+    #[test]
+    fn a_live_site_serves_the_status_and_only_the_bundle_files_of_a_snapshot_it_names() {
+        let dir = tempfile::tempdir().unwrap();
+        let snapshot = dir.path().join("7");
+        std::fs::create_dir(&snapshot).unwrap();
+        let spheres = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/spheres");
+        for name in ["scene.json", "coarse.onnx", "fine.onnx", "occupancy.bin"] {
+            std::fs::copy(spheres.join(name), snapshot.join(name)).unwrap();
+        }
+        std::fs::write(snapshot.join("notes.txt"), "not a bundle file").unwrap();
+        let viewer = dir.path().join("viewer");
+        std::fs::create_dir(&viewer).unwrap();
+        std::fs::write(viewer.join("index.html"), "<!doctype html>").unwrap();
+        let plain_site = Site::new(&viewer, Vec::new()).unwrap();
+        let site = Site::new(&viewer, Vec::new()).unwrap().with_live(Arc::new(OneSnapshot(snapshot.clone())));
+        let runtime = tokio::runtime::Builder::new_current_thread().build().unwrap();
+        let status = |site: &Site, path: &str| runtime.block_on(respond(site, &Method::GET, path)).status();
+        assert_eq!(status(&site, LIVE_STATUS), StatusCode::OK);
+        assert_eq!(status(&plain_site, LIVE_STATUS), StatusCode::NOT_FOUND, "a site that is not live has no status");
+        assert_eq!(site.file("/live/7/fine.onnx"), Some(snapshot.join("fine.onnx")));
+        for path in ["/live/7/scene.json", "/live/7/coarse.onnx", "/live/7/occupancy.bin"] {
+            assert_eq!(status(&site, path), StatusCode::OK, "{path}");
+        }
+        for path in ["/live/7/notes.txt", "/live/8/scene.json", "/live/7/../7/scene.json", "/live/./7/scene.json", "/live/7", "/live/7/sub/scene.json", "/live/%37/scene.json"] {
+            assert_eq!(status(&site, path), StatusCode::NOT_FOUND, "{path}");
+        }
+        // A snapshot that stops loading (its graph gone mid-write) serves nothing.
+        std::fs::remove_file(snapshot.join("coarse.onnx")).unwrap();
+        assert_eq!(status(&site, "/live/7/scene.json"), StatusCode::NOT_FOUND);
     }
 }

@@ -59,6 +59,11 @@ impl Checkpoint {
         name.strip_prefix(PREFIX).is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
     }
 
+    /// The step in the directory's name.
+    pub fn step(&self) -> Option<usize> {
+        self.dir.file_name()?.to_str()?.strip_prefix(PREFIX)?.parse().ok()
+    }
+
     /// The weights of `model` as a checkpoint's `model.bpk`.
     pub fn model_bytes<M: ModuleSnapshot>(model: &M) -> Result<Vec<u8>> {
         let mut store = BurnpackStore::from_bytes(None);

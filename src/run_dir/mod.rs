@@ -10,6 +10,8 @@
 //! | `curve.png` | with each `curve.csv` row | the curve drawn ([`crate::plot::write_run_curve`]) |
 //! | `checkpoints/step-NNNNNNN/` | every `checkpoint_every` steps | weights, optimizer, state, grid ([`Checkpoint`]) |
 //! | `checkpoints/latest` | after each checkpoint | the name of the newest complete checkpoint |
+//! | `progress.json` | every 2 s while training | step, time, remaining, recent loss and PSNR ([`crate::live::Progress`]) |
+//! | `live/<step>/` | `nerf train --serve`, `nerf view` | the field's bundle at that step, the last one kept ([`crate::live`]) |
 
 use crate::error::{Error, Result};
 mod checkpoint;
@@ -99,6 +101,16 @@ impl RunDir {
     /// `curve.png`: the curve drawn.
     pub fn curve_plot_path(&self) -> PathBuf {
         self.root.join("curve.png")
+    }
+
+    /// `progress.json`: the trainer's progress, for a server in another process.
+    pub fn progress_path(&self) -> PathBuf {
+        self.root.join("progress.json")
+    }
+
+    /// `live/`: the field's latest snapshot, for the viewer.
+    pub fn live_dir(&self) -> PathBuf {
+        self.root.join("live")
     }
 
     /// `checkpoints/`.

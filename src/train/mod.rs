@@ -7,5 +7,5 @@ pub mod packed;
 mod run;
 mod schedule;
 
-pub use run::{NDC_MARCH_STEPS, TrainOptions, TrainSummary, train};
+pub use run::{NDC_MARCH_STEPS, TrainOptions, TrainSummary, train, train_live};
 pub use schedule::{LrSchedule, final_anneal, learning_rate, planned_learning_rate};

@@ -4,6 +4,7 @@
 use crate::field::FieldTrainer;
 use crate::config::TrainConfig;
 use crate::error::{Error, Result};
+use crate::live::{ProgressLog, SnapshotOptions, Snapshots};
 use crate::run_dir::{RunDir, RunSource};
 use indicatif::{ProgressBar, ProgressStyle};
 use nerf_core::dataset::{Background, CaptureFormat, CaptureSplit, LoadOptions, SceneFrame, SplitData, detect_format, load_dataset};
@@ -56,6 +57,12 @@ const RECENT_STEPS: usize = 50;
 
 /// Train (or resume) a run as `options` say.
 pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
+    train_live(options, None)
+}
+
+/// [`train`], also writing live snapshots of the field as `snapshots` says, for the viewer
+/// ([`crate::live`]; `nerf train --serve`).
+pub fn train_live(options: &TrainOptions, snapshots: Option<SnapshotOptions>) -> Result<TrainSummary> {
     let run = RunDir::create(&options.run)?;
     let (mut trainer, val_data, elapsed_before) = start_or_resume(&run, options)?;
     let config = trainer.config().clone();
@@ -66,6 +73,10 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
     let mut recent = RecentPsnr::default();
     let mut next_eval_s = if config.eval_every_min > 0.0 { clock.seconds() + config.eval_every_min * 60.0 } else { f64::INFINITY };
     let mut val_psnr = None;
+    let mut progress = ProgressLog::new(&run, snapshots.is_some(), trainer.steps_done());
+    let mut live = snapshots.map(|o| Snapshots::new(&run, o, clock.seconds())).transpose()?;
+    let say = |m: String| bar.println(m);
+    let mut loss = None;
     while trainer.steps_done() < config.iters && !budget_s.is_some_and(|b| clock.seconds() >= b) {
         let done = budget_s.map_or(0.0, |b| clock.seconds() / b).max(trainer.steps_done() as f64 / config.iters as f64);
         let lr = config.learning_rate(trainer.steps_done(), done);
@@ -74,7 +85,16 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
             trainer.save(&run, clock.seconds())?;
             return Err(Error::Diverged { step: trainer.steps_done(), loss: stats.loss });
         }
+        loss = Some(stats.loss);
         recent.push(stats.psnr);
+        let now = clock.seconds();
+        if progress.due(now) {
+            let p = progress.progress(trainer.as_ref(), now, budget_s, loss, recent.mean(), val_psnr);
+            progress.write(&p, now);
+        }
+        if let Some(live) = live.as_mut().filter(|l| l.due(now)) {
+            live.write(trainer.as_ref(), now, &say);
+        }
         bar.set_position(trainer.steps_done() as u64);
         let budget = budget_s.map(|b| format!(" | {:.1}/{:.0} min", clock.seconds() / 60.0, b / 60.0)).unwrap_or_default();
         bar.set_message(format!("loss {:.4} psnr {:.2} lr {lr:.1e}{budget}", stats.loss, recent.mean()));
@@ -88,6 +108,9 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
             curve.record(trainer.steps_done(), clock.minutes(), recent.mean(), val_psnr)?;
             refresh_curve_plot(&run, &bar);
             next_eval_s += config.eval_every_min * 60.0;
+            if let Some(live) = &mut live {
+                live.write(trainer.as_ref(), clock.seconds(), &say);
+            }
         }
     }
     trainer.save(&run, clock.seconds())?;
@@ -97,6 +120,14 @@ pub fn train(options: &TrainOptions) -> Result<TrainSummary> {
     }
     curve.record(trainer.steps_done(), clock.minutes(), recent.mean(), val_psnr)?;
     refresh_curve_plot(&run, &bar);
+    if let Some(live) = &mut live {
+        live.write(trainer.as_ref(), clock.seconds(), &say);
+        eprintln!("{}", live.summary(clock.start.elapsed().as_secs_f64()));
+    }
+    let mut last = progress.progress(trainer.as_ref(), clock.seconds(), budget_s, loss, recent.mean(), val_psnr);
+    last.done = true;
+    last.remaining_s = Some(0.0);
+    progress.write(&last, clock.seconds());
     Ok(TrainSummary { steps: trainer.steps_done(), train_psnr: recent.mean(), val_psnr, minutes: clock.minutes() })
 }
 

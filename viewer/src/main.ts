@@ -8,6 +8,7 @@ import { isolate } from "./isolation";
 import { type Fly, captureRegion, captureUp, flyFromPose, flyPose, look, moveBy } from "./fly";
 import type { Intrinsics } from "./protocol";
 import { pathPanel } from "./pathpanel";
+import { LIVE_POINTS, LIVE_WIDTH, probeLive, startLive } from "./live";
 
 declare global {
   interface Window { nerfStats?: Record<string, unknown>; nerfFrame?: Float32Array; nerfTimeline?: { width: number; height: number; at: number }[];
@@ -30,6 +31,8 @@ let worker: Worker; // started once the page knows it will not reload for isolat
 const send = (m: ToWorker) => worker.postMessage(m);
 let onLoaded: (m: Loaded) => void = () => {};
 let onFrame: (m: FrameMsg) => void = () => {};
+/** Live training (live.ts): told when a snapshot loads or fails to. */
+let live: ReturnType<typeof startLive> | null = null;
 /** Why onnxruntime runs on one thread (not cross-origin isolated), for the stats line. */
 let singleThreadWhy: string | null = null;
 
@@ -40,6 +43,7 @@ function startWorker(): void {
     if ("id" in m && m.id !== undefined && pathRenders.has(m.id)) { pathSettle(m); return; }
     if (m.type === "loaded") onLoaded(m);
     else if (m.type === "frame") onFrame(m);
+    else if (m.type === "error" && live && m.id === undefined) live.failed(m.message); // a snapshot that did not load
     else if (m.type === "error") fail(m.message);
   };
   worker.onerror = (ev) => fail(`worker: ${ev.message || "failed to start"}`);
@@ -101,8 +105,10 @@ function testHook(loaded: Loaded, spec: string): void {
 }
 
 /** The interactive viewer (orbit, or for a forward-facing NDC capture a fly camera bounded to
- *  the region its poses saw: fly.ts): each camera move starts 1/8 → 1/4 → 1/2 → full, cancelling older work. */
-function interactive(loaded: Loaded): void {
+ *  the region its poses saw: fly.ts): each camera move starts 1/8 → 1/4 → 1/2 → full, cancelling older work;
+ *  a pass is refined only while the next would take at most `maxPoints` field samples (live.ts).
+ *  Returns what renders the current view again (a live snapshot loaded: same camera, new field). */
+function interactive(loaded: Loaded, maxWidth = 400, maxPoints = Infinity): () => void {
   document.body.classList.add("interactive");
   const scene = loaded.scene, cam = scene.camera, s = scene.sampling;
   const tests: { name?: string; transform_matrix: number[][] }[] = scene.poses?.test ?? [];
@@ -111,7 +117,7 @@ function interactive(loaded: Loaded): void {
   const choices = tests.length ? tests.map((p, i) => ({ label: p.name ?? `test ${i}`, m: p.transform_matrix }))
     : orbits.map((m, i) => ({ label: `orbit ${i}`, m }));
   for (const [i, c] of choices.entries()) select.add(new Option(c.label, String(i)));
-  const width = Number(params.get("width") ?? 0) || Math.min(cam.width, 400);
+  const width = Number(params.get("width") ?? 0) || Math.min(cam.width, maxWidth);
   const height = Math.round((width * cam.height) / cam.width);
   // 360° captures orbit about their own up vector (z for the Blender scenes).
   const upAxis = choices.length ? captureUp(choices.map((c) => c.m)) : [0, 0, 1];
@@ -123,6 +129,7 @@ function interactive(loaded: Loaded): void {
   const levels = [8, 4, 2, 1];
   const pending = new Map<number, number>(); // request id → level index
   let current = 0;
+  let reached = 0; // the level of the frame shown
 
   const view = () => exact ?? (region && fly ? flyPose(fly, region.up) : orbitPose(orbit));
   const request = (level: number) => {
@@ -134,24 +141,28 @@ function interactive(loaded: Loaded): void {
     window.nerfCamera = { nav: region ? "fly" : "orbit", c2w };
     send({ type: "render", id, width: Math.max(1, Math.round(width / f)), height: Math.max(1, Math.round(height / f)), c2w });
   };
-  const restart = () => {
+  const restart = (from = 0) => {
     if (current) send({ type: "cancel", id: current });
     document.body.dataset.state = "rendering";
-    request(0);
+    request(from);
   };
   onFrame = (m) => {
     const level = pending.get(m.id);
     pending.delete(m.id);
     if (m.id !== current || level === undefined) return; // stale
     last = m;
+    reached = level;
+    // A pass has about 4× the samples of the one before.
+    const finest = level === levels.length - 1 || 4 * m.points > maxPoints;
     draw(m, depthView, s.near, s.far);
     // When each pass was drawn (ms since the page started loading): time to a first preview.
     (window.nerfTimeline ??= []).push({ width: m.width, height: m.height, at: performance.now() });
     canvas.style.aspectRatio = `${width} / ${height}`;
     window.nerfStats = statsOf(m, loaded);
-    $("stats").textContent = statsLine(window.nerfStats as any, loaded) + (level < levels.length - 1 ? " · refining" : "");
-    if (level < levels.length - 1) request(level + 1);
-    document.body.dataset.state = level < levels.length - 1 ? "rendering" : "done";
+    $("stats").textContent = statsLine(window.nerfStats as any, loaded) +
+      (!finest ? " · refining" : level < levels.length - 1 ? ` · stopped here: the next size passes the live view's ${maxPoints / 1e3}k samples` : "");
+    if (!finest) request(level + 1);
+    document.body.dataset.state = finest ? "done" : "rendering";
   };
   const goTo = (m: number[][]) => {
     exact = m;
@@ -232,6 +243,8 @@ function interactive(loaded: Loaded): void {
     render: (w, h, c2w, intrinsics) => { if (current) send({ type: "cancel", id: current }); current = 0; return pathRender(w, h, c2w, intrinsics); },
     show: (m) => { draw(m, false, 0, 1); canvas.style.aspectRatio = `${m.width} / ${m.height}`; } });
   request(0);
+  // A new live snapshot: at the size shown, the old frame staying until then (no previews).
+  return () => restart(reached);
 }
 
 async function start(): Promise<void> {
@@ -243,13 +256,20 @@ async function start(): Promise<void> {
   const ortUrl = new URL("ort/", document.baseURI).href;
   $("isolation").hidden = crossOriginIsolated;
   if (singleThreadWhy) $("isolation").textContent += ` (${singleThreadWhy})`;
+  const load = (url: string) => send({ type: "load", bundleUrl: url, ortUrl, dense: params.get("dense") === "1", ep: params.get("ep") ?? "auto" });
+  let rerender: (() => void) | null = null;
   onLoaded = (loaded) => {
+    live?.loaded();
+    if (rerender) return rerender(); // a newer live snapshot: the user's view again
     const pose = params.get("pose");
     if (pose && pose.startsWith("test:")) testHook(loaded, pose);
     else if (pose) fail(`pose ${pose}: expected test:K`);
-    else interactive(loaded);
+    else rerender = live ? interactive(loaded, LIVE_WIDTH, LIVE_POINTS) : interactive(loaded);
   };
-  send({ type: "load", bundleUrl, ortUrl, dense: params.get("dense") === "1", ep: params.get("ep") ?? "auto" });
+  // Live training: the run's snapshots (live/<id>/) as they come, instead of bundle/.
+  const status = params.has("bundle") ? null : await probeLive(document.baseURI);
+  if (status) live = startLive(document.baseURI, status, { load });
+  else load(bundleUrl);
 }
 
 start().catch((e) => fail(`start: ${(e as Error).message}`));

@@ -13,7 +13,7 @@ import { type Adapter, pickProvider } from "./provider";
 import { emptyReach } from "./march";
 
 type Ort = typeof OrtModule;
-interface Loaded { scene: any; coarse: Field; fine: Field | null; grid: Grid | null }
+interface Loaded { scene: any; coarse: Field; fine: Field | null; grid: Grid | null; sessions: OrtModule.InferenceSession[] }
 let bundle: Loaded | null = null;
 let latest = 0; // the newest render request: older ones are cancelled
 // Renders run one after another: a new request waits for the previous one to stop.
@@ -29,7 +29,7 @@ async function fetchOk(url: string): Promise<ArrayBuffer> {
 }
 
 /** A field backed by one session, split into calls of at most MAX_POINTS points. */
-function sessionField(ort: Ort, session: OrtModule.InferenceSession): Field {
+function sessionField(ort: Ort, session: OrtModule.InferenceSession): Field & { session: OrtModule.InferenceSession } {
   const run = async (points: Float32Array, viewdirs: Float32Array, m: number) => {
     const t0 = performance.now();
     const out = await session.run({
@@ -40,7 +40,7 @@ function sessionField(ort: Ort, session: OrtModule.InferenceSession): Field {
     fieldMs += performance.now() - t0;
     return { rgb, sigma };
   };
-  return async (points, viewdirs, n) => {
+  const field: Field = async (points, viewdirs, n) => {
     // One call (the renderers never ask for more): onnxruntime's own output arrays, no copy.
     if (n <= MAX_POINTS) return run(points.subarray(0, 3 * n), viewdirs.subarray(0, 3 * n), n);
     const rgb = new Float32Array(3 * n), sigma = new Float32Array(n);
@@ -51,6 +51,7 @@ function sessionField(ort: Ort, session: OrtModule.InferenceSession): Field {
     }
     return { rgb, sigma };
   };
+  return Object.assign(field, { session });
 }
 
 /** The provider (see provider.ts); `want` = "wasm" (?ep=wasm) skips WebGPU. */
@@ -66,9 +67,12 @@ async function chooseProvider(graphs: { name: string; info: GraphInfo }[], want:
 /** onnxruntime-web's WASM build, or its WebGPU build (which also holds the WASM kernels). */
 async function loadOrt(provider: Provider, ortUrl: string, isolated: boolean): Promise<Ort> {
   const ort: Ort = provider === "webgpu" ? await import("onnxruntime-web/webgpu") : await import("onnxruntime-web/wasm");
-  // Threads need SharedArrayBuffer, which needs cross-origin isolation (COOP + COEP).
-  ort.env.wasm.numThreads = isolated ? navigator.hardwareConcurrency || 1 : 1;
-  ort.env.wasm.wasmPaths = ortUrl; // served locally from the build, never a CDN
+  // Set once: a later bundle (a live snapshot) finds the runtime already started with them.
+  if (!ort.env.wasm.wasmPaths) {
+    // Threads need SharedArrayBuffer, which needs cross-origin isolation (COOP + COEP).
+    ort.env.wasm.numThreads = isolated ? navigator.hardwareConcurrency || 1 : 1;
+    ort.env.wasm.wasmPaths = ortUrl; // served locally from the build, never a CDN
+  }
   return ort;
 }
 
@@ -92,7 +96,7 @@ async function load(bundleUrl: string, ortUrl: string, dense: boolean, ep: strin
     catch (e) { throw new Error(`${g.url}: ${(e as Error).message}`); }
   };
   let ort = await loadOrt(provider, ortUrl, isolated);
-  let fields: Field[];
+  let fields: ReturnType<typeof sessionField>[];
   try { fields = await Promise.all(graphs.map((g) => open(ort, g, provider))); }
   catch (e) {
     if (provider !== "webgpu") throw e;
@@ -107,7 +111,11 @@ async function load(bundleUrl: string, ortUrl: string, dense: boolean, ep: strin
   else if (isBounded(scene)) grid = wholeBox(scene.occupancy.bound);
   if (grid) emptyReach(grid); // once per bundle, not per frame
 
-  bundle = { scene, coarse: fields[0], fine: fields[1] ?? null, grid };
+  // Another bundle replaces this one (a live snapshot): its sessions are freed once no render uses
+  // them (loads wait in the render queue).
+  const old = bundle;
+  bundle = { scene, coarse: fields[0], fine: fields[1] ?? null, grid, sessions: fields.map((f) => f.session) };
+  for (const s of old?.sessions ?? []) s.release().catch(() => {});
   post({ type: "loaded", scene, threads: ort.env.wasm.numThreads as number, backend: provider, reason, isolated, marched: grid !== null });
 }
 
@@ -139,7 +147,9 @@ async function render(id: number, width: number, height: number, c2w: number[][]
 self.onmessage = (ev: MessageEvent<ToWorker>) => {
   const m = ev.data;
   if (m.type === "load") {
-    load(m.bundleUrl, m.ortUrl, m.dense, m.ep).catch((e) => post({ type: "error", message: String((e as Error).message ?? e) }));
+    // After the render in progress, which stops early (cancelled): it holds the current sessions.
+    latest = -1;
+    queue = queue.then(() => load(m.bundleUrl, m.ortUrl, m.dense, m.ep)).catch((e) => post({ type: "error", message: String((e as Error).message ?? e) }));
   } else if (m.type === "render") {
     latest = m.id;
     queue = queue.then(() => render(m.id, m.width, m.height, m.c2w, m.intrinsics))

@@ -3,6 +3,7 @@
 mod bench;
 mod device_bench;
 mod ngp_bench;
+mod view;
 
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
@@ -11,7 +12,7 @@ use nerf_core::frames::spec::Shard;
 use nerf_core::frames::views::SplitChoice;
 use nerf_core::frames::write::FramePlan;
 use nerf::config::{Preset, TrainConfig};
-use nerf::train::{TrainOptions, train};
+use nerf::train::{TrainOptions, train, train_live};
 use nerf_core::dataset::{CaptureFormat, CaptureSplit, SyntheticSceneConfig, generate_scene};
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -61,6 +62,34 @@ enum Command {
         /// Run directory: config.toml, camera.json, checkpoints/, curve.csv.
         #[arg(long)]
         out: PathBuf,
+        /// Serve the browser viewer on the run as it trains (live snapshots of the field in
+        /// <out>/live/, the progress and the PSNR curve); keeps serving once training ends,
+        /// until interrupted.
+        #[arg(long)]
+        serve: bool,
+        /// Address to serve the viewer on (default 127.0.0.1: this machine only).
+        #[arg(long, requires = "serve", default_value = "127.0.0.1")]
+        host: std::net::IpAddr,
+        /// Port to serve the viewer on (0: any free port).
+        #[arg(long, requires = "serve", default_value_t = 8000)]
+        port: u16,
+        /// The built viewer's directory (default: $NERF_VIEWER, else ~/.cache/nerf-rs/viewer).
+        #[arg(long, requires = "serve")]
+        viewer: Option<PathBuf>,
+        /// The longest interval, in seconds of training, between two live snapshots: the first
+        /// comes 5 s in, the next ones at intervals that double up to this (besides one at each
+        /// validation and one at the end).
+        #[arg(long, requires = "serve", default_value_t = nerf::live::SnapshotOptions::default().every_s)]
+        snapshot_every: f64,
+    },
+    /// Serve the browser viewer on a run trained by another process (or done): its latest live
+    /// snapshot, else one exported from its latest checkpoint (again at each newer one), with
+    /// its progress and PSNR curve; runs until interrupted.
+    View {
+        /// Run directory written by `nerf train`.
+        run: PathBuf,
+        #[command(flatten)]
+        serve: view::ServeArgs,
     },
     /// Render a split's views and compare with its images: PNGs and metrics.json.
     Eval {
@@ -349,7 +378,7 @@ fn main() -> Result<()> {
     let cli = Cli::parse();
     let progress = std::io::stderr().is_terminal();
     match cli.command {
-        Command::Train { data, format, ndc, config, preset, downscale, iters, time_budget_min, seed, out } => {
+        Command::Train { data, format, ndc, config, preset, downscale, iters, time_budget_min, seed, out, serve, host, port, viewer, snapshot_every } => {
             let mut cfg = match &config {
                 Some(path) => TrainConfig::from_toml_file(path, preset)?,
                 None => preset.unwrap_or(Preset::DEFAULT).config(),
@@ -358,7 +387,17 @@ fn main() -> Result<()> {
                 cfg.seed = seed;
             }
             let opts = TrainOptions { format, data, run: out.clone(), config: cfg, ndc, downscale, time_budget_min, iters, progress };
-            let s = train(&opts)?;
+            let live = if serve {
+                if !(snapshot_every.is_finite() && snapshot_every > 0.0) {
+                    bail!("--snapshot-every {snapshot_every}: give seconds > 0");
+                }
+                let url = view::serve_training(&out, &view::ServeArgs { host, port, viewer })?;
+                let defaults = nerf::live::SnapshotOptions::default();
+                Some((url, nerf::live::SnapshotOptions { every_s: snapshot_every, first_after_s: defaults.first_after_s.min(snapshot_every) }))
+            } else {
+                None
+            };
+            let s = train_live(&opts, live.as_ref().map(|l| l.1))?;
             println!(
                 "trained {} steps in {:.1} min: train PSNR {:.2} dB{}; run in {}",
                 s.steps,
@@ -367,7 +406,14 @@ fn main() -> Result<()> {
                 s.val_psnr.map(|p| format!(", first val view {p:.2} dB")).unwrap_or_default(),
                 out.display()
             );
+            if let Some((url, _)) = live {
+                println!("still serving the viewer at {url} (Ctrl-C to stop)");
+                use std::io::Write;
+                std::io::stdout().flush().ok();
+                view::serve_forever();
+            }
         }
+        Command::View { run, serve } => view::view(&run, &serve)?,
         Command::Eval { run, data, format, split, downscale, limit, out } => {
             let r = eval(&run, &SplitChoice { dir: data, format, split, downscale }, limit, &out, progress)?;
             println!("{} views: PSNR {:.2} dB, SSIM {:.4}; {}", r.per_image.len(), r.psnr_mean, r.ssim_mean, out.join("metrics.json").display());
