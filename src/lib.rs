@@ -13,6 +13,7 @@ pub mod evaluate;
 pub mod export;
 pub mod field;
 pub mod inference;
+pub mod lpips;
 pub mod mesh;
 pub mod plot;
 pub mod process_data;

@@ -62,7 +62,7 @@ mod tests {
     use super::*;
 
     fn view(name: &str, psnr: f32) -> ImageMetrics {
-        ImageMetrics { name: name.into(), psnr, ssim: 0.9 }
+        ImageMetrics { name: name.into(), psnr, ssim: 0.9, lpips: None }
     }
 
     /// The first column whose pixel has `colour`, scanning row `y`.
