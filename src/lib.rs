@@ -14,6 +14,7 @@ pub mod export;
 pub mod field;
 pub mod inference;
 pub mod live;
+pub mod lpips;
 pub mod mesh;
 pub mod plot;
 pub mod process_data;

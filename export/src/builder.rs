@@ -54,8 +54,30 @@ pub fn contract_outputs(sigma_doc: &str) -> Vec<ValueInfoProto> {
 
 /// `name` float32 `[N, columns]`.
 pub fn value_info((name, columns): (&str, i64), doc: &str) -> ValueInfoProto {
+    float_info(name, &[Dim::Named("N"), Dim::Fixed(columns)], doc)
+}
+
+/// One axis of a graph input or output.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Dim<'a> {
+    /// A size fixed in the graph.
+    Fixed(i64),
+    /// A size given at run time, by name.
+    Named(&'a str),
+}
+
+/// `name` float32 of shape `dims`.
+pub fn float_info(name: &str, dims: &[Dim], doc: &str) -> ValueInfoProto {
     use tensor_shape_proto::{Dimension, dimension::Value};
-    let dim = vec![Dimension { value: Some(Value::DimParam("N".into())) }, Dimension { value: Some(Value::DimValue(columns)) }];
+    let dim = dims
+        .iter()
+        .map(|d| Dimension {
+            value: Some(match d {
+                Dim::Fixed(n) => Value::DimValue(*n),
+                Dim::Named(s) => Value::DimParam(s.to_string()),
+            }),
+        })
+        .collect();
     ValueInfoProto {
         name: name.into(),
         r#type: Some(TypeProto {
@@ -128,6 +150,45 @@ impl Builder {
             ..Default::default()
         });
         name.to_string()
+    }
+
+    /// A float32 scalar constant, stored once however often it is used.
+    pub fn f32_scalar(&mut self, name: &str, value: f32) -> String {
+        if !self.initializers.iter().any(|t| t.name == name) {
+            self.f32_tensor(name, &[], &[value]);
+        }
+        name.to_string()
+    }
+
+    /// A node of two inputs and no attributes (`Add`, `Mul`, `Div`, …).
+    pub fn binary(&mut self, op: &str, a: &str, b: &str, output: &str) -> String {
+        self.node(op, &[a, b], output, vec![])
+    }
+
+    /// A 2-D `Conv` of `input` `[N, C, H, W]` with the initializer `weight` `[out, C, kernel,
+    /// kernel]` (OIHW) and optionally `bias` `[out]`, at `stride` with symmetric zero `pad`.
+    pub fn conv2d(&mut self, input: &str, weight: &str, bias: Option<&str>, (kernel, stride, pad): (i64, i64, i64), output: &str) -> String {
+        let mut inputs = vec![input, weight];
+        inputs.extend(bias);
+        let attributes = vec![
+            ints_attribute("kernel_shape", &[kernel, kernel]),
+            ints_attribute("strides", &[stride, stride]),
+            ints_attribute("pads", &[pad, pad, pad, pad]),
+        ];
+        self.node("Conv", &inputs, output, attributes)
+    }
+
+    /// `MaxPool` over `kernel × kernel` windows at `stride`, no padding, sizes rounded down.
+    pub fn max_pool(&mut self, input: &str, output: &str, kernel: i64, stride: i64) -> String {
+        let attributes = vec![ints_attribute("kernel_shape", &[kernel, kernel]), ints_attribute("strides", &[stride, stride])];
+        self.node("MaxPool", &[input], output, attributes)
+    }
+
+    /// `ReduceSum` over `axes`, keeping them as size 1 (axes as an input: opset ≥ 13).
+    pub fn reduce_sum_keep(&mut self, input: &str, axes: &[i64], output: &str) -> String {
+        let name = format!("axes_{}", axes.iter().map(|a| a.to_string()).collect::<Vec<_>>().join("_"));
+        let axes = self.i64_constant(&name, axes);
+        self.node("ReduceSum", &[input, &axes], output, vec![int_attribute("keepdims", 1)])
     }
 
     /// `Gemm(input, W, b)` (then `activation`), W stored `[in, out]`.

@@ -10,6 +10,7 @@
 pub mod builder;
 pub mod bundle;
 pub mod field;
+pub mod lpips;
 pub mod options;
 
 /// The ONNX messages, shared with the bundle reader.

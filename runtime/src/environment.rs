@@ -66,10 +66,16 @@ impl std::fmt::Display for Device {
 /// first `venv-gpu` (`setup.sh --gpu`), then `venv`; `lib/python3*/site-packages/onnxruntime/
 /// capi/libonnxruntime.so*`.
 pub fn library_path(device: Device) -> Result<PathBuf> {
-    let home = std::env::var_os("NERF_HOME")
+    library_path_in(device, std::env::var_os(DYLIB_ENV).filter(|p| !p.is_empty()).map(PathBuf::from), nerf_home().as_deref())
+}
+
+/// Where `scripts/setup.sh` installs what the project uses at run time: `$NERF_HOME`, default
+/// `~/.cache/nerf-rs` (`None` without either variable).
+pub fn nerf_home() -> Option<PathBuf> {
+    std::env::var_os("NERF_HOME")
+        .filter(|h| !h.is_empty())
         .map(PathBuf::from)
-        .or_else(|| std::env::var_os("HOME").map(|h| Path::new(&h).join(".cache/nerf-rs")));
-    library_path_in(device, std::env::var_os(DYLIB_ENV).filter(|p| !p.is_empty()).map(PathBuf::from), home.as_deref())
+        .or_else(|| std::env::var_os("HOME").map(|h| Path::new(&h).join(".cache/nerf-rs")))
 }
 
 /// [`library_path`] given `$ORT_DYLIB_PATH` and the `$NERF_HOME` directory.

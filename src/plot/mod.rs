@@ -4,7 +4,8 @@
 //!
 //! - `curve.png` beside a run's `curve.csv` ([`write_run_curve`], refreshed by `nerf train`
 //!   after every val evaluation): val and train PSNR against minutes, steps along the top.
-//! - `psnr_per_view.png` beside `nerf eval`'s `metrics.json` ([`write_view_psnr`]).
+//! - `psnr_per_view.png` and `lpips_per_view.png` beside `nerf eval`'s `metrics.json`
+//!   ([`write_view_psnr`], [`write_view_lpips`]).
 //! - `nerf plot RUN... --out FILE.png` ([`plot_runs`]): several runs' curves on one plot.
 
 pub mod curve;
@@ -17,7 +18,7 @@ pub mod views;
 pub use curve::{CurvePoint, read_curve};
 pub use curves::{MAX_RUNS, RunCurve, draw_curves};
 pub use figure::Figure;
-pub use views::draw_view_psnr;
+pub use views::{ViewMetric, draw_view_metric, draw_view_psnr};
 
 use crate::error::{Error, Result};
 use crate::run_dir::RunDir;
@@ -26,6 +27,8 @@ use std::path::{Path, PathBuf};
 
 /// File name of `nerf eval`'s per-view PSNR plot, beside `metrics.json`.
 pub const VIEWS_FILE: &str = "psnr_per_view.png";
+/// File name of `nerf eval`'s per-view LPIPS plot, beside `metrics.json` (when it has LPIPS).
+pub const LPIPS_VIEWS_FILE: &str = "lpips_per_view.png";
 
 /// Draw `run`'s `curve.csv` into its `curve.png`; returns the PNG's path.
 pub fn write_run_curve(run: &RunDir) -> Result<PathBuf> {
@@ -75,6 +78,11 @@ pub fn plot_runs(runs: &[PathBuf], out: &Path) -> Result<()> {
 /// Plot the PSNR of `views` under `title` at `path` (`nerf eval`'s [`VIEWS_FILE`]).
 pub fn write_view_psnr(title: &str, views: &[ImageMetrics], path: &Path) -> Result<()> {
     draw_view_psnr(title, views)?.save(path)
+}
+
+/// Plot the LPIPS of `views` under `title` at `path` (`nerf eval`'s [`LPIPS_VIEWS_FILE`]).
+pub fn write_view_lpips(title: &str, views: &[ImageMetrics], path: &Path) -> Result<()> {
+    draw_view_metric(title, views, ViewMetric::Lpips)?.save(path)
 }
 
 /// A run's name for a plot: its directory's name (of the absolute path for `.` and the like).

@@ -50,7 +50,7 @@ pub struct FrameRecord {
 impl FrameRecord {
     /// The metrics as `metrics.json` lists them (`None` without ground truth).
     pub fn image_metrics(&self) -> Option<ImageMetrics> {
-        self.metrics.map(|m| ImageMetrics { name: self.name.clone(), psnr: m.psnr as f32, ssim: m.ssim as f32 })
+        self.metrics.map(|m| ImageMetrics { name: self.name.clone(), psnr: m.psnr as f32, ssim: m.ssim as f32, lpips: None })
     }
 }
 

@@ -1,4 +1,5 @@
-//! Image quality metrics (MSE, PSNR, SSIM) and the evaluation report written by `nerf eval`.
+//! Image quality metrics (MSE, PSNR, SSIM) and the evaluation report written by `nerf eval`
+//! (which adds LPIPS, computed through onnxruntime outside the core).
 //!
 //! Images are row-major `[f32; 3]` RGB buffers with values in `[0, 1]` (data range 1).
 
@@ -133,6 +134,9 @@ pub struct ImageMetrics {
     /// SSIM.
     #[serde(deserialize_with = "f32_or_nan")]
     pub ssim: f32,
+    /// LPIPS (AlexNet), when it was computed (`nerf eval` with the weights installed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lpips: Option<f32>,
 }
 
 /// The evaluation report (`metrics.json`): means and per-image values.
@@ -144,6 +148,12 @@ pub struct EvalReport {
     /// Mean SSIM over the images; NaN (JSON `null`) when there are none.
     #[serde(deserialize_with = "f32_or_nan")]
     pub ssim_mean: f32,
+    /// Mean LPIPS over the images, when every image has one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lpips_mean: Option<f32>,
+    /// Why LPIPS is missing, when it was asked for and could not be computed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lpips_skipped: Option<String>,
     /// One entry per image, in evaluation order.
     pub per_image: Vec<ImageMetrics>,
 }
@@ -154,15 +164,20 @@ fn f32_or_nan<'de, D: Deserializer<'de>>(d: D) -> std::result::Result<f32, D::Er
 }
 
 impl EvalReport {
-    /// The report with the arithmetic means of the per-image PSNR and SSIM (computed in f64).
+    /// The report with the arithmetic means of the per-image PSNR, SSIM and (when every image
+    /// has one) LPIPS, computed in f64.
     pub fn from_images(per_image: Vec<ImageMetrics>) -> Self {
         let n = per_image.len() as f64;
         let mean = |f: fn(&ImageMetrics) -> f32| {
             (per_image.iter().map(|m| f(m) as f64).sum::<f64>() / n) as f32
         };
+        let lpips: Option<Vec<f32>> = per_image.iter().map(|m| m.lpips).collect();
+        let lpips_mean = lpips.filter(|l| !l.is_empty()).map(|l| (l.iter().map(|&v| v as f64).sum::<f64>() / n) as f32);
         EvalReport {
             psnr_mean: mean(|m| m.psnr),
             ssim_mean: mean(|m| m.ssim),
+            lpips_mean,
+            lpips_skipped: None,
             per_image,
         }
     }
@@ -283,20 +298,24 @@ mod tests {
                 name: "r_0".into(),
                 psnr: 30.0,
                 ssim: 0.9,
+                lpips: Some(0.1),
             },
             ImageMetrics {
                 name: "r_1".into(),
                 psnr: 20.0,
                 ssim: 0.8,
+                lpips: Some(0.2),
             },
             ImageMetrics {
                 name: "r_2".into(),
                 psnr: 25.0,
                 ssim: 1.0,
+                lpips: Some(0.6),
             },
         ]);
         assert!((report.psnr_mean - 25.0).abs() < 1e-6);
         assert!((report.ssim_mean - 0.9).abs() < 1e-6);
+        assert!((report.lpips_mean.unwrap() - 0.3).abs() < 1e-6);
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("metrics.json");
         report.write_json(&path).unwrap();
@@ -309,11 +328,16 @@ mod tests {
             name: "r_0".into(),
             psnr: f32::INFINITY,
             ssim: 1.0,
+            lpips: None,
         }]);
         inf.write_json(&path).unwrap();
         let back = EvalReport::read_json(&path).unwrap();
         assert!(back.psnr_mean.is_nan() && back.per_image[0].psnr.is_nan());
         assert_eq!(back.ssim_mean, 1.0);
+        // Without LPIPS the report has no LPIPS keys (and older reports read as such).
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert!(!text.contains("lpips"), "{text}");
+        assert_eq!((back.lpips_mean, back.per_image[0].lpips), (None, None));
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
     }
 }

@@ -416,7 +416,8 @@ fn main() -> Result<()> {
         Command::View { run, serve } => view::view(&run, &serve)?,
         Command::Eval { run, data, format, split, downscale, limit, out } => {
             let r = eval(&run, &SplitChoice { dir: data, format, split, downscale }, limit, &out, progress)?;
-            println!("{} views: PSNR {:.2} dB, SSIM {:.4}; {}", r.per_image.len(), r.psnr_mean, r.ssim_mean, out.join("metrics.json").display());
+            let lpips = r.lpips_mean.map(|l| format!(", LPIPS {l:.4}")).unwrap_or_default();
+            println!("{} views: PSNR {:.2} dB, SSIM {:.4}{lpips}; {}", r.per_image.len(), r.psnr_mean, r.ssim_mean, out.join("metrics.json").display());
         }
         Command::Plot { runs, out } => {
             nerf::plot::plot_runs(&runs, &out)?;
