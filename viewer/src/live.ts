@@ -109,6 +109,8 @@ declare global {
 export interface LiveHooks {
   /** Load the bundle at `url` into the worker; the page then calls `loaded()` or `failed()`. */
   load(url: string): void;
+  /** Training has ended and its last snapshot is shown: the machine is the page's again. */
+  finished(): void;
 }
 
 /** Start the live view from the first status: show the panel, poll, and load each new snapshot
@@ -120,7 +122,7 @@ export function startLive(base: string, first: LiveStatus, hooks: LiveHooks): { 
   document.body.classList.add("live");
   // askedAt, loadedAt: when the latest snapshot was asked for and was loaded (performance.now()).
   const state = (window.nerfLive = { snapshot: null as string | null, step: null as number | null, loads: 0, askedAt: 0, loadedAt: 0 });
-  let asked: string | null = null, failed: string | null = null, problem: string | null = null;
+  let asked: string | null = null, failed: string | null = null, problem: string | null = null, ended = false;
   const show = (st: LiveStatus) => {
     state.step = st.progress?.step ?? null;
     text.textContent = progressLine(st) + (problem ? ` · ${problem}` : "") + (st.snapshot ? "" : " · waiting for the first snapshot");
@@ -132,6 +134,10 @@ export function startLive(base: string, first: LiveStatus, hooks: LiveHooks): { 
       asked = st.snapshot;
       state.askedAt = performance.now();
       hooks.load(new URL(`live/${st.snapshot}/`, base).href);
+    }
+    if (!ended && st.progress?.done && st.snapshot !== null && st.snapshot === state.snapshot) {
+      ended = true;
+      hooks.finished();
     }
   };
   const poll = async () => {

@@ -107,8 +107,9 @@ function testHook(loaded: Loaded, spec: string): void {
 /** The interactive viewer (orbit, or for a forward-facing NDC capture a fly camera bounded to
  *  the region its poses saw: fly.ts): each camera move starts 1/8 → 1/4 → 1/2 → full, cancelling older work;
  *  a pass is refined only while the next would take at most `maxPoints` field samples (live.ts).
- *  Returns what renders the current view again (a live snapshot loaded: same camera, new field). */
-function interactive(loaded: Loaded, maxWidth = 400, maxPoints = Infinity): () => void {
+ *  Returns what renders the current view again (a live snapshot loaded: same camera, new field)
+ *  and what lifts the live limits (training ended: the usual size, refined to the full pass). */
+function interactive(loaded: Loaded, maxWidth = 400, maxPoints = Infinity): { rerender(): void; unlimit(): void } {
   document.body.classList.add("interactive");
   const scene = loaded.scene, cam = scene.camera, s = scene.sampling;
   const tests: { name?: string; transform_matrix: number[][] }[] = scene.poses?.test ?? [];
@@ -117,8 +118,9 @@ function interactive(loaded: Loaded, maxWidth = 400, maxPoints = Infinity): () =
   const choices = tests.length ? tests.map((p, i) => ({ label: p.name ?? `test ${i}`, m: p.transform_matrix }))
     : orbits.map((m, i) => ({ label: `orbit ${i}`, m }));
   for (const [i, c] of choices.entries()) select.add(new Option(c.label, String(i)));
-  const width = Number(params.get("width") ?? 0) || Math.min(cam.width, maxWidth);
-  const height = Math.round((width * cam.height) / cam.width);
+  const sized = (most: number) => Number(params.get("width") ?? 0) || Math.min(cam.width, most);
+  let width = sized(maxWidth);
+  let height = Math.round((width * cam.height) / cam.width);
   // 360° captures orbit about their own up vector (z for the Blender scenes).
   const upAxis = choices.length ? captureUp(choices.map((c) => c.m)) : [0, 0, 1];
   let orbit: Orbit = orbitFromPose(choices[0]?.m ?? orbits[0], s.near, upAxis);
@@ -243,8 +245,16 @@ function interactive(loaded: Loaded, maxWidth = 400, maxPoints = Infinity): () =
     render: (w, h, c2w, intrinsics) => { if (current) send({ type: "cancel", id: current }); current = 0; return pathRender(w, h, c2w, intrinsics); },
     show: (m) => { draw(m, false, 0, 1); canvas.style.aspectRatio = `${m.width} / ${m.height}`; } });
   request(0);
-  // A new live snapshot: at the size shown, the old frame staying until then (no previews).
-  return () => restart(reached);
+  return {
+    // A new live snapshot: at the size shown, the old frame staying until then (no previews).
+    rerender: () => restart(reached),
+    unlimit: () => {
+      maxPoints = Infinity;
+      width = sized(400);
+      height = Math.round((width * cam.height) / cam.width);
+      restart(reached);
+    },
+  };
 }
 
 async function start(): Promise<void> {
@@ -257,18 +267,19 @@ async function start(): Promise<void> {
   $("isolation").hidden = crossOriginIsolated;
   if (singleThreadWhy) $("isolation").textContent += ` (${singleThreadWhy})`;
   const load = (url: string) => send({ type: "load", bundleUrl: url, ortUrl, dense: params.get("dense") === "1", ep: params.get("ep") ?? "auto" });
-  let rerender: (() => void) | null = null;
+  let view: ReturnType<typeof interactive> | null = null;
   onLoaded = (loaded) => {
     live?.loaded();
-    if (rerender) return rerender(); // a newer live snapshot: the user's view again
+    if (view) return view.rerender(); // a newer live snapshot: the user's view again
     const pose = params.get("pose");
     if (pose && pose.startsWith("test:")) testHook(loaded, pose);
     else if (pose) fail(`pose ${pose}: expected test:K`);
-    else rerender = live ? interactive(loaded, LIVE_WIDTH, LIVE_POINTS) : interactive(loaded);
+    else view = live ? interactive(loaded, LIVE_WIDTH, LIVE_POINTS) : interactive(loaded);
   };
-  // Live training: the run's snapshots (live/<id>/) as they come, instead of bundle/.
+  // Live training: the run's snapshots (live/<id>/) as they come, instead of bundle/; once it
+  // has ended, the view is no longer held small for the trainer's sake.
   const status = params.has("bundle") ? null : await probeLive(document.baseURI);
-  if (status) live = startLive(document.baseURI, status, { load });
+  if (status) live = startLive(document.baseURI, status, { load, finished: () => view?.unlimit() });
   else load(bundleUrl);
 }
 

@@ -25,9 +25,9 @@ const SECOND = resolve(import.meta.dirname, "fixtures/ngp-portable");
 let browser, tmp, run, server, url;
 
 /** Write progress.json as `nerf train --serve` does (src/live.rs, Progress). */
-function progress(step) {
-  const p = { step, iters: 1000, elapsed_s: step / 10, budget_s: 600, remaining_s: 600 - step / 10, steps_per_s: 10, loss: 0.01,
-    train_psnr: 20 + step / 100, val_psnr: null, snapshots: true, done: false };
+function progress(step, done = false) {
+  const p = { step, iters: 1000, elapsed_s: step / 10, budget_s: 600, remaining_s: done ? 0 : 600 - step / 10, steps_per_s: 10, loss: 0.01,
+    train_psnr: 20 + step / 100, val_psnr: null, snapshots: true, done };
   writeFileSync(join(run, ".progress.json.tmp"), JSON.stringify(p));
   renameSync(join(run, ".progress.json.tmp"), join(run, "progress.json"));
 }
@@ -135,4 +135,19 @@ test("a live page loads the newer snapshot by itself and keeps the user's camera
     `${second.loadMs.toFixed(0)} ms, rendered in ${second.renderMs.toFixed(0)} ms`);
   assert.ok(diff > 2, `the frame did not change with the snapshot (mean |Δ| ${diff})`);
   await page.close();
+
+  // Training ends: a page held at the live budget (100×100 of the 200 asked for) renders its
+  // view in full once the run is done and its last snapshot shown.
+  progress(200, true);
+  const ended = await browser.newPage();
+  await ended.goto(url + "?width=200");
+  await ended.waitForFunction(() => window.nerfStats?.width === 200 && document.body.dataset.state === "done" ||
+    document.body.dataset.state === "error", null, { timeout: 300_000, polling: 200 });
+  const full = await ended.evaluate(() => ({ state: document.body.dataset.state, error: document.getElementById("error").textContent,
+    stats: window.nerfStats, line: document.getElementById("live-progress").textContent,
+    sizes: window.nerfTimeline.map((f) => `${f.width}×${f.height}`) }));
+  assert.equal(full.state, "done", `page error: ${full.error}`);
+  assert.match(full.line, /· done/);
+  t.diagnostic(`once done: passes ${full.sizes.join(", ")} (${full.stats.points} points in the last)`);
+  await ended.close();
 });

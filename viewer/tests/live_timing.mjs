@@ -3,6 +3,9 @@
 // for the whole run), one after the other, and reports the steps each made (progress.json) and,
 // with a page, when its first frame of the field was drawn, counted from the command's start.
 //   node viewer/tests/live_timing.mjs [--data DIR] [--minutes M] [--runs plain,serve,page] [--viewer DIR] [--keep DIR]
+//     [--width W] [--screenshot FILE.png]
+// (--width: the live page's ?width=; --screenshot: the page run's page once training has ended
+// and the page has drawn its view in full)
 // (defaults: ../shared/data/nerf_synthetic/lego, 10 minutes, plain,serve, the viewer built in
 // viewer/dist; runs in a temporary folder removed at the end unless --keep). Times nothing
 // else: run it on a quiet machine.
@@ -23,6 +26,7 @@ const minutes = Number(opt("--minutes", "10"));
 const runs = opt("--runs", "plain,serve").split(",");
 const keep = opt("--keep", null);
 const viewer = resolve(opt("--viewer", join(REPO, "viewer/dist")));
+const width = opt("--width", null), screenshot = opt("--screenshot", null);
 const root = keep ? resolve(keep) : mkdtempSync(join(tmpdir(), "nerf-live-timing-"));
 const sleep = (ms) => new Promise((ok) => setTimeout(ok, ms));
 const progress = (out) => { try { return JSON.parse(readFileSync(join(out, "progress.json"), "utf8")); } catch { return null; } };
@@ -45,7 +49,7 @@ async function run(kind) {
     page = await browser.newPage();
     // The server is up once the port is bound (before the data loads); retry until then.
     for (;;) {
-      try { await page.goto(`http://127.0.0.1:${port}/`); break; } catch { await sleep(200); }
+      try { await page.goto(`http://127.0.0.1:${port}/${width ? `?width=${width}` : ""}`); break; } catch { await sleep(200); }
       if (Date.now() - start > 120e3) throw new Error(`no server on port ${port} after 2 minutes: ${stderr}`);
     }
     await page.exposeFunction("nerfTimingFrame", () => { frames++; firstFrameS ??= (Date.now() - start) / 1000; });
@@ -64,6 +68,12 @@ async function run(kind) {
     await sleep(1000);
   }
   const seconds = (Date.now() - start) / 1000;
+  if (page && screenshot) {
+    // Training over, the page renders its view in full (live.ts): the picture once it has.
+    await page.waitForFunction(() => document.body.dataset.state === "done" && (window.nerfTimeline?.at(-1)?.width ?? 0) >= 200,
+      null, { timeout: 180_000, polling: 500 }).catch(() => {});
+    await page.screenshot({ path: resolve(screenshot) });
+  }
   if (child.exitCode === null) child.kill("SIGINT");
   const code = await exited;
   const shown = page ? await page.evaluate(() => [document.body.dataset.state, document.getElementById("stats")?.textContent,
