@@ -416,8 +416,7 @@ fn main() -> Result<()> {
         Command::View { run, serve } => view::view(&run, &serve)?,
         Command::Eval { run, data, format, split, downscale, limit, out } => {
             let r = eval(&run, &SplitChoice { dir: data, format, split, downscale }, limit, &out, progress)?;
-            let lpips = r.lpips_mean.map(|l| format!(", LPIPS {l:.4}")).unwrap_or_default();
-            println!("{} views: PSNR {:.2} dB, SSIM {:.4}{lpips}; {}", r.per_image.len(), r.psnr_mean, r.ssim_mean, out.join("metrics.json").display());
+            println!("{} views: {}; {}", r.per_image.len(), scores(&r), out.join("metrics.json").display());
         }
         Command::Plot { runs, out } => {
             nerf::plot::plot_runs(&runs, &out)?;
@@ -561,8 +560,15 @@ fn demo(out: PathBuf, minutes: f64, progress: bool) -> Result<()> {
     let orbit_dir = out.join("orbit");
     let gif = render_orbit(&run, nerf_core::camera::ORBIT_FRAMES, 1, &orbit_dir, false, progress)?;
     println!("\ndemo done in {:.1} min", start.elapsed().as_secs_f64() / 60.0);
-    println!("  val PSNR {:.2} dB, SSIM {:.4} over {} views: {}", r.psnr_mean, r.ssim_mean, r.per_image.len(), eval_dir.join("metrics.json").display());
+    println!("  val {} over {} views: {}", scores(&r), r.per_image.len(), eval_dir.join("metrics.json").display());
     println!("  renders and depth maps: {}", eval_dir.display());
     println!("  orbit: {}", gif.display());
     Ok(())
+}
+
+/// An evaluation's means as `nerf eval` and `nerf demo` print them: "PSNR 24.77 dB, SSIM 0.8641,
+/// LPIPS 0.0583" (LPIPS where it was computed).
+fn scores(r: &nerf_core::render::metrics::EvalReport) -> String {
+    let lpips = r.lpips_mean.map(|l| format!(", LPIPS {l:.4}")).unwrap_or_default();
+    format!("PSNR {:.2} dB, SSIM {:.4}{lpips}", r.psnr_mean, r.ssim_mean)
 }
