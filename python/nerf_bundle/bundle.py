@@ -3,11 +3,13 @@ from __future__ import annotations
 
 import os
 import time
+import warnings
 from dataclasses import dataclass
 from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
+from . import _gpu
 from . import _render as R
 from ._field import GPU_POINTS_PER_RUN, Graph, parse_device
 from ._limits import (DEFAULT_CHUNK, DEFAULT_MARCH_STEPS, MAX_FRAMES, MAX_FRAME_PIXELS, MAX_GRAPH_BYTES, MAX_IMAGE_SIDE,
@@ -20,6 +22,14 @@ F32 = np.float32
 #: Rays per batch on a GPU unless told otherwise (nerf-render's ``GPU_CHUNK``): a 400×400 frame
 #: marches in one batch.
 GPU_CHUNK = 262_144
+
+
+def _joined(parts: List[R.Marched]) -> R.Marched:
+    """Batches' results one after the other."""
+    if not parts:
+        return R.Marched(np.zeros((0, 3), F32), np.zeros(0, F32), np.zeros(0, F32), None)
+    return R.Marched(np.concatenate([p.rgb for p in parts]), np.concatenate([p.depth for p in parts]),
+                     np.concatenate([p.acc for p in parts]), None)
 
 
 @dataclass
@@ -89,6 +99,7 @@ class Bundle:
         self.ndc = s.get("ndc")
         self.march_steps = int(scene.get("march_steps", DEFAULT_MARCH_STEPS))
         self.white_background = bool(scene["white_background"])
+        self._gpu_loop: Optional[_gpu.GpuLoop] = None
 
     @classmethod
     def open(cls, path: "str | os.PathLike[str]", *, providers: Optional[Sequence[Any]] = None, threads: Optional[int] = None,
@@ -99,8 +110,10 @@ class Bundle:
 
         ``device``: ``"cpu"`` (the default) or ``"cuda"`` / ``"cuda:N"``: onnxruntime's CUDA
         provider on GPU N with TF32 off, one session per graph on pieces of ``points_per_run``
-        (default 2**21) points, and a frame's rays marched in batches of up to 262,144 rays per
-        field call; BundleError when the installed onnxruntime has no CUDA provider (the CPU
+        (default 2**21) points; with CuPy installed (``cupy-cuda13x``) the marching and
+        compositing run on the GPU too (``_gpu``: the same samples, one field call per round
+        of a batch through IO binding), without it in numpy on the CPU, in batches of up
+        to 262,144 rays per field call, with a warning; BundleError when the installed onnxruntime has no CUDA provider (the CPU
         wheel: ``pip install onnxruntime-gpu==1.31.1``) or the session cannot start on the GPU,
         never a quiet fall-back to the CPU. ``providers``: onnxruntime execution providers for
         the CPU path (default CPU); with ``device`` a ValueError (say one or the other).
@@ -134,6 +147,12 @@ class Bundle:
         bundle = cls(path, scene, graphs, grid, skip_empty_space)
         if gpu is not None:
             bundle.device = f"cuda:{gpu}"
+            cupy = _gpu.cupy_or_none() if grid is not None else None
+            if cupy is not None:
+                bundle._gpu_loop = _gpu.GpuLoop(cupy, gpu, grid)
+            elif grid is not None:
+                warnings.warn(f"{path}: CuPy is not installed (pip install cupy-cuda13x, or `bash scripts/setup.sh --gpu`): "
+                              "the loop around the field runs in numpy on the CPU, most of a GPU frame's time", stacklevel=2)
         for split in ("test", "orbit"):
             bundle.poses(split)  # non-finite or malformed poses are refused now
         return bundle
@@ -233,13 +252,13 @@ class Bundle:
         viewdirs = R.unit(view)
         if self.grid is not None:
             stage = "fine" if self.n_fine > 0 else "coarse"
+            if self._gpu_loop is not None:
+                return _joined([self._gpu_loop.march_grid(self._graph(stage), o[s:s + chunk], d[s:s + chunk], viewdirs[s:s + chunk],
+                                                          self.near, self.far, max(self.march_steps, 1), min_t,
+                                                          self.white_background, stages) for s in range(0, len(o), chunk)])
             return R.march_grid(self._graph(stage), self.grid, o, d, viewdirs, self.near, self.far, max(self.march_steps, 1),
                                 min_t, self.white_background, chunk, stages)
-        parts = [self._render_dense(o[s:s + chunk], d[s:s + chunk], viewdirs[s:s + chunk], min_t) for s in range(0, len(o), chunk)]
-        if not parts:
-            return R.Marched(np.zeros((0, 3), F32), np.zeros(0, F32), np.zeros(0, F32), None)
-        return R.Marched(np.concatenate([p.rgb for p in parts]), np.concatenate([p.depth for p in parts]),
-                         np.concatenate([p.acc for p in parts]), None)
+        return _joined([self._render_dense(o[s:s + chunk], d[s:s + chunk], viewdirs[s:s + chunk], min_t) for s in range(0, len(o), chunk)])
 
     def _render_dense(self, o: np.ndarray, d: np.ndarray, viewdirs: np.ndarray, min_t: Optional[float]) -> R.Marched:
         """Coarse (and fine) samples of one chunk of rays, without a grid."""

@@ -30,6 +30,7 @@ use nerf_core::field::ngp::spherical_harmonics::{SH4_DIM, sh4};
 use rayon::prelude::*;
 use nerf_core::field::ngp::hash_grid::{GridBound, HashGrid};
 use prost::Message;
+use ort::memory::{AllocationDevice, Allocator, AllocatorType, MemoryInfo, MemoryType};
 use ort::session::Session;
 use ort::value::{DynValue, Tensor, TensorRef};
 use std::sync::Arc;
@@ -107,6 +108,23 @@ pub struct OrtNetwork {
     /// The split path's inputs (unit points, features, harmonics), kept from call to call:
     /// fresh, zeroed buffers of a block's size each call cost as much as the loop around them.
     scratch: (Vec<[f32; 3]>, Vec<f32>, Vec<f32>),
+    /// On a GPU: page-locked host buffers for each call's inputs and outputs.
+    pinned: Option<Pinned>,
+}
+
+/// Page-locked ("pinned") host memory from onnxruntime's CUDA provider. A GPU copies it by DMA
+/// directly; ordinary (pageable) memory is staged through a driver buffer piece by piece, which
+/// is most of a call's cost for a field this cheap (the inputs and outputs of a point are 40
+/// bytes, its evaluation a few hundred flops).
+struct Pinned {
+    allocator: Allocator,
+}
+
+impl Pinned {
+    fn new(session: &Session, gpu: i32) -> ort::Result<Self> {
+        let info = MemoryInfo::new(AllocationDevice::CUDA_PINNED, gpu, AllocatorType::Device, MemoryType::CPUInput)?;
+        Ok(Pinned { allocator: Allocator::new(session, info)? })
+    }
 }
 
 impl OrtNetwork {
@@ -155,7 +173,28 @@ impl OrtNetwork {
                 builder.commit_from_memory(&bytes).map_err(|e| ort_err(&e))
             })
             .collect::<Result<Vec<_>>>()?;
-        Ok(OrtNetwork { sessions, encoder, points_per_run: threading.points_per_run.max(1), path: path.to_path_buf(), evaluated: 0, seconds: 0.0, encoding_seconds: 0.0, scratch: Default::default() })
+        let pinned = match threading.device {
+            Device::Cuda(gpu) => match Pinned::new(&sessions[0], gpu as i32) {
+                Ok(p) => Some(p),
+                Err(e) => {
+                    eprintln!("warning: {}: no page-locked buffers from onnxruntime's CUDA provider ({e}); inputs and outputs go through ordinary memory (slower)", path.display());
+                    None
+                }
+            },
+            Device::Cpu => None,
+        };
+        Ok(OrtNetwork { sessions, encoder, points_per_run: threading.points_per_run.max(1), path: path.to_path_buf(), evaluated: 0, seconds: 0.0, encoding_seconds: 0.0, scratch: Default::default(), pinned })
+    }
+
+    /// Whether a GPU session's inputs and outputs go through page-locked host buffers.
+    pub fn pinned(&self) -> bool {
+        self.pinned.is_some()
+    }
+
+    /// Use ordinary host memory for a GPU session's inputs and outputs from now on (for
+    /// benchmarks: what page-locked buffers save).
+    pub fn unpin(&mut self) {
+        self.pinned = None;
     }
 
     /// Where this graph's encoding runs ([`Encoding::Graph`] for graphs that are not split).
@@ -223,7 +262,7 @@ impl OrtNetwork {
         let workers = self.sessions.len().min(n.div_ceil(MIN_POINTS_PER_WORKER)).max(1);
         let (path, piece) = (self.path.as_path(), self.points_per_run);
         if workers == 1 {
-            return run_pieces(&mut self.sessions[0], path, inputs, piece);
+            return run_pieces(&mut self.sessions[0], path, inputs, piece, self.pinned.as_ref());
         }
         // Equal contiguous shares, one per worker, outputs concatenated in order.
         let share = n.div_ceil(workers);
@@ -233,7 +272,7 @@ impl OrtNetwork {
                 .iter_mut()
                 .take(workers)
                 .enumerate()
-                .map(|(k, session)| s.spawn(move || run_pieces(session, path, inputs.map(|i| i.rows(k * share, share)), piece)))
+                .map(|(k, session)| s.spawn(move || run_pieces(session, path, inputs.map(|i| i.rows(k * share, share)), piece, None)))
                 .collect();
             handles.into_iter().map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e))).collect::<Vec<_>>()
         });
@@ -306,17 +345,38 @@ fn shared_initializers(model: &nerf_bundle::proto::ModelProto) -> ort::Result<Ve
 /// network's largest layer is 0.26 MB).
 const SHARED_BYTES: usize = 1 << 20;
 
-/// Evaluate `points` on one session, `piece` points per onnxruntime call.
-fn run_pieces(session: &mut Session, path: &Path, inputs: [Input; 2], piece: usize) -> Result<FieldOutput> {
+/// Evaluate `points` on one session, `piece` points per onnxruntime call; through `pinned`
+/// host buffers where given (a GPU session).
+fn run_pieces(session: &mut Session, path: &Path, inputs: [Input; 2], piece: usize, pinned: Option<&Pinned>) -> Result<FieldOutput> {
     let ort_err = |e: &dyn std::fmt::Display| RuntimeError::Ort { path: path.to_path_buf(), message: e.to_string() };
     let rows = inputs[0].len();
     let mut out = FieldOutput { rgb: Vec::with_capacity(rows), sigma: Vec::with_capacity(rows) };
     for start in (0..rows).step_by(piece) {
         let [a, b] = inputs.map(|i| i.rows(start, piece));
         let n = a.len();
-        let ta = TensorRef::from_array_view(([n, a.width], a.values)).map_err(|e| ort_err(&e))?;
-        let tb = TensorRef::from_array_view(([n, b.width], b.values)).map_err(|e| ort_err(&e))?;
-        let outputs = session.run(ort::inputs![a.name => ta, b.name => tb]).map_err(|e| ort_err(&e))?;
+        // Outlives the outputs it names.
+        let binding;
+        let outputs = match pinned {
+            None => {
+                let ta = TensorRef::from_array_view(([n, a.width], a.values)).map_err(|e| ort_err(&e))?;
+                let tb = TensorRef::from_array_view(([n, b.width], b.values)).map_err(|e| ort_err(&e))?;
+                session.run(ort::inputs![a.name => ta, b.name => tb]).map_err(|e| ort_err(&e))?
+            }
+            Some(pinned) => {
+                let mut bound = session.create_binding().map_err(|e| ort_err(&e))?;
+                for input in [a, b] {
+                    let mut tensor = Tensor::<f32>::new(&pinned.allocator, [n, input.width]).map_err(|e| ort_err(&e))?;
+                    let (_, data) = tensor.extract_tensor_mut();
+                    data.par_chunks_mut(1 << 16).zip(input.values.par_chunks(1 << 16)).for_each(|(d, s)| d.copy_from_slice(s));
+                    bound.bind_input(input.name, &tensor).map_err(|e| ort_err(&e))?;
+                }
+                for name in ["rgb", "sigma"] {
+                    bound.bind_output_to_device(name, pinned.allocator.memory_info()).map_err(|e| ort_err(&e))?;
+                }
+                binding = bound;
+                session.run_binding(&binding).map_err(|e| ort_err(&e))?
+            }
+        };
         let column = |name: &str, cols: usize| -> Result<&[f32]> {
             let value = outputs.get(name).ok_or_else(|| RuntimeError::bundle(path, format!("no output {name}")))?;
             let (shape, data) = value.try_extract_tensor::<f32>().map_err(|e| ort_err(&e))?;
