@@ -1,12 +1,13 @@
-//! Where a frame's time goes on a device: render a bundle's first test view, recording every
-//! field call (its points and its seconds), then, with page-locked and with ordinary host
-//! buffers: whole frames, the recorded calls replayed alone, and single calls of growing size
-//! (the fixed cost of a call against its cost per point).
+//! Where a frame's time goes on a device: render a bundle's first test view with the GPU loop
+//! (where there is one; its largest difference from the CPU loop's frame), then with the CPU
+//! loop, recording every field call (its points and its seconds), and, with page-locked and
+//! with ordinary host buffers: whole frames, the recorded calls replayed alone, and single calls
+//! of growing size (the fixed cost of a call against its cost per point).
 //! Usage: cargo run --release -p nerf-runtime --example device_calls -- <bundle> [--device cuda] [--repeats N]
 
 use nerf_core::camera::Pose;
 use nerf_core::field::{Field, FieldOutput, Stage};
-use nerf_core::render::render_image;
+use nerf_core::render::{RenderedImage, render_image};
 use nerf_runtime::environment::Device;
 use nerf_runtime::{OpenOptions, OrtScene};
 use std::time::Instant;
@@ -39,13 +40,39 @@ fn main() {
     let view = scene.description.poses.test.first().expect("the bundle has test poses");
     let pose = Pose::from_rows(view.transform_matrix);
     let k = scene.camera(None);
-    let frame = |scene: &mut OrtScene| -> (f64, f64) {
+    let frame = |scene: &mut OrtScene| -> (f64, f64, RenderedImage) {
         let before = scene.field.graphs[0].1.seconds;
         let start = Instant::now();
-        render_image(&mut scene.field, scene.occupancy.as_ref(), &k, &pose, &scene.options, &mut |_, _| {}).unwrap_or_else(|e| panic!("{e}"));
-        (start.elapsed().as_secs_f64(), scene.field.graphs[0].1.seconds - before)
+        let image = scene.render(&k, &pose, &mut |_, _| {}).unwrap_or_else(|e| panic!("{e}"));
+        (start.elapsed().as_secs_f64(), scene.field.graphs[0].1.seconds - before, image)
     };
-    frame(&mut scene); // warm-up: sessions, arenas
+    let best = |frames: &[(f64, f64, RenderedImage)]| -> (f64, f64) {
+        let times = frames.iter().map(|f| format!("{:.3}", f.0)).collect::<Vec<_>>().join(" ");
+        let b = frames.iter().min_by(|a, b| a.0.total_cmp(&b.0)).expect("a frame");
+        println!("frames {times} s");
+        (b.0, b.1)
+    };
+    let gpu_frame = if scene.gpu.is_some() {
+        frame(&mut scene); // warm-up: sessions, arenas, kernels
+        let frames: Vec<_> = (0..repeats).map(|_| frame(&mut scene)).collect();
+        let (s, ort) = best(&frames);
+        println!("the GPU loop: best {s:.3} s, of which onnxruntime {ort:.3} s");
+        scene.gpu = None;
+        Some(frames.into_iter().next().expect("a frame").2)
+    } else {
+        None
+    };
+    let cpu_frame = frame(&mut scene).2; // warm-up: sessions, arenas
+    if let Some(g) = gpu_frame {
+        let worst = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+        let (a, b) = (&g.rays, &cpu_frame.rays);
+        println!(
+            "the GPU loop's frame against the CPU loop's: max |Δ| rgb {:.2e}, depth {:.2e}, acc {:.2e}",
+            worst(a.rgb.as_flattened(), b.rgb.as_flattened()),
+            worst(&a.depth, &b.depth),
+            worst(&a.acc, &b.acc)
+        );
+    }
     let mut recorder = Recorder { field: &mut scene.field, calls: Vec::new() };
     let start = Instant::now();
     render_image(&mut recorder, scene.occupancy.as_ref(), &k, &pose, &scene.options, &mut |_, _| {}).unwrap_or_else(|e| panic!("{e}"));
@@ -69,9 +96,9 @@ fn main() {
         if mode == "pageable" {
             scene.field.graphs[0].1.unpin();
         }
-        let frames: Vec<(f64, f64)> = (0..repeats).map(|_| frame(&mut scene)).collect();
-        let best = frames.iter().cloned().fold((f64::INFINITY, 0.0), |b, f| if f.0 < b.0 { f } else { b });
-        println!("{mode}: frames {} s; best {:.3} s, of which onnxruntime {:.3} s", frames.iter().map(|f| format!("{:.3}", f.0)).collect::<Vec<_>>().join(" "), best.0, best.1);
+        let frames: Vec<_> = (0..repeats).map(|_| frame(&mut scene)).collect();
+        let (s, ort) = best(&frames);
+        println!("{mode}: the CPU loop: best {s:.3} s, of which onnxruntime {ort:.3} s");
         let net = &mut scene.field.graphs[0].1;
         let start = Instant::now();
         for (p, d, _) in &calls {

@@ -10,6 +10,7 @@
 pub mod environment;
 pub mod error;
 pub mod field;
+pub mod gpu;
 pub mod lpips;
 pub mod mesh;
 pub mod network;

@@ -32,7 +32,7 @@ use nerf_core::field::ngp::hash_grid::{GridBound, HashGrid};
 use prost::Message;
 use ort::memory::{AllocationDevice, Allocator, AllocatorType, MemoryInfo, MemoryType};
 use ort::session::Session;
-use ort::value::{DynValue, Tensor, TensorRef};
+use ort::value::{DynValue, Shape, Tensor, TensorRef, TensorRefMut};
 use std::sync::Arc;
 use std::path::{Path, PathBuf};
 
@@ -110,6 +110,7 @@ pub struct OrtNetwork {
     scratch: (Vec<[f32; 3]>, Vec<f32>, Vec<f32>),
     /// On a GPU: page-locked host buffers for each call's inputs and outputs.
     pinned: Option<Pinned>,
+    device: Device,
 }
 
 /// Page-locked ("pinned") host memory from onnxruntime's CUDA provider. A GPU copies it by DMA
@@ -183,12 +184,48 @@ impl OrtNetwork {
             },
             Device::Cpu => None,
         };
-        Ok(OrtNetwork { sessions, encoder, points_per_run: threading.points_per_run.max(1), path: path.to_path_buf(), evaluated: 0, seconds: 0.0, encoding_seconds: 0.0, scratch: Default::default(), pinned })
+        Ok(OrtNetwork { sessions, encoder, points_per_run: threading.points_per_run.max(1), path: path.to_path_buf(), evaluated: 0, seconds: 0.0, encoding_seconds: 0.0, scratch: Default::default(), pinned, device: threading.device })
     }
 
     /// Whether a GPU session's inputs and outputs go through page-locked host buffers.
     pub fn pinned(&self) -> bool {
         self.pinned.is_some()
+    }
+
+    /// Evaluate `n` points whose inputs (`points`, `viewdirs`: `[n, 3]` f32) lie in this GPU
+    /// session's device memory, writing its outputs (`rgb` `[n, 3]`, `sigma` `[n, 1]` f32) into
+    /// device memory too (onnxruntime's IO binding), pieces of `points_per_run` points.
+    ///
+    /// # Safety
+    /// Each address must be device memory of this session's GPU holding (inputs) or with room
+    /// for (outputs) `n` rows, not otherwise in use until the call returns.
+    pub unsafe fn run_on_device(&mut self, n: usize, inputs: [u64; 2], outputs: [u64; 2]) -> Result<()> {
+        let path = self.path.clone();
+        let ort_err = |e: &dyn std::fmt::Display| RuntimeError::Ort { path: path.clone(), message: e.to_string() };
+        let Device::Cuda(gpu) = self.device else {
+            return Err(RuntimeError::Other(format!("{}: run_on_device needs a GPU session", self.path.display())));
+        };
+        let start = std::time::Instant::now();
+        let session = &mut self.sessions[0];
+        for first in (0..n).step_by(self.points_per_run) {
+            let k = self.points_per_run.min(n - first);
+            // Rows `first..first + k` of a `[n, width]` f32 buffer at `ptr`.
+            let rows = |ptr: u64, width: usize| -> Result<TensorRefMut<'static, f32>> {
+                let info = MemoryInfo::new(AllocationDevice::CUDA, gpu as i32, AllocatorType::Device, MemoryType::Default).map_err(|e| ort_err(&e))?;
+                let at = (ptr + (first * width * 4) as u64) as *mut std::ffi::c_void;
+                // SAFETY: the caller's buffers hold n rows of `width` f32.
+                unsafe { TensorRefMut::from_raw(info, at, Shape::new([k as i64, width as i64])) }.map_err(|e| ort_err(&e))
+            };
+            let mut binding = session.create_binding().map_err(|e| ort_err(&e))?;
+            binding.bind_input("points", &*rows(inputs[0], 3)?).map_err(|e| ort_err(&e))?;
+            binding.bind_input("viewdirs", &*rows(inputs[1], 3)?).map_err(|e| ort_err(&e))?;
+            binding.bind_output("rgb", rows(outputs[0], 3)?).map_err(|e| ort_err(&e))?;
+            binding.bind_output("sigma", rows(outputs[1], 1)?).map_err(|e| ort_err(&e))?;
+            session.run_binding(&binding).map_err(|e| ort_err(&e))?;
+        }
+        self.seconds += start.elapsed().as_secs_f64();
+        self.evaluated += n;
+        Ok(())
     }
 
     /// Use ordinary host memory for a GPU session's inputs and outputs from now on (for

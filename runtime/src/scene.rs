@@ -1,15 +1,18 @@
 //! A scene bundle opened for rendering: `scene.json`, the graphs in onnxruntime and the
-//! occupancy grid, rendered through the shared core (`nerf_core::render::render_image`).
+//! occupancy grid, rendered through the shared core (`nerf_core::render::render_image`), or on
+//! a GPU with a grid through the GPU loop ([`crate::gpu`]).
 
 use crate::environment::Device;
 use crate::error::{Result, RuntimeError};
 use crate::field::OrtField;
+use crate::gpu::GpuMarch;
 use crate::network::{Encoding, OrtNetwork, POINTS_PER_RUN, Threading};
 use nerf_core::PinholeCamera;
-use nerf_core::camera::Pose;
+use nerf_core::camera::{Pose, Rays};
+use nerf_core::field::Stage;
 use nerf_core::io::limits::{self, Origin};
 use nerf_core::sample::occupancy::{OccupancyGrid, marching_grid};
-use nerf_core::render::{MARCH_SEGMENT, RenderOptions, RenderedImage, render_image};
+use nerf_core::render::{MARCH_SEGMENT, RenderOptions, RenderedImage, RenderedRays, render_image};
 use nerf_bundle::{SCENE_FILE, SceneDescription, bundle_file, read_occupancy, read_scene};
 use std::path::{Path, PathBuf};
 
@@ -76,6 +79,8 @@ pub struct OrtScene {
     pub occupancy: Option<OccupancyGrid>,
     /// Sampling, background and chunk.
     pub options: RenderOptions,
+    /// On a GPU with a grid: the loop around the field there too (`None`: the CPU's).
+    pub gpu: Option<GpuMarch>,
 }
 
 impl OrtScene {
@@ -118,9 +123,19 @@ impl OrtScene {
         let mut render_options =
             RenderOptions::new(description.sampling.clone(), description.white_background, chunk, options.skip_empty_space);
         render_options.march_steps = description.march_steps;
-        // A GPU evaluates while the CPU marches the other half of the rays.
+        // A GPU evaluates while the CPU marches the other half of the rays (the CPU loop).
         render_options.overlap = !on_cpu;
-        Ok(OrtScene { dir: dir.to_path_buf(), description, field: OrtField { graphs }, occupancy, options: render_options })
+        let gpu = match (options.device, &occupancy) {
+            (Device::Cuda(ordinal), Some(grid)) => match GpuMarch::new(ordinal, grid) {
+                Ok(gpu) => Some(gpu),
+                Err(e) => {
+                    eprintln!("warning: --device {}: the loop around the field stays on the CPU ({e})", options.device);
+                    None
+                }
+            },
+            _ => None,
+        };
+        Ok(OrtScene { dir: dir.to_path_buf(), description, field: OrtField { graphs }, occupancy, options: render_options, gpu })
     }
 
     /// The training camera, optionally at another resolution (focal lengths and principal
@@ -150,6 +165,26 @@ impl OrtScene {
 
     /// Render one view deterministically, reporting `progress(done, total)` pixels.
     pub fn render(&mut self, camera: &PinholeCamera, pose: &Pose, progress: &mut dyn FnMut(usize, usize)) -> Result<RenderedImage> {
-        render_image(&mut self.field, self.occupancy.as_ref(), camera, pose, &self.options, progress)
+        let Some(gpu) = &self.gpu else {
+            return render_image(&mut self.field, self.occupancy.as_ref(), camera, pose, &self.options, progress);
+        };
+        // As render_image: rows of at most a chunk of rays at a time.
+        let stage = if self.options.sampling.n_fine > 0 { Stage::Fine } else { Stage::Coarse };
+        let net = self.field.graph(stage).ok_or_else(|| RuntimeError::Other(format!("no graph of the bundle serves {stage:?} samples")))?;
+        let rows_per_chunk = (self.options.chunk.max(1) / (camera.width as usize).max(1)).max(1) as u32;
+        let mut out = RenderedRays::default();
+        let mut row = 0;
+        while row < camera.height {
+            let end = (row + rows_per_chunk).min(camera.height);
+            let rays = self.options.sampling.warp_rays(Rays::for_rows(camera, pose, row..end));
+            for ray in gpu.render_rays(net, &rays, &self.options)? {
+                out.rgb.push(ray.rgb);
+                out.depth.push(ray.depth);
+                out.acc.push(ray.acc);
+            }
+            progress(out.rgb.len(), camera.num_pixels());
+            row = end;
+        }
+        Ok(RenderedImage { width: camera.width, height: camera.height, rays: out })
     }
 }
