@@ -10,8 +10,9 @@
 #
 # `--gpu` also installs onnxruntime-gpu (the CUDA 13 build, for `nerf-render --device cuda`)
 # into a second venv, $NERF_HOME/venv-gpu (with python/ on its path, for `python -m nerf_bundle
-# bench --device cuda`): it cannot share the first (same module name). Not
-# done by default (≈ 300 MB); CI never does it.
+# bench --device cuda`), and CuPy (the Python package's loop on the GPU; NVRTC for it and
+# for `nerf-render --gpu-loop`): it cannot share the first (same module name). Not done by
+# default (≈ 400 MB); CI never does it.
 set -euo pipefail
 GPU=0
 for arg in "$@"; do
@@ -36,7 +37,7 @@ fi
 if [ "$GPU" = 1 ]; then
   GPU_VENV="$NERF_HOME/venv-gpu"
   GPU_STAMP="$GPU_VENV/.nerf-rs-requirements"
-  GPU_REQUIREMENTS="numpy onnxruntime-gpu==1.31.1"
+  GPU_REQUIREMENTS="numpy onnxruntime-gpu==1.31.1 cupy-cuda13x==14.2.0"
   if [ ! -f "$GPU_STAMP" ] || [ "$(cat "$GPU_STAMP")" != "$GPU_REQUIREMENTS" ]; then
     "${PYTHON:-python3}" -m venv "$GPU_VENV"
     "$GPU_VENV/bin/python" -m pip install --quiet --disable-pip-version-check $GPU_REQUIREMENTS

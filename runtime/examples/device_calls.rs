@@ -12,10 +12,13 @@ use nerf_runtime::environment::Device;
 use nerf_runtime::{OpenOptions, OrtScene};
 use std::time::Instant;
 
-/// Records each call's inputs and wall seconds.
+/// A field call: its points, directions and wall seconds.
+type Call = (Vec<[f32; 3]>, Vec<[f32; 3]>, f64);
+
+/// Records each call.
 struct Recorder<'a, F: Field> {
     field: &'a mut F,
-    calls: Vec<(Vec<[f32; 3]>, Vec<[f32; 3]>, f64)>,
+    calls: Vec<Call>,
 }
 
 impl<F: Field> Field for Recorder<'_, F> {
@@ -36,7 +39,7 @@ fn main() {
     let value = |flag: &str| args.iter().position(|a| a == flag).map(|i| args[i + 1].clone());
     let device: Device = value("--device").map_or(Device::Cpu, |d| d.parse().unwrap_or_else(|e| panic!("{e}")));
     let repeats: usize = value("--repeats").map_or(3, |r| r.parse().expect("--repeats: a number"));
-    let mut scene = OrtScene::open(bundle, &OpenOptions { device, ..OpenOptions::default() }).unwrap_or_else(|e| panic!("{e}"));
+    let mut scene = OrtScene::open(bundle, &OpenOptions { device, gpu_loop: true, ..OpenOptions::default() }).unwrap_or_else(|e| panic!("{e}"));
     let view = scene.description.poses.test.first().expect("the bundle has test poses");
     let pose = Pose::from_rows(view.transform_matrix);
     let k = scene.camera(None);

@@ -113,6 +113,11 @@ struct Cli {
     /// library: `bash scripts/setup.sh --gpu`). On a GPU the whole graph runs there.
     #[arg(long, default_value = "cpu", conflicts_with = "serve")]
     device: nerf_runtime::environment::Device,
+    /// With --device cuda and an occupancy grid: march and composite on the GPU too (kernels
+    /// compiled by NVRTC from the CUDA 13 libraries, the field evaluated where its inputs lie).
+    /// Not yet measured on a GPU, so not the default.
+    #[arg(long)]
+    gpu_loop: bool,
     /// Also write <name>.npy per frame: float32 [H, W, 5] = r, g, b, depth, acc.
     #[arg(long)]
     npy: bool,
@@ -196,7 +201,10 @@ fn run(cli: Cli) -> Result<()> {
         limits::check_count(n, limits::MAX_THREADS, "threads", Origin::Option("--threads"))?;
         rayon::ThreadPoolBuilder::new().num_threads(n).build_global()?;
     }
-    let options = OpenOptions { threads: cli.threads, points_per_run: cli.points_per_run, chunk: cli.chunk, skip_empty_space: !cli.dense, whole_graph: cli.whole_graph, device: cli.device };
+    if cli.gpu_loop && cli.device == nerf_runtime::environment::Device::Cpu {
+        bail!("--gpu-loop runs the loop around the field on a GPU: it needs --device cuda (or cuda:N)");
+    }
+    let options = OpenOptions { threads: cli.threads, points_per_run: cli.points_per_run, chunk: cli.chunk, skip_empty_space: !cli.dense, whole_graph: cli.whole_graph, device: cli.device, gpu_loop: cli.gpu_loop };
     let mut scene = OrtScene::open(&bundle, &options)?;
     let transform = scene.description.placement.as_ref().map_or_else(SceneTransform::identity, |p| p.transform);
     let mut gif = cli.orbit.then(|| FramePlan::default().gif);

@@ -192,18 +192,23 @@ impl OrtNetwork {
         self.pinned.is_some()
     }
 
-    /// Evaluate `n` points whose inputs (`points`, `viewdirs`: `[n, 3]` f32) lie in this GPU
-    /// session's device memory, writing its outputs (`rgb` `[n, 3]`, `sigma` `[n, 1]` f32) into
-    /// device memory too (onnxruntime's IO binding), pieces of `points_per_run` points.
+    /// Evaluate `n` points whose inputs (`points`, `viewdirs`: `[n, 3]` f32) lie in the memory
+    /// of this session's device (GPU memory for a GPU session, host memory for a CPU one),
+    /// writing its outputs (`rgb` `[n, 3]`, `sigma` `[n, 1]` f32) there too (onnxruntime's IO
+    /// binding), pieces of `points_per_run` points. The whole graph's inputs only.
     ///
     /// # Safety
-    /// Each address must be device memory of this session's GPU holding (inputs) or with room
-    /// for (outputs) `n` rows, not otherwise in use until the call returns.
+    /// Each address must be memory of this session's device holding (inputs) or with room for
+    /// (outputs) `n` rows, not otherwise in use until the call returns.
     pub unsafe fn run_on_device(&mut self, n: usize, inputs: [u64; 2], outputs: [u64; 2]) -> Result<()> {
         let path = self.path.clone();
         let ort_err = |e: &dyn std::fmt::Display| RuntimeError::Ort { path: path.clone(), message: e.to_string() };
-        let Device::Cuda(gpu) = self.device else {
-            return Err(RuntimeError::Other(format!("{}: run_on_device needs a GPU session", self.path.display())));
+        if self.encoder.is_some() {
+            return Err(RuntimeError::Other(format!("{}: run_on_device needs the whole graph (its hash encoding is split off to Rust)", self.path.display())));
+        }
+        let (device, id) = match self.device {
+            Device::Cuda(gpu) => (AllocationDevice::CUDA, gpu as i32),
+            Device::Cpu => (AllocationDevice::CPU, 0),
         };
         let start = std::time::Instant::now();
         let session = &mut self.sessions[0];
@@ -211,17 +216,22 @@ impl OrtNetwork {
             let k = self.points_per_run.min(n - first);
             // Rows `first..first + k` of a `[n, width]` f32 buffer at `ptr`.
             let rows = |ptr: u64, width: usize| -> Result<TensorRefMut<'static, f32>> {
-                let info = MemoryInfo::new(AllocationDevice::CUDA, gpu as i32, AllocatorType::Device, MemoryType::Default).map_err(|e| ort_err(&e))?;
+                let info = MemoryInfo::new(device.clone(), id, AllocatorType::Device, MemoryType::Default).map_err(|e| ort_err(&e))?;
                 let at = (ptr + (first * width * 4) as u64) as *mut std::ffi::c_void;
                 // SAFETY: the caller's buffers hold n rows of `width` f32.
                 unsafe { TensorRefMut::from_raw(info, at, Shape::new([k as i64, width as i64])) }.map_err(|e| ort_err(&e))
             };
             let mut binding = session.create_binding().map_err(|e| ort_err(&e))?;
-            binding.bind_input("points", &*rows(inputs[0], 3)?).map_err(|e| ort_err(&e))?;
-            binding.bind_input("viewdirs", &*rows(inputs[1], 3)?).map_err(|e| ort_err(&e))?;
+            let (points, viewdirs) = (rows(inputs[0], 3)?, rows(inputs[1], 3)?);
+            // SAFETY: the tensors outlive the run below.
+            unsafe {
+                bind_in_place(&mut binding, c"points", &points).map_err(|e| ort_err(&e))?;
+                bind_in_place(&mut binding, c"viewdirs", &viewdirs).map_err(|e| ort_err(&e))?;
+            }
             binding.bind_output("rgb", rows(outputs[0], 3)?).map_err(|e| ort_err(&e))?;
             binding.bind_output("sigma", rows(outputs[1], 1)?).map_err(|e| ort_err(&e))?;
             session.run_binding(&binding).map_err(|e| ort_err(&e))?;
+            drop((points, viewdirs));
         }
         self.seconds += start.elapsed().as_secs_f64();
         self.evaluated += n;
@@ -320,6 +330,28 @@ impl OrtNetwork {
             out.sigma.extend(part.sigma);
         }
         Ok(out)
+    }
+}
+
+/// Bind `value` as input `name` where it lies. ort's `IoBinding::bind_input` copies a borrowed
+/// tensor that already lies on the session's device, through a copy session of its own whose
+/// lock the copy's own binding then takes again: on device memory it never returns.
+///
+/// # Safety
+/// `value` must outlive every run of `binding` with this input.
+unsafe fn bind_in_place(binding: &mut ort::session::IoBinding, name: &std::ffi::CStr, value: &TensorRefMut<'_, f32>) -> std::result::Result<(), String> {
+    use ort::AsPointer;
+    let api = ort::api();
+    // SAFETY: live binding and value; a NUL-terminated name.
+    let status = unsafe { (api.BindInput)(binding.ptr_mut(), name.as_ptr(), (**value).ptr()) };
+    if status.0.is_null() {
+        return Ok(());
+    }
+    // SAFETY: a status onnxruntime returned, released once after its message is read.
+    unsafe {
+        let message = std::ffi::CStr::from_ptr((api.GetErrorMessage)(status.0)).to_string_lossy().into_owned();
+        (api.ReleaseStatus)(status.0);
+        Err(format!("binding input {}: {message}", name.to_string_lossy()))
     }
 }
 

@@ -51,6 +51,10 @@ pub struct OpenOptions {
     /// Where the graphs run. On a GPU, one session runs the whole graph (the Rust encoding
     /// is a CPU optimisation) on pieces of [`GPU_POINTS_PER_RUN`] points at least.
     pub device: Device,
+    /// On a GPU, with a grid: march and composite there too ([`crate::gpu`]). Off by default
+    /// until it has been measured on a GPU: tested against the CPU loop with its kernels
+    /// compiled for the CPU, not yet run through CUDA.
+    pub gpu_loop: bool,
 }
 
 /// Rays per field call on a GPU unless told otherwise: a whole 400×400 frame marches in one
@@ -63,7 +67,7 @@ pub const GPU_POINTS_PER_RUN: usize = 1 << 20;
 
 impl Default for OpenOptions {
     fn default() -> Self {
-        OpenOptions { threads: None, points_per_run: POINTS_PER_RUN, chunk: None, skip_empty_space: true, whole_graph: false, device: Device::Cpu }
+        OpenOptions { threads: None, points_per_run: POINTS_PER_RUN, chunk: None, skip_empty_space: true, whole_graph: false, device: Device::Cpu, gpu_loop: false }
     }
 }
 
@@ -126,7 +130,7 @@ impl OrtScene {
         // A GPU evaluates while the CPU marches the other half of the rays (the CPU loop).
         render_options.overlap = !on_cpu;
         let gpu = match (options.device, &occupancy) {
-            (Device::Cuda(ordinal), Some(grid)) => match GpuMarch::new(ordinal, grid) {
+            (Device::Cuda(ordinal), Some(grid)) if options.gpu_loop => match GpuMarch::new(ordinal, grid) {
                 Ok(gpu) => Some(gpu),
                 Err(e) => {
                     eprintln!("warning: --device {}: the loop around the field stays on the CPU ({e})", options.device);

@@ -407,10 +407,13 @@ fn cuda_without_a_cuda_build_is_a_clear_error() {
         expect_error(&["--bundle", s(&shipped_bundle()), "--split", "test", "--limit", "1", "--device", device, "--out", s(&out)], &[], &needles);
         assert!(!out.exists(), "--device {device} wrote {}", out.display());
     }
-    // The bitwise hash-grid lowering: a warning that its BitwiseXor stays on the CPU, then the error.
-    let out = dir.path().join("ngp");
-    expect_error(&["--bundle", s(&ngp), "--split", "test", "--limit", "1", "--device", "cuda", "--out", s(&out)], &[], &["BitwiseXor nodes run on the CPU", "--portable", needles[0]]);
-    assert!(!out.exists());
+    // The bitwise hash-grid lowering: a warning that its BitwiseXor stays on the CPU, then the
+    // error; the same with the GPU loop asked for.
+    for extra in [&[][..], &["--gpu-loop"]] {
+        let out = dir.path().join("ngp");
+        expect_error(&[&["--bundle", s(&ngp), "--split", "test", "--limit", "1", "--device", "cuda", "--out", s(&out)], extra].concat(), &[], &["BitwiseXor nodes run on the CPU", "--portable", needles[0]]);
+        assert!(!out.exists());
+    }
     // Without $ORT_DYLIB_PATH and without $NERF_HOME/venv-gpu, the CPU wheel is found after
     // venv-gpu, and refused the same way (its path named).
     let home = std::env::var_os("NERF_HOME").map(PathBuf::from).unwrap_or_else(|| Path::new(&std::env::var_os("HOME").unwrap()).join(".cache/nerf-rs"));
@@ -440,6 +443,10 @@ fn bad_device_strings_are_refused() {
         expect_error(&["--bundle", s(&shipped_bundle()), "--split", "test", "--device", device, "--out", s(&out)], &[], &["--device", "expected cpu, cuda or cuda:N"]);
         assert!(!out.exists());
     }
+    // The GPU loop without a GPU device.
+    let out = dir.path().join("out");
+    expect_error(&["--bundle", s(&shipped_bundle()), "--split", "test", "--gpu-loop", "--out", s(&out)], &[], &["--gpu-loop", "needs --device cuda"]);
+    assert!(!out.exists());
 }
 
 /// `--device cpu` is the default: the same bytes (PNG, depth, .npy), for an MLP bundle and a

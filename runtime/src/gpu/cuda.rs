@@ -4,6 +4,7 @@
 
 use libloading::Library;
 use std::ffi::{CStr, CString, c_char, c_int, c_uint, c_void};
+use super::Arg;
 use std::sync::Arc;
 
 /// A device address.
@@ -181,33 +182,28 @@ impl Cuda {
         Ok(DeviceBuffer { cuda: self.clone(), ptr, bytes })
     }
 
-    /// A device copy of `data`.
-    pub fn upload<T: Copy>(&self, data: &[T]) -> Result<DeviceBuffer, String> {
-        let buffer = self.alloc(std::mem::size_of_val(data))?;
-        buffer.write(data)?;
-        Ok(buffer)
-    }
 }
 
 /// Device memory, freed on drop.
 pub struct DeviceBuffer {
     cuda: Cuda,
-    /// Its address.
-    pub ptr: DevicePtr,
+    ptr: DevicePtr,
     bytes: usize,
 }
 
-impl DeviceBuffer {
-    /// Copy `data` to the start of the buffer.
-    pub fn write<T: Copy>(&self, data: &[T]) -> Result<(), String> {
+impl super::Buffer for DeviceBuffer {
+    fn ptr(&self) -> DevicePtr {
+        self.ptr
+    }
+
+    fn write<T: Copy>(&self, data: &[T]) -> Result<(), String> {
         let bytes = std::mem::size_of_val(data);
         assert!(bytes <= self.bytes, "{bytes} bytes into a buffer of {}", self.bytes);
         // SAFETY: `bytes` fit both the slice and the buffer.
         self.cuda.api.check("cuMemcpyHtoD", unsafe { (self.cuda.api.memcpy_htod)(self.ptr, data.as_ptr().cast(), bytes) })
     }
 
-    /// Copy the start of the buffer into `out`.
-    pub fn read<T: Copy>(&self, out: &mut [T]) -> Result<(), String> {
+    fn read<T: Copy>(&self, out: &mut [T]) -> Result<(), String> {
         let bytes = std::mem::size_of_val(out);
         assert!(bytes <= self.bytes, "{bytes} bytes out of a buffer of {}", self.bytes);
         // SAFETY: `bytes` fit both; any bit pattern is a valid value of the plain types read.
@@ -220,17 +216,6 @@ impl Drop for DeviceBuffer {
         // SAFETY: allocated by cuMemAlloc and not freed before.
         unsafe { (self.cuda.api.mem_free)(self.ptr) };
     }
-}
-
-/// A kernel argument, passed by value.
-#[derive(Clone, Copy)]
-pub enum Arg {
-    /// A device address.
-    Ptr(DevicePtr),
-    /// `int`.
-    I32(i32),
-    /// `float`.
-    F32(f32),
 }
 
 /// Compiled kernels.
@@ -249,14 +234,7 @@ impl Module {
         // SAFETY: a loaded module and a NUL-terminated name.
         api.check(&format!("kernel {name}"), unsafe { (api.module_get_function)(&mut function, self.module, cname.as_ptr()) })?;
         let mut values = args.to_vec();
-        let mut params: Vec<*mut c_void> = values
-            .iter_mut()
-            .map(|a| match a {
-                Arg::Ptr(p) => (p as *mut DevicePtr).cast(),
-                Arg::I32(v) => (v as *mut i32).cast(),
-                Arg::F32(v) => (v as *mut f32).cast(),
-            })
-            .collect();
+        let mut params = super::parameters(&mut values);
         let blocks = threads.div_ceil(BLOCK).max(1) as c_uint;
         // SAFETY: `params` points at one value per kernel parameter, alive through the call.
         api.check(&format!("launching {name}"), unsafe {

@@ -20,8 +20,8 @@ pub struct DeviceFrame {
     pub device: String,
     /// `bitwise` (the default export) or `portable` (`nerf export --portable`).
     pub lowering: String,
-    /// `split` (the Rust encoding, the graph's head in onnxruntime: the CPU default) or
-    /// `whole graph`.
+    /// `split` (the Rust encoding, the graph's head in onnxruntime: the CPU default), `whole
+    /// graph`, or `GPU loop` (the whole graph, marching and compositing on the GPU too).
     pub path: String,
     /// Seconds for the frame, the best of the timed renders.
     pub seconds: f64,
@@ -53,11 +53,17 @@ pub fn bench_device_frames(bundle: &Path, devices: &[Device], repeats: usize, pr
         let dir = temporary.path().join(lowering);
         write_bundle(&dir, &compiled, &options)?;
         let mut reference: Option<RenderedImage> = None;
-        // The CPU split frame always (the reference), the whole graph on each device asked for.
-        let mut paths = vec![(Device::Cpu, "split", false)];
-        paths.extend(devices.iter().map(|&d| (d, "whole graph", true)));
-        for (device, path, whole_graph) in paths {
-            let mut ort = OrtScene::open(&dir, &OpenOptions { whole_graph, device, ..OpenOptions::default() })?;
+        // The CPU split frame always (the reference), the whole graph on each device asked for,
+        // and on a GPU the GPU loop too.
+        let mut paths = vec![(Device::Cpu, "split", false, false)];
+        for &d in devices {
+            paths.push((d, "whole graph", true, false));
+            if d != Device::Cpu {
+                paths.push((d, "GPU loop", true, true));
+            }
+        }
+        for (device, path, whole_graph, gpu_loop) in paths {
+            let mut ort = OrtScene::open(&dir, &OpenOptions { whole_graph, device, gpu_loop, ..OpenOptions::default() })?;
             let k = ort.camera(None);
             let label = format!("{device} {lowering} {path}");
             let mut image = None;
