@@ -11,7 +11,7 @@ use nerf_core::camera::Pose;
 use nerf_core::dataset::{Background, ScenePlacement};
 use nerf_core::frames::camera_path::CameraPathFile;
 use nerf_core::frames::spec::{FrameSpec, FramesReport};
-use nerf_core::frames::views::{Images, SplitChoice, orbit_poses, split_views};
+use nerf_core::frames::views::{Images, SplitChoice, split_views};
 use nerf_core::frames::write::{FrameOutput, FramePlan, render_frames, render_frames_with};
 use nerf_core::render::metrics::EvalReport;
 use nerf_core::sample::occupancy::OccupancyGrid;
@@ -53,13 +53,12 @@ impl LoadedRun {
     /// The views of `choice`, poses mapped into the field by the run's recorded transform
     /// (never refitted to this data), images on the run's background as `images` says.
     pub fn split_views(&self, choice: &SplitChoice, images: Images) -> Result<Vec<FrameSpec>> {
-        let transform = self.placement().map_or_else(nerf_core::SceneTransform::identity, |p| p.transform);
-        Ok(split_views(choice, transform, Background::from_white(self.config.white_background), images)?)
+        Ok(split_views(choice, RunSource::transform_of(self.source.as_ref()), Background::from_white(self.config.white_background), images)?)
     }
 
     /// The run's orbit: around a capture's cameras, else the reference orbit.
     pub fn orbit(&self, frames: usize) -> Vec<Pose> {
-        orbit_poses(self.placement().and_then(|p| p.orbit.as_ref()), frames)
+        RunSource::orbit_of(self.source.as_ref(), frames)
     }
 
     /// Render one view deterministically (test-time sampling, skipping empty space when the
@@ -168,7 +167,7 @@ pub fn render_views(run: &Path, views: &RenderViews, out: &Path, raw: bool, plan
         RenderViews::Split(choice) => (loaded.split_views(choice, Images::Skip)?, None),
         RenderViews::CameraPath { file, downscale } => {
             let path = CameraPathFile::read(file)?;
-            let transform = loaded.placement().map_or_else(nerf_core::SceneTransform::identity, |p| p.transform);
+            let transform = RunSource::transform_of(loaded.source.as_ref());
             let mut specs = path.frames(&transform, loaded.camera.pixel_center);
             for f in &mut specs {
                 f.camera = shrink(f.camera, *downscale, "camera path's render size")?;

@@ -11,7 +11,7 @@ use nerf_core::PinholeCamera;
 use nerf_core::camera::{ORBIT_FRAMES, Pose};
 use crate::run_dir::RunSource;
 use nerf_core::dataset::{Background, CaptureFormat, CaptureSplit, ScenePlacement};
-use nerf_core::frames::views::{Images, SplitChoice, orbit_poses, split_views};
+use nerf_core::frames::views::{Images, SplitChoice, split_views};
 use nerf_core::sample::occupancy::OccupancyGrid;
 use nerf_export::{Bundle, CompileField, CompileOptions, TablePrecision, write_bundle};
 use std::path::Path;
@@ -34,14 +34,14 @@ impl RunScene {
             Some(source) => {
                 let choice = SplitChoice { dir: source.data.clone(), format: placement.map(|p| p.format), split: CaptureSplit::Test, downscale: source.downscale };
                 // The background does not matter: no images are read.
-                match split_views(&choice, source.transform(), Background::from_white(true), Images::Skip) {
+                match split_views(&choice, RunSource::transform_of(Some(source)), Background::from_white(true), Images::Skip) {
                     Ok(test) => test.iter().map(|v| NamedPose { name: v.name.clone(), transform_matrix: pose_matrix(&v.pose) }).collect(),
                     Err(_) => vec![],
                 }
             }
             None => vec![],
         };
-        let orbit = orbit_poses(placement.and_then(|p| p.orbit.as_ref()), ORBIT_FRAMES).iter().map(pose_matrix).collect();
+        let orbit = RunSource::orbit_of(source, ORBIT_FRAMES).iter().map(pose_matrix).collect();
         // A capture's placement; Blender scenes are used as they are.
         RunScene { test, orbit, placement: placement.filter(|p| p.format != CaptureFormat::Blender).cloned() }
     }

@@ -1,4 +1,4 @@
-"""The package builds as a wheel with its type marker, so packaging cannot rot."""
+"""The package builds as a wheel with its type marker and data files, so packaging cannot rot."""
 
 import subprocess
 import sys
@@ -15,5 +15,6 @@ def test_the_wheel_builds_with_its_modules_and_type_marker(tmp_path):
     wheels = list(tmp_path.glob("nerf_bundle-*.whl"))
     assert len(wheels) == 1, wheels
     names = set(zipfile.ZipFile(wheels[0]).namelist())
-    for module in ["__init__.py", "bundle.py", "cli.py", "py.typed"]:
+    # march.cu: the GPU loop's kernels, read at run time.
+    for module in ["__init__.py", "bundle.py", "cli.py", "py.typed", "_gpu.py", "march.cu"]:
         assert f"nerf_bundle/{module}" in names, sorted(names)

@@ -48,6 +48,17 @@ impl RunSource {
     pub fn transform(&self) -> SceneTransform {
         self.placement.as_ref().map_or_else(SceneTransform::identity, |p| p.transform)
     }
+
+    /// [`RunSource::transform`] of a run's source, identity for a run without one.
+    pub fn transform_of(source: Option<&RunSource>) -> SceneTransform {
+        source.map_or_else(SceneTransform::identity, RunSource::transform)
+    }
+
+    /// A run's orbit of `frames` poses: around a capture's cameras (its recorded placement),
+    /// else the reference orbit.
+    pub fn orbit_of(source: Option<&RunSource>, frames: usize) -> Vec<nerf_core::camera::Pose> {
+        nerf_core::frames::views::orbit_poses(source.and_then(|s| s.placement.as_ref()).and_then(|p| p.orbit.as_ref()), frames)
+    }
 }
 
 /// A run directory.
@@ -168,7 +179,7 @@ impl RunDir {
     /// The transform from the data's world into the run's field (identity for a run without
     /// a recorded placement).
     pub fn scene_transform(&self) -> Result<SceneTransform> {
-        Ok(self.read_source()?.map_or_else(SceneTransform::identity, |s| s.transform()))
+        Ok(RunSource::transform_of(self.read_source()?.as_ref()))
     }
 
     /// Record where the data came from.
