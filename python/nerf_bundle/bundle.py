@@ -110,10 +110,11 @@ class Bundle:
 
         ``device``: ``"cpu"`` (the default) or ``"cuda"`` / ``"cuda:N"``: onnxruntime's CUDA
         provider on GPU N with TF32 off, one session per graph on pieces of ``points_per_run``
-        (default 2**21) points; with CuPy installed (``cupy-cuda13x``) the marching and
-        compositing run on the GPU too (``_gpu``: the same samples, one field call per round
-        of a batch through IO binding), without it in numpy on the CPU, in batches of up
-        to 262,144 rays per field call, with a warning; BundleError when the installed onnxruntime has no CUDA provider (the CPU
+        (default 2**21) points, in batches of up to 262,144 rays; with CuPy installed
+        (``cupy-cuda13x``) the marching and compositing run on the GPU too (``_gpu``: the same
+        samples, one field call per round through IO binding), without it (or where its
+        kernels cannot start) in numpy on the CPU, with a warning; BundleError when the
+        installed onnxruntime has no CUDA provider (the CPU
         wheel: ``pip install onnxruntime-gpu==1.31.1``) or the session cannot start on the GPU,
         never a quiet fall-back to the CPU. ``providers``: onnxruntime execution providers for
         the CPU path (default CPU); with ``device`` a ValueError (say one or the other).
@@ -148,11 +149,15 @@ class Bundle:
         if gpu is not None:
             bundle.device = f"cuda:{gpu}"
             cupy = _gpu.cupy_or_none() if grid is not None else None
+            why = "CuPy is not installed (pip install cupy-cuda13x, or `bash scripts/setup.sh --gpu`)"
             if cupy is not None:
-                bundle._gpu_loop = _gpu.GpuLoop(cupy, gpu, grid)
-            elif grid is not None:
-                warnings.warn(f"{path}: CuPy is not installed (pip install cupy-cuda13x, or `bash scripts/setup.sh --gpu`): "
-                              "the loop around the field runs in numpy on the CPU, most of a GPU frame's time", stacklevel=2)
+                try:
+                    bundle._gpu_loop = _gpu.GpuLoop(cupy, gpu, grid)
+                except Exception as e:  # CuPy's compile and CUDA errors
+                    why = f"the GPU loop's kernels cannot start ({e})"
+            if grid is not None and bundle._gpu_loop is None:
+                warnings.warn(f"{path}: {why}: the loop around the field runs in numpy on the CPU, most of a GPU frame's time",
+                              stacklevel=2)
         for split in ("test", "orbit"):
             bundle.poses(split)  # non-finite or malformed poses are refused now
         return bundle

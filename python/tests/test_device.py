@@ -91,3 +91,46 @@ def test_op_types_tell_the_bitwise_lowering_from_the_portable_one():
     portable = op_types((root / "viewer/tests/fixtures/ngp-portable/field.onnx").read_bytes())
     assert "BitwiseXor" in bitwise and {"Gather", "MatMul"} <= bitwise
     assert "BitwiseXor" not in portable and {"Gather", "MatMul"} <= portable
+
+
+def _sessions_that_say_cuda(monkeypatch):
+    """onnxruntime as if it were the GPU wheel: CPU sessions that report the CUDA provider."""
+    monkeypatch.setattr(ort, "get_available_providers", lambda: ["CUDAExecutionProvider", "CPUExecutionProvider"])
+    real = ort.InferenceSession
+
+    class SaysCuda:
+        def __init__(self, model, opts, providers=None, **kw):
+            self._s = real(model, opts, providers=["CPUExecutionProvider"])
+
+        def get_providers(self):
+            return ["CUDAExecutionProvider", "CPUExecutionProvider"]
+
+        def __getattr__(self, name):
+            return getattr(self._s, name)
+
+    monkeypatch.setattr(ort, "InferenceSession", SaysCuda)
+
+
+def test_without_cupy_the_loop_stays_in_numpy_and_says_so(monkeypatch):
+    _sessions_that_say_cuda(monkeypatch)
+    monkeypatch.setitem(sys.modules, "cupy", None)  # `import cupy` fails
+    with pytest.warns(UserWarning, match="CuPy is not installed.*numpy on the CPU"):
+        bundle = nerf_bundle.Bundle.open(MODELS / "lego-ngp", device="cuda")
+    assert bundle._gpu_loop is None
+    assert bundle.render(bundle.poses("test")[0], 16).rgb.shape == (16, 16, 3)
+
+
+def test_kernels_that_cannot_start_leave_the_loop_in_numpy(monkeypatch):
+    """A CuPy whose compiler fails (no NVRTC, an old driver): a warning with its error."""
+    from nerf_bundle import _gpu
+
+    _sessions_that_say_cuda(monkeypatch)
+    monkeypatch.setattr(_gpu, "cupy_or_none", lambda: object())
+
+    def failing(self, cupy, gpu, grid):
+        raise RuntimeError("nvrtc: libnvrtc.so.13 not found")
+
+    monkeypatch.setattr(_gpu.GpuLoop, "__init__", failing)
+    with pytest.warns(UserWarning, match="kernels cannot start.*libnvrtc.so.13"):
+        bundle = nerf_bundle.Bundle.open(MODELS / "lego-ngp", device="cuda")
+    assert bundle._gpu_loop is None

@@ -113,10 +113,10 @@ pub struct OrtNetwork {
     device: Device,
 }
 
-/// Page-locked ("pinned") host memory from onnxruntime's CUDA provider. A GPU copies it by DMA
-/// directly; ordinary (pageable) memory is staged through a driver buffer piece by piece, which
-/// is most of a call's cost for a field this cheap (the inputs and outputs of a point are 40
-/// bytes, its evaluation a few hundred flops).
+/// Page-locked ("pinned") host memory from onnxruntime's CUDA provider: a GPU copies it by DMA
+/// directly, where ordinary (pageable) memory is staged through a driver buffer. Measured on an
+/// H200 (a 400×400 lego-ngp frame, 34 calls): 0.135 s a frame against 0.138 s, since a call's
+/// fixed cost (≈ 1 ms) outweighs its copies; never slower, so kept.
 struct Pinned {
     allocator: Allocator,
 }

@@ -64,6 +64,8 @@ pub fn bench_device_frames(bundle: &Path, devices: &[Device], repeats: usize, pr
         }
         for (device, path, whole_graph, gpu_loop) in paths {
             let mut ort = OrtScene::open(&dir, &OpenOptions { whole_graph, device, gpu_loop, ..OpenOptions::default() })?;
+            // Where the GPU loop cannot start (its warning says why), the CPU loop's frame.
+            let path = if gpu_loop && ort.gpu.is_none() { "GPU loop (unavailable: CPU loop)" } else { path };
             let k = ort.camera(None);
             let label = format!("{device} {lowering} {path}");
             let mut image = None;
