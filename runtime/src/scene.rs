@@ -8,11 +8,11 @@ use crate::field::OrtField;
 use crate::gpu::GpuMarch;
 use crate::network::{Encoding, OrtNetwork, POINTS_PER_RUN, Threading};
 use nerf_core::PinholeCamera;
-use nerf_core::camera::{Pose, Rays};
+use nerf_core::camera::Pose;
 use nerf_core::field::Stage;
 use nerf_core::io::limits::{self, Origin};
 use nerf_core::sample::occupancy::{OccupancyGrid, marching_grid};
-use nerf_core::render::{MARCH_SEGMENT, RenderOptions, RenderedImage, RenderedRays, render_image};
+use nerf_core::render::{MARCH_SEGMENT, RenderOptions, RenderedImage, render_image, render_image_with};
 use nerf_bundle::{SCENE_FILE, SceneDescription, bundle_file, read_occupancy, read_scene};
 use std::path::{Path, PathBuf};
 
@@ -172,23 +172,9 @@ impl OrtScene {
         let Some(gpu) = &self.gpu else {
             return render_image(&mut self.field, self.occupancy.as_ref(), camera, pose, &self.options, progress);
         };
-        // As render_image: rows of at most a chunk of rays at a time.
         let stage = if self.options.sampling.n_fine > 0 { Stage::Fine } else { Stage::Coarse };
         let net = self.field.graph(stage).ok_or_else(|| RuntimeError::Other(format!("no graph of the bundle serves {stage:?} samples")))?;
-        let rows_per_chunk = (self.options.chunk.max(1) / (camera.width as usize).max(1)).max(1) as u32;
-        let mut out = RenderedRays::default();
-        let mut row = 0;
-        while row < camera.height {
-            let end = (row + rows_per_chunk).min(camera.height);
-            let rays = self.options.sampling.warp_rays(Rays::for_rows(camera, pose, row..end));
-            for ray in gpu.render_rays(net, &rays, &self.options)? {
-                out.rgb.push(ray.rgb);
-                out.depth.push(ray.depth);
-                out.acc.push(ray.acc);
-            }
-            progress(out.rgb.len(), camera.num_pixels());
-            row = end;
-        }
-        Ok(RenderedImage { width: camera.width, height: camera.height, rays: out })
+        let options = &self.options;
+        render_image_with(camera, pose, options, progress, &mut |rays| gpu.render_rays(net, rays, options))
     }
 }

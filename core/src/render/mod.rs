@@ -139,12 +139,24 @@ pub fn render_image<F: Field>(
     options: &RenderOptions,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<RenderedImage, F::Error> {
+    let skipper = occupancy.map(grid::Skipper::new);
+    render_image_with(camera, pose, options, progress, &mut |rays| render_rays_in(field, skipper.as_ref(), rays, options))
+}
+
+/// [`render_image`]'s batches (at most `options.chunk` rays, warped as the sampling says) each
+/// rendered by `render_batch`, e.g. another implementation of the same loop.
+pub fn render_image_with<E>(
+    camera: &PinholeCamera,
+    pose: &Pose,
+    options: &RenderOptions,
+    progress: &mut dyn FnMut(usize, usize),
+    render_batch: &mut dyn FnMut(&Rays) -> Result<Vec<RayOutput>, E>,
+) -> Result<RenderedImage, E> {
     let chunk = options.chunk.max(1);
     let width = camera.width as usize;
     let rows_per_chunk = (chunk / width.max(1)).max(1) as u32;
     let total = camera.num_pixels();
     let mut out = RenderedRays::default();
-    let skipper = occupancy.map(grid::Skipper::new);
     let mut row = 0;
     while row < camera.height {
         let end = (row + rows_per_chunk).min(camera.height);
@@ -152,7 +164,7 @@ pub fn render_image<F: Field>(
         let mut start = 0;
         while start < rays.len() {
             let stop = (start + chunk).min(rays.len());
-            out.append(&render_rays_in(field, skipper.as_ref(), &rays.slice(start..stop), options)?);
+            out.append(&render_batch(&rays.slice(start..stop))?);
             progress(out.rgb.len(), total);
             start = stop;
         }
