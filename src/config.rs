@@ -140,6 +140,7 @@ impl Preset {
                     update_every: 16,
                     warmup_steps: 64,
                     threshold_at_most_mean: true,
+                    contraction: None,
                 },
                 march_steps: 1024,
                 render_march_steps: Some(2048),
@@ -400,14 +401,17 @@ impl TrainConfig {
             let jittered: Vec<&str> = FieldKind::ALL.iter().filter(|k| k.trains_on_jittered_rays()).map(|k| k.name()).collect();
             return Err(format!("jitter_pixels: the {} field trains through pixel centres (jitter needs field = {jittered:?})", self.field.name()));
         }
-        if let Some((section, (min, max))) = self.shapes.field_box(self.field) {
+        if let Some((section, bound)) = self.shapes.field_box(self.field) {
             // A field defined inside its box only is marched through the occupancy grid, whose
             // cube that box must be.
             if !self.skip_empty_space || s.n_fine > 0 {
                 return Err(format!("field = {:?} is marched through the occupancy grid: it needs skip_empty_space = true and sampling.n_fine = 0", self.field.name()));
             }
-            if (min, max) != ([-o.bound; 3], [o.bound; 3]) {
-                return Err(format!("{section}.bound {min:?}..{max:?} must be the occupancy grid's cube ±{} (occupancy.bound)", o.bound));
+            if (bound.min, bound.max) != ([-o.bound; 3], [o.bound; 3]) {
+                return Err(format!("{section}.bound {:?}..{:?} must be the occupancy grid's cube ±{} (occupancy.bound)", bound.min, bound.max, o.bound));
+            }
+            if bound.contraction != o.contraction {
+                return Err(format!("{section}.bound.contraction {:?} must be the occupancy grid's (occupancy.contraction {:?})", bound.contraction, o.contraction));
             }
         }
         if self.target_samples == 0 || self.target_samples > limits::MAX_POINTS_PER_CALL {

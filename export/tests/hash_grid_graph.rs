@@ -43,11 +43,17 @@ fn python_check(model: &nerf_export::proto::ModelProto, reference: serde_json::V
     assert!(out.status.success(), "{text}");
 }
 
-/// `n` points a little beyond `bound` on every side (the clamp is part of the check) and unit
-/// directions.
+/// `n` points a little beyond `bound` on every side (the clamp is part of the check; for a
+/// contracted bound, every other point pushed out up to 1000× farther) and unit directions.
 fn inputs(bound: &GridBound, n: usize) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
     let mut rng = Rng::new(7);
-    let points = (0..n).map(|_| [0, 1, 2].map(|d| bound.min[d] - 0.1 + (bound.max[d] - bound.min[d] + 0.2) * rng.uniform())).collect();
+    let points = (0..n)
+        .map(|i| {
+            let p = [0, 1, 2].map(|d| bound.min[d] - 0.1 + (bound.max[d] - bound.min[d] + 0.2) * rng.uniform());
+            let far = if bound.contraction.is_some() && i % 2 == 0 { 10f32.powf(3.0 * rng.uniform()) } else { 1.0 };
+            p.map(|v| v * far)
+        })
+        .collect();
     let dirs = (0..n)
         .map(|_| {
             let v = [0; 3].map(|_| rng.uniform() * 2.0 - 1.0);
@@ -81,12 +87,16 @@ fn encodings_graph_matches_the_rust_encodings() {
     let config = HashGridConfig { levels: 16, features_per_level: 2, log2_table_size: 14, base_resolution: 16, max_resolution: 2048 };
     let g = grid(config);
     assert!(g.levels().iter().any(|l| l.dense) && g.levels().iter().any(|l| !l.dense));
-    let bound = GridBound { min: [-1.5, -1.5, -1.0], max: [1.5, 1.5, 2.0] };
+    let bound = GridBound { min: [-1.5, -1.5, -1.0], max: [1.5, 1.5, 2.0], contraction: None };
     check_encodings(&g, &bound, HashOps::Bitwise, TablePrecision::F32, 18, 12_000, dir.path());
     // The bitwise-free lowering, on the same grid and on one with 4 features and 2 chunks of bits.
     check_encodings(&g, &bound, HashOps::Portable, TablePrecision::F32, 17, 12_000, dir.path());
     let small = grid(HashGridConfig { levels: 8, features_per_level: 4, log2_table_size: 12, base_resolution: 8, max_resolution: 512 });
     check_encodings(&small, &bound, HashOps::Portable, TablePrecision::F32, 17, 3_000, dir.path());
+    // Contracted (both lowerings): the same f32 contraction as the Rust encoding's.
+    let contracted = GridBound::contracted(nerf_core::sample::Contraction::Linf);
+    check_encodings(&g, &contracted, HashOps::Bitwise, TablePrecision::F32, 18, 12_000, dir.path());
+    check_encodings(&g, &contracted, HashOps::Portable, TablePrecision::F32, 17, 12_000, dir.path());
     // A float16 table computes the Rust encoding of the table rounded to float16.
     let mut rounded = g.clone();
     let values = f16_values(&f16_bytes(rounded.params())).unwrap();

@@ -26,8 +26,8 @@ macro_rules! field_kinds {
 pub trait KindShape {
     /// Check the shape; the problem, naming the key, when it is impossible.
     fn check(&self) -> Result<(), String>;
-    /// The box (min, max corners) the field is defined in, for a kind defined there only.
-    fn field_box(&self) -> Option<([f32; 3], [f32; 3])>;
+    /// The box the field is defined in (contracted or not), for a kind defined there only.
+    fn field_box(&self) -> Option<crate::field::ngp::hash_grid::GridBound>;
 }
 
 macro_rules! describe {
@@ -104,7 +104,7 @@ macro_rules! describe {
 
             /// The box `kind`'s field is defined in, for a kind defined there only; with the
             /// section that says so.
-            pub fn field_box(&self, kind: FieldKind) -> Option<(&'static str, ([f32; 3], [f32; 3]))> {
+            pub fn field_box(&self, kind: FieldKind) -> Option<(&'static str, crate::field::ngp::hash_grid::GridBound)> {
                 match kind {
                     $(FieldKind::$kind => KindShape::field_box(&self.$section).map(|b| (stringify!($section), b)),)*
                 }

@@ -7,48 +7,54 @@ use super::{MARCH_SEGMENT, RenderOptions};
 use crate::field::{Field, FieldOutput, Stage};
 use crate::camera::{Rays, length, point_at};
 use super::compositing::{RayAccumulator, RayOutput, alpha_from_density};
+use crate::sample::contraction::Contraction;
 use crate::sample::occupancy::OccupancyGrid;
 use crate::rng::Rng;
 use rayon::prelude::*;
 
-/// The samples marching takes: `steps` equal intervals over [near, far], one sample at each
-/// interval's middle, kept only where it lies in an occupied cell; δ = the interval · ‖d‖.
+/// The samples marching takes: the steps of [`march_segments`] (`steps` equal intervals over
+/// [near, far]; on a contracted grid, intervals that grow with distance), one sample at each
+/// interval's middle, kept only where it lies in an occupied cell; δ = its interval · ‖d‖.
 /// With `jitter` (training), each ray's samples move together by one uniform draw within their
 /// interval instead of sitting at the middles (drawn ray by ray in order: deterministic).
 /// Rays are marched in parallel, [`MARCH_RAYS_PER_TASK`] per task. Empty space is skipped an
 /// empty cube of cells at a time ([`march_ray`]); the samples are exactly those of testing
 /// every interval ([`march_ray_every_interval`]).
 pub fn occupied_samples(grid: &OccupancyGrid, rays: &Rays, near: f32, far: f32, steps: usize, jitter: Option<&mut Rng>) -> PackedSamples {
-    let interval = (far - near) / steps as f32;
+    let segments = march_segments(near, far, steps, grid.contraction());
     let shifts: Vec<f32> = match jitter {
         Some(rng) => (0..rays.len()).map(|_| rng.uniform()).collect(),
         None => vec![0.5; rays.len()],
     };
     let skipper = Skipper::new(grid);
     let ray_list: Vec<usize> = (0..rays.len()).collect();
-    // Per task: its rays' t values, and each ray's count.
-    let parts: Vec<(Vec<f32>, Vec<usize>)> = ray_list
+    // Per task: its rays' t values and intervals, and each ray's count.
+    let parts: Vec<(Vec<f32>, Vec<f32>, Vec<usize>)> = ray_list
         .par_chunks(MARCH_RAYS_PER_TASK)
         .map(|chunk| {
-            let mut t_values = Vec::new();
+            let (mut t_values, mut intervals) = (Vec::new(), Vec::new());
             let mut counts = Vec::with_capacity(chunk.len());
             for &r in chunk {
                 let before = t_values.len();
-                let ray = March { origin: rays.origins[r], direction: rays.directions[r], near, interval, steps, shift: shifts[r] };
-                march_ray(&skipper, &ray, &mut t_values);
+                march_ray(&skipper, &segments, rays.origins[r], rays.directions[r], shifts[r], &mut |t, _, interval| {
+                    t_values.push(t);
+                    intervals.push(interval);
+                });
                 counts.push(t_values.len() - before);
             }
-            (t_values, counts)
+            (t_values, intervals, counts)
         })
         .collect();
     let mut packed = PackedSamples { offsets: Vec::with_capacity(rays.len() + 1), ..PackedSamples::default() };
     packed.offsets.push(0);
     let mut r = 0;
-    for (t_values, counts) in parts {
+    for (t_values, intervals, counts) in parts {
         packed.t.extend_from_slice(&t_values);
+        let mut at = 0;
         for n in counts {
-            let delta = interval * length(rays.directions[r]);
-            packed.delta.extend(std::iter::repeat_n(delta, n));
+            let norm = length(rays.directions[r]);
+            packed.delta.extend(intervals[at..at + n].iter().map(|&interval| interval * norm));
+            at += n;
             packed.offsets.push(packed.delta.len());
             r += 1;
         }
@@ -56,7 +62,46 @@ pub fn occupied_samples(grid: &OccupancyGrid, rays: &Rays, near: f32, far: f32, 
     packed
 }
 
-/// One ray's marching: step `k` (0 ≤ k < `steps`) samples t = near + (k + shift) · interval.
+/// One stretch of a ray's steps: `steps` equal intervals of `interval` from t = `start`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Segment {
+    /// Where the first interval begins.
+    pub start: f32,
+    /// Each interval's length in t.
+    pub interval: f32,
+    /// How many intervals.
+    pub steps: usize,
+}
+
+/// The most segments a contracted march has (the fifth starts 170 units out).
+const MAX_SEGMENTS: usize = 8;
+
+/// Where marching steps along a ray, as segments of equal intervals:
+/// - uncontracted: one segment, `steps` intervals over [near, far];
+/// - over a contracted world: segments of `steps / 4` intervals (at least 1) from `near`, the
+///   first spanning 2 units (the inner cube's side), each next one's interval 4× the last's
+///   (spans 2, 8, 32, 128, … : steps that grow with distance, as the contraction shrinks what
+///   lies far), while a segment starts before `far` ([`MAX_SEGMENTS`] at most). Each start is
+///   the last start plus its steps × its interval, in f32, in that order.
+pub fn march_segments(near: f32, far: f32, steps: usize, contraction: Option<Contraction>) -> Vec<Segment> {
+    if contraction.is_none() {
+        return vec![Segment { start: near, interval: (far - near) / steps as f32, steps }];
+    }
+    let n = (steps / 4).max(1);
+    let (mut start, mut interval) = (near, 2.0 / n as f32);
+    let mut segments = Vec::new();
+    loop {
+        segments.push(Segment { start, interval, steps: n });
+        start += n as f32 * interval;
+        interval *= 4.0;
+        if !(start < far) || segments.len() == MAX_SEGMENTS {
+            return segments;
+        }
+    }
+}
+
+/// One ray's marching through one [`Segment`]: step `k` (0 ≤ k < `steps`) samples
+/// t = near + (k + shift) · interval.
 #[derive(Clone, Copy)]
 struct March {
     origin: [f32; 3],
@@ -82,13 +127,17 @@ impl March {
     }
 }
 
-/// The reference marching: test every step (what [`RayMarch`] must equal).
+/// The reference marching: test every step of every segment (what [`RayMarch`] must equal);
+/// pushes each kept step's t and interval.
 #[cfg(test)]
-fn march_ray_every_interval(ray: &March, occupied: &mut impl FnMut([f32; 3]) -> bool, out: &mut Vec<f32>) {
-    for k in 0..ray.steps {
-        let t = ray.t(k);
-        if occupied(point_at(ray.origin, ray.direction, t)) {
-            out.push(t);
+fn march_ray_every_interval(segments: &[Segment], origin: [f32; 3], direction: [f32; 3], shift: f32, occupied: &mut impl FnMut([f32; 3]) -> bool, out: &mut Vec<(f32, f32)>) {
+    for s in segments {
+        let ray = March { origin, direction, near: s.start, interval: s.interval, steps: s.steps, shift };
+        for k in 0..ray.steps {
+            let t = ray.t(k);
+            if occupied(point_at(ray.origin, ray.direction, t)) {
+                out.push((t, s.interval));
+            }
         }
     }
 }
@@ -101,12 +150,16 @@ pub struct Skipper<'a> {
     reach: &'a [u8],
     /// A cell's side in world units.
     cell_side: f64,
+    /// Half the side of the centred cube where world and grid coordinates agree (the grid's
+    /// bound; 1 on a contracted grid): empty cubes are jumped through only inside it.
+    identity_half: f64,
 }
 
 impl<'a> Skipper<'a> {
     /// Marching through `grid` (its empty reach made on first use, then kept with the grid).
     pub fn new(grid: &'a OccupancyGrid) -> Self {
-        Skipper { grid, reach: grid.empty_reach(), cell_side: 2.0 * grid.bound() as f64 / grid.resolution() as f64 }
+        let identity_half = if grid.contraction().is_some() { 1.0 } else { grid.bound() as f64 };
+        Skipper { grid, reach: grid.empty_reach(), cell_side: 2.0 * grid.bound() as f64 / grid.resolution() as f64, identity_half }
     }
 
     /// The world box of cells [lo, hi) per axis, grown by `margin` (shrunk where negative).
@@ -135,15 +188,20 @@ fn slab(o: [f64; 3], d: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> (f64, f64) {
 }
 
 /// One ray's marching, resumable: [`RayMarch::advance`] emits its next occupied samples, in
-/// order, exactly those of [`march_ray_every_interval`], testing far fewer steps. Steps before
-/// the grid's box and after it are not tested; at a step in an empty cell, the steps up to where
+/// order, exactly those of [`march_ray_every_interval`], testing far fewer steps, one
+/// [`Segment`] after the other. Steps before the grid's box and after it are not tested (a
+/// contracted grid's box is the whole world); at a step in an empty cell, the steps up to where
 /// the ray leaves the empty cube of cells around it ([`Skipper`]) are skipped; at a step in an
 /// occupied cell, the steps up to where it leaves that cell are emitted untested. Rounding
 /// cannot misplace a step: the boxes are grown (the grid's) or shrunk (a cube's, a cell's) by a
 /// margin far above the f32 error of a sample's position and of a step's t, and a run ends
-/// before the first step at or after the shrunk box's exit.
+/// before the first step at or after the shrunk box's exit. On a contracted grid, cubes are
+/// jumped through only inside the inner cube (where contraction leaves points as they are);
+/// outside it every step is tested.
 struct RayMarch {
+    /// The segment being marched, and its index.
     ray: March,
+    segment: usize,
     o: [f64; 3],
     d: [f64; 3],
     /// 1/d per axis (the exits of the boxes jumped through).
@@ -162,12 +220,33 @@ struct RayMarch {
 }
 
 impl RayMarch {
-    fn new(skipper: &Skipper, ray: March) -> Self {
+    /// A ray from `origin` along `direction` marched through `segments` (at least one), each
+    /// step's sample at `shift` (0.5: the middle) of its interval.
+    fn new(skipper: &Skipper, segments: &[Segment], origin: [f32; 3], direction: [f32; 3], shift: f32) -> Self {
+        let s = segments[0];
+        let mut march = Self::segment(skipper, March { origin, direction, near: s.start, interval: s.interval, steps: s.steps, shift }, 0);
+        march.settle(skipper, segments);
+        march
+    }
+
+    /// Move on to the next segment while this one is marched (so that [`Self::finished`] says
+    /// whether the whole ray is).
+    fn settle(&mut self, skipper: &Skipper, segments: &[Segment]) {
+        while self.k >= self.end && self.segment + 1 < segments.len() {
+            let s = segments[self.segment + 1];
+            let tested = self.tested;
+            *self = Self::segment(skipper, March { near: s.start, interval: s.interval, steps: s.steps, ..self.ray }, self.segment + 1);
+            self.tested += tested;
+        }
+    }
+
+    /// The marching of `ray`, segment `segment` of its list.
+    fn segment(skipper: &Skipper, ray: March, segment: usize) -> Self {
         let finite = ray.origin.iter().chain(&ray.direction).chain([&ray.near, &ray.shift]).all(|v| v.is_finite());
         let (o, d) = (ray.origin.map(f64::from), ray.direction.map(f64::from));
         // A NaN interval fails `> 0` too.
         if !finite || ray.interval.is_infinite() || ray.interval <= 0.0 || ray.interval.is_nan() {
-            return RayMarch { end: ray.steps, ray, o, d, inv_d: [0.0; 3], margin: 0.0, k: 0, occupied_until: 0, every: true, tested: 0 };
+            return RayMarch { end: ray.steps, ray, segment, o, d, inv_d: [0.0; 3], margin: 0.0, k: 0, occupied_until: 0, every: true, tested: 0 };
         }
         let grid = skipper.grid;
         let r = grid.resolution();
@@ -175,29 +254,46 @@ impl RayMarch {
         let t_max = ray.t(ray.steps).abs().max(ray.near.abs()) as f64;
         let scale = (0..3).map(|a| o[a].abs() + t_max * d[a].abs()).fold(grid.bound() as f64, f64::max);
         let margin = 1e-3 * skipper.cell_side + 64.0 * f32::EPSILON as f64 * scale;
-        let (lo, hi) = skipper.cell_box([0; 3], [r; 3], margin);
-        let (enter, leave) = slab(o, d, lo, hi);
-        // Finite inputs: the slab's ends are numbers (±∞ at most), never NaN.
-        let (k, end) = if enter > leave { (0, 0) } else { (ray.step_at(enter, -1.0), ray.step_at(leave, 1.0)) };
-        RayMarch { ray, o, d, inv_d: d.map(|v| 1.0 / v), margin, k, end, occupied_until: 0, every: false, tested: 0 }
+        let (k, end) = if grid.contraction().is_some() {
+            (0, ray.steps)
+        } else {
+            let (lo, hi) = skipper.cell_box([0; 3], [r; 3], margin);
+            let (enter, leave) = slab(o, d, lo, hi);
+            // Finite inputs: the slab's ends are numbers (±∞ at most), never NaN.
+            if enter > leave { (0, 0) } else { (ray.step_at(enter, -1.0), ray.step_at(leave, 1.0)) }
+        };
+        RayMarch { ray, segment, o, d, inv_d: d.map(|v| 1.0 / v), margin, k, end, occupied_until: 0, every: false, tested: 0 }
     }
 
-    /// Whether every step has been marched.
+    /// Whether every step of every segment has been marched.
     fn finished(&self) -> bool {
         self.k >= self.end
     }
 
-    /// Emit (t, point) for the ray's next steps that `occupied` accepts, at most `max` of them;
-    /// returns how many.
-    fn advance(&mut self, skipper: &Skipper, max: usize, emit: &mut impl FnMut(f32, [f32; 3])) -> usize {
+    /// Emit (t, point, interval) for the ray's next steps in occupied cells, at most `max` of
+    /// them, crossing into later segments as needed; returns how many.
+    fn advance(&mut self, skipper: &Skipper, segments: &[Segment], max: usize, emit: &mut impl FnMut(f32, [f32; 3], f32)) -> usize {
+        let mut emitted = 0;
+        loop {
+            emitted += self.advance_in_segment(skipper, max - emitted, emit);
+            self.settle(skipper, segments);
+            if emitted >= max || self.finished() {
+                return emitted;
+            }
+        }
+    }
+
+    /// [`Self::advance`] within the current segment.
+    fn advance_in_segment(&mut self, skipper: &Skipper, max: usize, emit: &mut impl FnMut(f32, [f32; 3], f32)) -> usize {
         let (ray, grid, r) = (&self.ray, skipper.grid, skipper.grid.resolution());
+        let interval = ray.interval;
         let mut emitted = 0;
         while self.k < self.end && emitted < max {
             let k = self.k;
             let t = ray.t(k);
             let p = point_at(ray.origin, ray.direction, t);
             if k < self.occupied_until {
-                emit(t, p);
+                emit(t, p, interval);
                 emitted += 1;
                 self.k += 1;
                 continue;
@@ -216,7 +312,8 @@ impl RayMarch {
                     let (lo, hi) = skipper.cell_box(cell.map(|i| i.saturating_sub(reach - 1)), cell.map(|i| (i + reach).min(r)), -self.margin);
                     let tt = t as f64;
                     let mut exit = f64::INFINITY;
-                    let mut inside = true;
+                    // Only where the grid's cells are world boxes (not in a contracted shell).
+                    let mut inside = lo.iter().chain(&hi).all(|v| v.abs() <= skipper.identity_half);
                     for a in 0..3 {
                         let x = self.o[a] + tt * self.d[a];
                         inside &= lo[a] <= x && x <= hi[a];
@@ -229,7 +326,7 @@ impl RayMarch {
                 _ => k + 1,
             };
             if occupied {
-                emit(t, p);
+                emit(t, p, interval);
                 emitted += 1;
                 self.occupied_until = run_end;
                 self.k += 1;
@@ -241,11 +338,11 @@ impl RayMarch {
     }
 }
 
-/// Push the t of each of the ray's occupied steps, in order ([`RayMarch`]); returns how many
-/// steps it tested.
-fn march_ray(skipper: &Skipper, ray: &March, out: &mut Vec<f32>) -> usize {
-    let mut march = RayMarch::new(skipper, *ray);
-    march.advance(skipper, usize::MAX, &mut |t, _| out.push(t));
+/// Emit (t, point, interval) for each of the ray's occupied steps, in order ([`RayMarch`]);
+/// returns how many steps it tested.
+fn march_ray(skipper: &Skipper, segments: &[Segment], origin: [f32; 3], direction: [f32; 3], shift: f32, emit: &mut impl FnMut(f32, [f32; 3], f32)) -> usize {
+    let mut march = RayMarch::new(skipper, segments, origin, direction, shift);
+    march.advance(skipper, segments, usize::MAX, emit);
     march.tested
 }
 
@@ -270,6 +367,8 @@ struct RoundPart {
     points: Vec<[f32; 3]>,
     dirs: Vec<[f32; 3]>,
     t: Vec<f32>,
+    /// Each sample's interval (its δ over ‖d‖).
+    intervals: Vec<f32>,
     counts: Vec<u8>,
 }
 
@@ -299,7 +398,7 @@ pub fn render_rays_in<F: Field>(field: &mut F, skipper: &Skipper, rays: &Rays, o
         skipper,
         rays,
         viewdirs: rays.view_directions(),
-        interval: (s.far - s.near) / steps as f32,
+        segments: march_segments(s.near, s.far, steps, skipper.grid.contraction()),
         min_transmittance: options.min_transmittance.unwrap_or(0.0),
         white_background: options.white_background,
     };
@@ -308,8 +407,8 @@ pub fn render_rays_in<F: Field>(field: &mut F, skipper: &Skipper, rays: &Rays, o
         .into_par_iter()
         .with_min_len(ROUND_RAYS_PER_TASK)
         .map(|r| {
-            let ray = March { origin: rays.origins[r], direction: rays.directions[r], near: s.near, interval: round.interval, steps, shift: 0.5 };
-            LiveRay { r, march: RayMarch::new(skipper, ray), ray: RayAccumulator::default(), done: false }
+            let march = RayMarch::new(skipper, &round.segments, rays.origins[r], rays.directions[r], 0.5);
+            LiveRay { r, march, ray: RayAccumulator::default(), done: false }
         })
         .filter(|l| !l.march.finished())
         .collect();
@@ -381,7 +480,7 @@ struct Round<'a> {
     skipper: &'a Skipper<'a>,
     rays: &'a Rays,
     viewdirs: Vec<[f32; 3]>,
-    interval: f32,
+    segments: Vec<Segment>,
     min_transmittance: f32,
     white_background: bool,
 }
@@ -402,17 +501,20 @@ impl Round<'_> {
             v.clear();
             v.reserve(most);
         }
-        part.t.clear();
-        part.t.reserve(most);
+        for v in [&mut part.t, &mut part.intervals] {
+            v.clear();
+            v.reserve(most);
+        }
         part.counts.clear();
         for l in chunk.iter_mut() {
             if l.done {
                 part.counts.push(0);
                 continue;
             }
-            let n = l.march.advance(skipper, MARCH_SEGMENT, &mut |t, p| {
+            let n = l.march.advance(skipper, &self.segments, MARCH_SEGMENT, &mut |t, p, interval| {
                 part.t.push(t);
                 part.points.push(p);
+                part.intervals.push(interval);
             });
             part.dirs.extend(std::iter::repeat_n(self.viewdirs[l.r], n));
             part.counts.push(n as u8);
@@ -465,9 +567,9 @@ impl Round<'_> {
     fn composite_chunk(&self, chunk: &mut [LiveRay], part: &RoundPart, out: &FieldOutput, start: usize) -> Vec<(usize, RayOutput)> {
         let (mut i, mut finished) = (0, Vec::new());
         for (l, &n) in chunk.iter_mut().zip(&part.counts).filter(|(l, _)| !l.done) {
-            let delta = self.interval * length(self.rays.directions[l.r]);
+            let norm = length(self.rays.directions[l.r]);
             for _ in 0..n {
-                let alpha = alpha_from_density(out.sigma[start + i], delta);
+                let alpha = alpha_from_density(out.sigma[start + i], part.intervals[i] * norm);
                 l.ray.add(alpha, out.rgb[start + i], part.t[i]);
                 i += 1;
             }
@@ -521,14 +623,14 @@ mod tests {
 
     /// The per-interval loop's samples, packed as [`occupied_samples`] packs them.
     fn every_interval(grid: &OccupancyGrid, rays: &Rays, near: f32, far: f32, steps: usize, shifts: &[f32]) -> PackedSamples {
-        let interval = (far - near) / steps as f32;
+        let segments = march_segments(near, far, steps, grid.contraction());
         let mut packed = PackedSamples { offsets: vec![0], ..PackedSamples::default() };
         for (r, &shift) in shifts.iter().enumerate() {
-            let ray = March { origin: rays.origins[r], direction: rays.directions[r], near, interval, steps, shift };
-            let before = packed.t.len();
-            march_ray_every_interval(&ray, &mut |p| grid.is_occupied(p), &mut packed.t);
-            let delta = interval * length(rays.directions[r]);
-            packed.delta.extend(std::iter::repeat_n(delta, packed.t.len() - before));
+            let mut kept = Vec::new();
+            march_ray_every_interval(&segments, rays.origins[r], rays.directions[r], shift, &mut |p| grid.is_occupied(p), &mut kept);
+            let norm = length(rays.directions[r]);
+            packed.t.extend(kept.iter().map(|k| k.0));
+            packed.delta.extend(kept.iter().map(|k| k.1 * norm));
             packed.offsets.push(packed.t.len());
         }
         packed
@@ -668,6 +770,97 @@ mod tests {
     }
 
     #[test]
+    fn contracted_marching_steps_grow_four_times_a_segment() {
+        // 1024 steps → segments of 256; the first interval 2/256; starts 0.1, 2.1, 10.1, 42.1,
+        // 170.1 (the next, 682.1, lies past far = 200).
+        let segments = march_segments(0.1, 200.0, 1024, Some(Contraction::Linf));
+        let intervals: Vec<f32> = segments.iter().map(|s| s.interval).collect();
+        assert_eq!(intervals, [0.0078125, 0.03125, 0.125, 0.5, 2.0]);
+        for (s, start) in segments.iter().zip([0.1, 2.1, 10.1, 42.1, 170.1]) {
+            assert!((s.start - start).abs() < 1e-4 && s.steps == 256, "{s:?}");
+        }
+        assert_eq!(march_segments(0.1, 200.0, 1024, None), [Segment { start: 0.1, interval: (200.0 - 0.1) / 1024.0, steps: 1024 }]);
+        assert_eq!(march_segments(0.0, f32::INFINITY, 2, Some(Contraction::Linf)).len(), MAX_SEGMENTS);
+        assert_eq!(march_segments(0.0, f32::NAN, 8, Some(Contraction::Linf)).len(), 1);
+    }
+
+    /// 32³ cells over the contracted cube ±2: occupied cells in a third of the 4³-cell blocks,
+    /// a fifth of those blocks' cells, so the inner cube and the shell both hold empty blocks.
+    fn sparse_contracted_grid(seed: u64) -> OccupancyGrid {
+        let mut rng = Rng::new(seed);
+        let r = 32;
+        let density: Vec<f32> = (0..r * r * r).map(|_| rng.uniform()).collect();
+        let blocks: Vec<bool> = (0..512).map(|_| rng.uniform() < 0.35).collect();
+        let density: Vec<f32> = density
+            .iter()
+            .enumerate()
+            .map(|(c, &u)| {
+                let b = ((c / (r * r) / 4) * 8 + (c / r) % r / 4) * 8 + c % r / 4;
+                if blocks[b] && u < 0.2 { 1.0 } else { 0.0 }
+            })
+            .collect();
+        let mut grid = OccupancyGrid::new(r, 2.0, 0.5).with_contraction(Some(Contraction::Linf));
+        grid.update(&density, 1.0);
+        grid
+    }
+
+    #[test]
+    fn contracted_skipping_marches_the_same_samples_as_every_interval() {
+        for seed in 0..2 {
+            let grid = sparse_contracted_grid(seed);
+            let mut rng = Rng::new(200 + seed);
+            let mut u = move || rng.uniform() * 2.0 - 1.0;
+            // Cameras inside the inner cube looking anywhere, and from far outside it.
+            let list: Vec<_> = (0..800)
+                .map(|i| {
+                    let origin = if i % 4 == 0 { [u() * 30.0, u() * 30.0, u() * 30.0] } else { [u(), u(), u()] };
+                    (origin, [u(), u(), u()].map(|v| v * 1.3))
+                })
+                .collect();
+            let fast = assert_same_samples(&grid, &rays(list), 0.05, 200.0, 256, &format!("contracted seed {seed}"));
+            assert!(fast.t.len() > 10_000, "{} samples", fast.t.len());
+            let far = fast.t.iter().filter(|&&t| t > 10.0).count();
+            assert!(far > 1_000, "{far} samples past t = 10: the shell is marched");
+        }
+        // Rays along the inner cube's faces and through its edges, where the skipping stops.
+        let grid = sparse_contracted_grid(5);
+        let list = vec![
+            ([-0.5, 1.0, 0.2], [1.0, 0.0, 0.0]),
+            ([1.0, 1.0, -3.0], [0.0, 0.0, 1.0]),
+            ([0.0, 0.0, 0.0], [1.0, 1.0, 1.0]),
+            ([0.999, -0.3, 0.0], [0.001, 0.0, -1.0]),
+            ([0.0, 0.0, 0.0], [0.0, 0.0, 0.0]),
+        ];
+        assert_same_samples(&grid, &rays(list), 0.05, 200.0, 512, "contracted faces");
+    }
+
+    #[test]
+    fn contracted_skipping_tests_fewer_steps_inside_the_inner_cube() {
+        // One occupied cell of 32³ over ±2 (its centre at 0.0625 per axis), rays through it
+        // from inside the inner cube: empty cubes are jumped inside it, each step tested beyond.
+        let r = 32;
+        let mut density = vec![0.0; r * r * r];
+        density[(16 * r + 16) * r + 16] = 1.0;
+        let mut grid = OccupancyGrid::new(r, 2.0, 0.5).with_contraction(Some(Contraction::Linf));
+        grid.update(&density, 1.0);
+        let skipper = Skipper::new(&grid);
+        let segments = march_segments(0.0, 10.0, 1024, grid.contraction());
+        let total: usize = segments.iter().map(|s| s.steps).sum();
+        let (mut tested, mut samples) = (0, Vec::new());
+        for i in 0..50 {
+            let s = i as f32 / 50.0;
+            tested += march_ray(&skipper, &segments, [-0.9, 0.07, 0.07 + 0.01 * s], [1.0, 0.0, 0.0], s, &mut |t, _, _| samples.push(t));
+        }
+        assert!(samples.len() >= 50 * 10, "{} samples", samples.len());
+        // Segment 0: 256 steps over t ∈ [0, 2], x from −0.9 to 1.1 (243 inside the inner cube,
+        // 13 past it); segment 1: 256 steps, all in the shell, each tested. Of the 243 inside,
+        // fewer than 100 are tested.
+        assert_eq!(total, 512);
+        assert!(tested < 50 * (256 + 13 + 100), "{tested} tests for 50 rays of {total} steps");
+        assert!(tested >= 50 * (256 + 13), "{tested}: the shell's steps are each tested");
+    }
+
+    #[test]
     fn skipping_tests_far_fewer_steps_on_a_mostly_empty_grid() {
         // One occupied cell in a 64³ grid at the centre; rays through it from outside.
         let r = 64;
@@ -677,10 +870,10 @@ mod tests {
         grid.update(&density, 1.0);
         let skipper = Skipper::new(&grid);
         let (steps, mut tested, mut samples) = (2048, 0, Vec::new());
+        let segments = march_segments(0.0, 6.0, steps, None);
         for i in 0..100 {
             let s = i as f32 / 100.0;
-            let ray = March { origin: [-3.0, 0.01 + 0.001 * s, 0.02], direction: [1.0, 0.0, 0.001 * s], near: 0.0, interval: 6.0 / steps as f32, steps, shift: s };
-            tested += march_ray(&skipper, &ray, &mut samples);
+            tested += march_ray(&skipper, &segments, [-3.0, 0.01 + 0.001 * s, 0.02], [1.0, 0.0, 0.001 * s], s, &mut |t, _, _| samples.push(t));
         }
         // Each ray has ~ 680 steps in the box: one occupied cell (~ 11 steps), and empty cubes of
         // up to 17 cells a side before and after it, each skipped with one test.

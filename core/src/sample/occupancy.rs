@@ -17,9 +17,15 @@
 //! | 4·R³ | `f32` density estimates, cell (i, j, k) at index (i·R + j)·R + k, where i, j, k index x, y, z |
 //!
 //! From numpy: `np.fromfile(f, "<f4", offset=20).reshape(R, R, R) > threshold`.
+//!
+//! A grid over a contracted world ([`crate::sample::contraction`]) is written as `NERFOCC2`:
+//! the same fields, then a `u32` contraction (1: [`Contraction::Linf`]) before the cells
+//! (24 header bytes). Its cells are boxes of the contracted cube [−b, b]³ (b = 2): a point is
+//! contracted before its cell is found. Readers that know only `NERFOCC1` refuse it.
 
 use crate::error::{Error, Result};
 use crate::rng::Rng;
+use crate::sample::contraction::Contraction;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -27,6 +33,9 @@ use std::path::Path;
 pub const FILE_NAME: &str = "occupancy.bin";
 const MAGIC: &[u8; 8] = b"NERFOCC1";
 const HEADER_BYTES: usize = 20;
+/// A contracted grid's magic and header size.
+const MAGIC_CONTRACTED: &[u8; 8] = b"NERFOCC2";
+const HEADER_BYTES_CONTRACTED: usize = 24;
 
 /// How the grid is built and maintained during training.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -48,11 +57,14 @@ pub struct OccupancyConfig {
     /// (instant-ngp's rule: a young field that is faint everywhere still has occupied cells).
     #[serde(default)]
     pub threshold_at_most_mean: bool,
+    /// Cells over the contracted world (unbounded captures; `bound` is then 2). Absent: none.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub contraction: Option<Contraction>,
 }
 
 impl Default for OccupancyConfig {
     fn default() -> Self {
-        OccupancyConfig { resolution: 64, bound: 1.5, threshold: 0.05, decay: 0.95, update_every: 16, warmup_steps: 256, threshold_at_most_mean: false }
+        OccupancyConfig { resolution: 64, bound: 1.5, threshold: 0.05, decay: 0.95, update_every: 16, warmup_steps: 256, threshold_at_most_mean: false, contraction: None }
     }
 }
 
@@ -63,6 +75,8 @@ pub struct OccupancyGrid {
     bound: f32,
     threshold: f32,
     density: Vec<f32>,
+    /// Points are contracted before their cell is found.
+    contraction: Option<Contraction>,
     /// [`Self::empty_reach`], made on first use and dropped by any change.
     reach: std::sync::OnceLock<Vec<u8>>,
 }
@@ -70,7 +84,7 @@ pub struct OccupancyGrid {
 /// Grids are equal when their cells and settings are (the cached reach is derived from them).
 impl PartialEq for OccupancyGrid {
     fn eq(&self, other: &Self) -> bool {
-        (self.resolution, self.bound, self.threshold) == (other.resolution, other.bound, other.threshold) && self.density == other.density
+        (self.resolution, self.bound, self.threshold, self.contraction) == (other.resolution, other.bound, other.threshold, other.contraction) && self.density == other.density
     }
 }
 
@@ -80,12 +94,24 @@ pub const MAX_REACH: usize = 8;
 impl OccupancyGrid {
     /// A grid with every cell occupied (no information yet).
     pub fn new(resolution: usize, bound: f32, threshold: f32) -> Self {
-        OccupancyGrid { resolution, bound, threshold, density: vec![f32::INFINITY; resolution.pow(3)], reach: Default::default() }
+        OccupancyGrid { resolution, bound, threshold, density: vec![f32::INFINITY; resolution.pow(3)], contraction: None, reach: Default::default() }
     }
 
     /// A fresh grid as `config` describes.
     pub fn from_config(config: &OccupancyConfig) -> Self {
-        Self::new(config.resolution, config.bound, config.threshold)
+        Self::new(config.resolution, config.bound, config.threshold).with_contraction(config.contraction)
+    }
+
+    /// The same grid over a contracted world (or not).
+    pub fn with_contraction(mut self, contraction: Option<Contraction>) -> Self {
+        self.contraction = contraction;
+        self.reach.take();
+        self
+    }
+
+    /// The contraction points go through before their cell is found.
+    pub fn contraction(&self) -> Option<Contraction> {
+        self.contraction
     }
 
     /// Cells per axis.
@@ -121,6 +147,11 @@ impl OccupancyGrid {
         Self::new(1, bound, 0.0)
     }
 
+    /// One occupied cell covering the contracted world: every interval is evaluated.
+    pub fn whole_world(contraction: Contraction) -> Self {
+        Self::new(1, super::contraction::CONTRACTED_HALF_SIZE, 0.0).with_contraction(Some(contraction))
+    }
+
     /// Number of cells.
     pub fn len(&self) -> usize {
         self.density.len()
@@ -138,8 +169,12 @@ impl OccupancyGrid {
     }
 
     /// The (i, j, k) of the cell holding `p` (its index is (i·R + j)·R + k), or `None` outside
-    /// the cube.
+    /// the cube (`p` contracted first on a contracted grid).
     pub fn cell_coordinates(&self, p: [f32; 3]) -> Option<[usize; 3]> {
+        let p = match self.contraction {
+            Some(c) => c.apply(p),
+            None => p,
+        };
         let r = self.resolution as f32;
         let mut cell = [0; 3];
         for (c, v) in cell.iter_mut().zip(p) {
@@ -214,14 +249,19 @@ impl OccupancyGrid {
         (sum / self.len().max(1) as f64) as f32
     }
 
-    /// One uniformly random point inside every cell, in cell order.
+    /// One uniformly random point inside every cell, in cell order (world points: on a
+    /// contracted grid, the point of the world drawn there).
     pub fn random_cell_points(&self, rng: &mut Rng) -> Vec<[f32; 3]> {
         let r = self.resolution;
         let size = 2.0 * self.bound / r as f32;
         (0..self.len())
             .map(|c| {
                 let (i, j, k) = (c / (r * r), (c / r) % r, c % r);
-                [i, j, k].map(|n| -self.bound + (n as f32 + rng.uniform()) * size)
+                let p = [i, j, k].map(|n| -self.bound + (n as f32 + rng.uniform()) * size);
+                match self.contraction {
+                    Some(c) => c.invert(p),
+                    None => p,
+                }
             })
             .collect()
     }
@@ -239,11 +279,14 @@ impl OccupancyGrid {
 
     /// Serialise in the documented format.
     pub fn to_bytes(&self) -> Vec<u8> {
-        let mut out = Vec::with_capacity(HEADER_BYTES + 4 * self.len());
-        out.extend_from_slice(MAGIC);
+        let mut out = Vec::with_capacity(HEADER_BYTES_CONTRACTED + 4 * self.len());
+        out.extend_from_slice(if self.contraction.is_some() { MAGIC_CONTRACTED } else { MAGIC });
         out.extend_from_slice(&(self.resolution as u32).to_le_bytes());
         out.extend_from_slice(&self.bound.to_le_bytes());
         out.extend_from_slice(&self.threshold.to_le_bytes());
+        if let Some(Contraction::Linf) = self.contraction {
+            out.extend_from_slice(&1u32.to_le_bytes());
+        }
         for d in &self.density {
             out.extend_from_slice(&d.to_le_bytes());
         }
@@ -252,22 +295,23 @@ impl OccupancyGrid {
 
     /// Parse the documented format; `path` only names the source in errors.
     pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Self> {
-        let (resolution, bound, threshold) = Self::parse_header(bytes, path)?;
-        let want = Self::file_bytes(resolution);
+        let Header { resolution, bound, threshold, contraction, bytes: header } = Self::parse_header(bytes, path)?;
+        let want = Self::file_bytes(resolution, header);
         if bytes.len() as u64 != want {
             return Err(Error::invalid(path, format!("{} bytes, expected {want} for a {resolution}³ grid (truncated?)", bytes.len())));
         }
-        let density = bytes[HEADER_BYTES..].chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
-        Ok(OccupancyGrid { resolution, bound, threshold, density, reach: Default::default() })
+        let density = bytes[header..].chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+        Ok(OccupancyGrid { resolution, bound, threshold, density, contraction, reach: Default::default() })
     }
 
-    /// Resolution, bound and threshold from the first [`HEADER_BYTES`] bytes, checked (the
+    /// The header from the first bytes (at most [`HEADER_BYTES_CONTRACTED`]), checked (the
     /// resolution against [`MAX_GRID_RESOLUTION`](crate::io::limits::MAX_GRID_RESOLUTION)) before
     /// anything the size of the grid is allocated.
-    fn parse_header(bytes: &[u8], path: &Path) -> Result<(usize, f32, f32)> {
+    fn parse_header(bytes: &[u8], path: &Path) -> Result<Header> {
         let bad = |problem: String| Error::invalid(path, problem);
-        if bytes.len() < HEADER_BYTES || &bytes[..8] != MAGIC {
-            return Err(bad("not an occupancy grid (missing NERFOCC1 header)".into()));
+        let contracted = bytes.len() >= HEADER_BYTES_CONTRACTED && &bytes[..8] == MAGIC_CONTRACTED;
+        if !contracted && (bytes.len() < HEADER_BYTES || &bytes[..8] != MAGIC) {
+            return Err(bad("not an occupancy grid (missing NERFOCC1 or NERFOCC2 header)".into()));
         }
         let word = |at: usize| [bytes[at], bytes[at + 1], bytes[at + 2], bytes[at + 3]];
         let resolution = u32::from_le_bytes(word(8)) as usize;
@@ -277,12 +321,22 @@ impl OccupancyGrid {
         if !(bound > 0.0 && bound.is_finite()) || !threshold.is_finite() {
             return Err(bad(format!("bad header: resolution {resolution}, bound {bound}, threshold {threshold}")));
         }
-        Ok((resolution, bound, threshold))
+        if !contracted {
+            return Ok(Header { resolution, bound, threshold, contraction: None, bytes: HEADER_BYTES });
+        }
+        let contraction = match u32::from_le_bytes(word(20)) {
+            1 => Contraction::Linf,
+            other => return Err(bad(format!("unknown contraction {other} in the NERFOCC2 header (this version knows 1: L-infinity)"))),
+        };
+        if bound != super::contraction::CONTRACTED_HALF_SIZE {
+            return Err(bad(format!("a contracted grid covers [-2, 2]^3, the header says bound {bound}")));
+        }
+        Ok(Header { resolution, bound, threshold, contraction: Some(contraction), bytes: HEADER_BYTES_CONTRACTED })
     }
 
-    /// The size of a grid file with `resolution` cells per axis.
-    fn file_bytes(resolution: usize) -> u64 {
-        HEADER_BYTES as u64 + 4 * (resolution as u64).pow(3)
+    /// The size of a grid file with `resolution` cells per axis after a `header`-byte header.
+    fn file_bytes(resolution: usize, header: usize) -> u64 {
+        header as u64 + 4 * (resolution as u64).pow(3)
     }
 
     /// Read a grid file: the header first, then (once its resolution is within the limit and
@@ -294,17 +348,19 @@ impl OccupancyGrid {
         if !meta.is_file() {
             return Err(Error::invalid(path, "not a regular file"));
         }
-        let mut header = Vec::with_capacity(HEADER_BYTES);
-        (&mut file).take(HEADER_BYTES as u64).read_to_end(&mut header).map_err(|e| Error::io(path, e))?;
-        let (resolution, ..) = Self::parse_header(&header, path)?;
-        let want = Self::file_bytes(resolution);
+        let mut header = Vec::with_capacity(HEADER_BYTES_CONTRACTED);
+        (&mut file).take(HEADER_BYTES_CONTRACTED as u64).read_to_end(&mut header).map_err(|e| Error::io(path, e))?;
+        let Header { resolution, bytes: header_bytes, .. } = Self::parse_header(&header, path)?;
+        let want = Self::file_bytes(resolution, header_bytes);
         if meta.len() != want {
             return Err(Error::invalid(path, format!("{} bytes, expected {want} for a {resolution}³ grid (truncated?)", meta.len())));
         }
+        // What was read may run past a NERFOCC1 header into the cells: read on after it.
         let mut bytes = header;
-        bytes.reserve_exact(want as usize - HEADER_BYTES);
+        let have = bytes.len() as u64;
+        bytes.reserve_exact((want - have.min(want)) as usize);
         // One byte more than expected, so a file that grew since is reported, not read on.
-        file.take(want - HEADER_BYTES as u64 + 1).read_to_end(&mut bytes).map_err(|e| Error::io(path, e))?;
+        file.take(want - have.min(want) + 1).read_to_end(&mut bytes).map_err(|e| Error::io(path, e))?;
         Self::from_bytes(&bytes, path)
     }
 
@@ -312,6 +368,16 @@ impl OccupancyGrid {
     pub fn save(&self, path: &Path) -> Result<()> {
         crate::io::atomic::write_atomic(path, &self.to_bytes())
     }
+}
+
+/// What a grid file's header says.
+struct Header {
+    resolution: usize,
+    bound: f32,
+    threshold: f32,
+    contraction: Option<Contraction>,
+    /// Where the cells start.
+    bytes: usize,
 }
 
 /// The grid a field is marched through: its occupancy grid, or, for a field defined inside the
@@ -377,6 +443,22 @@ mod tests {
     }
 
     #[test]
+    fn a_contracted_grid_finds_cells_of_contracted_points() {
+        // 4 cells per axis over [−2, 2]: cell side 1. (3, 0, 0) → (1.6667, 0, 0): i = 3;
+        // (0.5, −1.5, 0) → ‖x‖∞ 1.5, f = (2 − 2/3)·2/3 = 8/9 → (0.444, −1.333, 0): (2, 0, 2).
+        let grid = OccupancyGrid::new(4, 2.0, 0.5).with_contraction(Some(Contraction::Linf));
+        assert_eq!(grid.cell_coordinates([3.0, 0.0, 0.0]), Some([3, 2, 2]));
+        assert_eq!(grid.cell_coordinates([0.5, -1.5, 0.0]), Some([2, 0, 2]));
+        assert_eq!(grid.cell_coordinates([-1e20, 0.0, 1e19]), Some([0, 2, 2]), "everything lies inside");
+        assert_eq!(grid.cell_coordinates([0.5, 0.5, 0.5]), Some([2, 2, 2]));
+        let points = grid.random_cell_points(&mut Rng::new(2));
+        for (c, p) in points.iter().enumerate() {
+            assert_eq!(grid.cell(*p), Some(c), "{p:?}");
+        }
+        assert!(points.iter().any(|p| p.iter().any(|v| v.abs() > 2.0)), "outer cells reach past the cube");
+    }
+
+    #[test]
     fn random_points_fall_in_their_own_cells() {
         let grid = OccupancyGrid::new(5, 1.5, 0.1);
         let points = grid.random_cell_points(&mut Rng::new(1));
@@ -399,6 +481,17 @@ mod tests {
         assert!(err.contains("occupancy.bin") && err.contains("truncated"), "{err}");
         let err = OccupancyGrid::from_bytes(b"garbage garbage garbage", &path).unwrap_err().to_string();
         assert!(err.contains("NERFOCC1"), "{err}");
+        // A contracted grid: its own header, round trip, and its cells found after contraction.
+        let contracted = OccupancyGrid::new(4, 2.0, 0.1).with_contraction(Some(Contraction::Linf));
+        let cbytes = contracted.to_bytes();
+        assert_eq!((&cbytes[..8], cbytes.len()), (&b"NERFOCC2"[..], 24 + 4 * 64));
+        std::fs::write(&path, &cbytes).unwrap();
+        assert_eq!(OccupancyGrid::load(&path).unwrap(), contracted);
+        let mut unknown = cbytes.clone();
+        unknown[20] = 7;
+        let err = OccupancyGrid::from_bytes(&unknown, &path).unwrap_err().to_string();
+        assert!(err.contains("unknown contraction 7"), "{err}");
+        std::fs::write(&path, &bytes).unwrap();
         // A header claiming 2³¹ cells per axis is refused from its 20 bytes, before any
         // allocation; a file longer than its header says is refused before it is read.
         let mut huge = bytes[..HEADER_BYTES].to_vec();

@@ -179,7 +179,7 @@ impl crate::field::KindShape for NetworkSpec {
         self.validate()
     }
 
-    fn field_box(&self) -> Option<([f32; 3], [f32; 3])> {
+    fn field_box(&self) -> Option<crate::field::ngp::hash_grid::GridBound> {
         None
     }
 }

@@ -69,8 +69,8 @@ impl crate::field::KindShape for NgpSpec {
         self.validate().map_err(|e| e.to_string())
     }
 
-    fn field_box(&self) -> Option<([f32; 3], [f32; 3])> {
-        Some((self.bound.min, self.bound.max))
+    fn field_box(&self) -> Option<GridBound> {
+        Some(self.bound)
     }
 }
 

@@ -2,6 +2,7 @@
 //! tiny-cuda-nn's `GridEncodingTemplated` computes them.
 
 use crate::error::{Error, Result};
+use crate::sample::contraction::{CONTRACTED_HALF_SIZE, Contraction};
 use serde::{Deserialize, Serialize};
 
 /// The first three of tiny-cuda-nn's hash primes (`1` keeps x-neighbours in one cache line).
@@ -148,7 +149,9 @@ impl HashGridConfig {
 
 /// The axis-aligned box a grid covers: world points map into the unit cube by
 /// `(p − min) · scale`, `scale = 1/(max − min)` per axis (rounded to f32 once, and the exported
-/// graph multiplies by the same f32, so both see the same unit-cube point).
+/// graph multiplies by the same f32, so both see the same unit-cube point). With a
+/// [`Contraction`], points are contracted first and the box is the contracted world's cube
+/// [`GridBound::contracted`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct GridBound {
@@ -156,12 +159,20 @@ pub struct GridBound {
     pub min: [f32; 3],
     /// The corner mapped to (1, 1, 1).
     pub max: [f32; 3],
+    /// Contract world points before mapping them (unbounded captures). Absent: none.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub contraction: Option<Contraction>,
 }
 
 impl GridBound {
     /// The cube `[−half, half]³` (the Blender scenes use half = 1.5).
     pub fn cube(half: f32) -> Self {
-        GridBound { min: [-half; 3], max: [half; 3] }
+        GridBound { min: [-half; 3], max: [half; 3], contraction: None }
+    }
+
+    /// The whole world, contracted into `[−2, 2]³`.
+    pub fn contracted(contraction: Contraction) -> Self {
+        GridBound { contraction: Some(contraction), ..Self::cube(CONTRACTED_HALF_SIZE) }
     }
 
     /// Half the side of the smallest origin-centred cube holding the box.
@@ -169,12 +180,17 @@ impl GridBound {
         (0..3).map(|k| self.max[k].abs().max(self.min[k].abs())).fold(0.0f32, f32::max)
     }
 
-    /// Check the box is finite and not flat.
+    /// Check the box is finite and not flat (and, contracted, the contracted world's cube).
     pub fn validate(&self) -> Result<()> {
         for d in 0..3 {
             if !(self.min[d].is_finite() && self.max[d].is_finite() && self.max[d] > self.min[d]) {
                 return Err(Error::Argument(format!("grid bound: axis {d} spans [{}, {}], needs finite min < max", self.min[d], self.max[d])));
             }
+        }
+        if let Some(c) = self.contraction
+            && *self != Self::contracted(c)
+        {
+            return Err(Error::Argument(format!("grid bound: a contracted grid covers [-2, 2]^3, not {:?}..{:?}", self.min, self.max)));
         }
         Ok(())
     }
@@ -184,9 +200,14 @@ impl GridBound {
         [0, 1, 2].map(|d| 1.0 / (self.max[d] - self.min[d]))
     }
 
-    /// `p` in unit-cube coordinates (not clamped; the encoding clamps).
+    /// `p` in unit-cube coordinates (contracted first where the bound says; not clamped: the
+    /// encoding clamps).
     #[inline]
     pub fn to_unit(&self, p: [f32; 3]) -> [f32; 3] {
+        let p = match self.contraction {
+            Some(c) => c.apply(p),
+            None => p,
+        };
         let s = self.scale();
         [0, 1, 2].map(|d| (p[d] - self.min[d]) * s[d])
     }
@@ -266,13 +287,25 @@ mod tests {
 
     #[test]
     fn bound_maps_its_corners_to_the_unit_cube() {
-        let b = GridBound { min: [-1.5, 0.0, 2.0], max: [1.5, 1.0, 6.0] };
+        let b = GridBound { min: [-1.5, 0.0, 2.0], max: [1.5, 1.0, 6.0], contraction: None };
         b.validate().unwrap();
         assert_eq!(b.to_unit([-1.5, 0.0, 2.0]), [0.0, 0.0, 0.0]);
         assert_eq!(b.to_unit([0.0, 0.25, 4.0]), [0.5, 0.25, 0.5]);
         assert!((b.to_unit([1.5, 1.0, 6.0])[0] - 1.0).abs() < 1e-6);
-        let flat = GridBound { min: [0.0; 3], max: [1.0, 0.0, 1.0] }.validate().unwrap_err().to_string();
+        let flat = GridBound { min: [0.0; 3], max: [1.0, 0.0, 1.0], contraction: None }.validate().unwrap_err().to_string();
         assert!(flat.contains("axis 1"), "{flat}");
+        // Contracted: (2, −1, 0.5) → (1.5, −0.75, 0.375) → ((c + 2)/4) = (0.875, 0.3125, 0.59375).
+        let c = GridBound::contracted(Contraction::Linf);
+        c.validate().unwrap();
+        assert_eq!(c.to_unit([2.0, -1.0, 0.5]), [0.875, 0.3125, 0.59375]);
+        assert_eq!(c.to_unit([0.5, 0.0, -1.0]), [0.625, 0.5, 0.25], "the inner cube is not moved");
+        let wrong = GridBound { contraction: Some(Contraction::Linf), ..GridBound::cube(1.5) }.validate().unwrap_err().to_string();
+        assert!(wrong.contains("contracted grid covers [-2, 2]^3"), "{wrong}");
+        // Files without the key read as uncontracted, and uncontracted ones are written without it.
+        let old: GridBound = serde_json::from_str(r#"{"min":[-1,-1,-1],"max":[1,1,1]}"#).unwrap();
+        assert_eq!(old, GridBound::cube(1.0));
+        assert!(!serde_json::to_string(&old).unwrap().contains("contraction"));
+        assert_eq!(serde_json::from_str::<GridBound>(&serde_json::to_string(&c).unwrap()).unwrap(), c);
     }
 
     #[test]

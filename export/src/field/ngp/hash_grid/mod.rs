@@ -5,6 +5,9 @@
 //! Laid out for onnxruntime's CPU kernels (measured with its profiler): level-major
 //! intermediates so per-level constants broadcast over whole levels, int32 indices, no `Where`
 //! and no `Mod`, lookups in small tables instead of arithmetic, products as `MatMul`s.
+//! 0. Contracted fields only ([`nerf_core::sample::contraction`]): `Abs`, three `Slice`s and
+//!    `Max` (‖x‖∞ `[N, 1]`), `Max` with 1, `Div` 1 by it (r), `Sub` r from 2, `Mul` by r (f),
+//!    `Mul` the point by f: the same f32 operations as [`Contraction::apply`].
 //! 1. `Sub` the bound's min, `Mul` by its f32 scale, `Clip` to [0, 1]: the unit-cube point,
 //!    the same f32 operations as [`GridBound::to_unit`] and the clamp in
 //!    [`nerf_core::field::ngp::hash_grid::corners`].
@@ -33,6 +36,8 @@ use crate::builder::{Builder, OPSETS, int_attribute, ints_attribute, model_proto
 use crate::proto::*;
 use nerf_core::field::ngp::hash_grid::{GridBound, HashGrid};
 use nerf_core::field::ngp::spherical_harmonics::SH4_DIM;
+#[cfg(doc)]
+use nerf_core::sample::Contraction;
 
 pub mod rows;
 mod sh;
@@ -135,6 +140,20 @@ pub(crate) fn f32_scalar(g: &mut Builder, name: &str, value: f32) -> String {
     g.f32_tensor(name, &[], &[value])
 }
 
+/// The L∞ contraction of `input [N, 3]` (step 0 of the module doc).
+fn lower_linf_contraction(g: &mut Builder, input: &str) -> String {
+    let abs = g.unary("Abs", input, "contract.abs");
+    let columns: Vec<String> = (0..3).map(|a| slice(g, &abs, (a, a + 1), 1, &format!("contract.abs{a}"))).collect();
+    let norm = g.node("Max", &[&columns[0], &columns[1], &columns[2]], "contract.norm", vec![]);
+    let one = f32_scalar(g, "contract.one", 1.0);
+    let two = f32_scalar(g, "contract.two", 2.0);
+    let m = g.binary("Max", &norm, &one, "contract.at_least_one");
+    let r = g.binary("Div", &one, &m, "contract.inverse");
+    let two_minus = g.binary("Sub", &two, &r, "contract.two_minus");
+    let f = g.binary("Mul", &two_minus, &r, "contract.factor");
+    g.binary("Mul", input, &f, "contract.points")
+}
+
 /// Indices `[start, end)` of `input` along `axis`.
 pub(crate) fn slice(g: &mut Builder, input: &str, (start, end): (i64, i64), axis: i64, output: &str) -> String {
     let s = g.i64_constant(&format!("index.{start}"), &[start]);
@@ -160,6 +179,12 @@ pub(crate) fn lower_hash_grid(g: &mut Builder, input: &str, grid: &HashGrid, bou
     let l = levels.len() as i64;
     let f = grid.config().features_per_level as i64;
     let fu = f as usize;
+    // 0. Contraction.
+    let contracted = match bound.contraction {
+        Some(nerf_core::sample::Contraction::Linf) => Some(lower_linf_contraction(g, input)),
+        None => None,
+    };
+    let input = contracted.as_deref().unwrap_or(input);
     // 1. Unit cube.
     let min = g.f32_tensor("grid.bound_min", &[3], &bound.min);
     let scale = g.f32_tensor("grid.bound_scale", &[3], &bound.scale());
