@@ -5,6 +5,8 @@ use nerf_core::SamplingConfig;
 use nerf_core::dataset::Background;
 use nerf_core::field::mlp::{EncodingSpec, NetworkSpec};
 use nerf_core::field::{FieldKind, FieldShapes};
+use nerf_core::field::ngp::hash_grid::GridBound;
+use nerf_core::sample::Contraction;
 use nerf_core::sample::occupancy::OccupancyConfig;
 use nerf_core::io::limits::{self, Origin};
 use nerf_core::render::{DEFAULT_MARCH_STEPS, RenderOptions};
@@ -288,6 +290,19 @@ impl Default for TrainConfig {
 }
 
 impl TrainConfig {
+    /// The same run over a contracted world ([`nerf_core::sample::contraction`]): the hash
+    /// grid's and the occupancy grid's cube becomes the contracted one, ±2. Only the hash-grid
+    /// field contracts.
+    pub fn contracted(mut self, contraction: Contraction) -> std::result::Result<Self, String> {
+        if self.field != FieldKind::Ngp {
+            return Err(format!("a contracted scene needs the ngp field (field = {:?})", self.field.name()));
+        }
+        self.shapes.ngp.bound = GridBound::contracted(contraction);
+        self.occupancy.bound = nerf_core::sample::contraction::CONTRACTED_HALF_SIZE;
+        self.occupancy.contraction = Some(contraction);
+        Ok(self)
+    }
+
     /// A run's recorded `config.toml`: as [`from_toml_str`](Self::from_toml_str), except that
     /// keys from before a preset changed read as runs were trained then (`lr_schedule`:
     /// `exponential`), so an old run resumes as it started.

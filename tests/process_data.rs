@@ -88,7 +88,7 @@ fn a_colmap_model_of_the_fox_converts_back_to_its_poses_and_loads() {
     }
     // `nerf train` reads it as an instant-ngp capture.
     use nerf_core::dataset::{Background, CaptureSplit, LoadOptions, SceneFrame, load_dataset};
-    let options = LoadOptions { format: None, downscale: 1, images: false, background: Background::White, frame: SceneFrame::Fit { bound: 1.5, ndc: None } };
+    let options = LoadOptions { format: None, downscale: 1, images: false, background: Background::White, frame: SceneFrame::Fit { bound: 1.5, ndc: None, contraction: None } };
     let all = load_dataset(&out, CaptureSplit::All, &options).unwrap();
     assert_eq!(all.data.views.len(), frames.len(), "{:?}", all.warnings);
 

@@ -34,7 +34,8 @@ pub struct WrittenFile {
 /// model) as `<role>.onnx`, the grid as `occupancy.bin`, and `scene` with both named.
 pub fn write_bundle(dir: &Path, scene: &SceneDescription, graphs: Vec<(Role, Vec<u8>)>, occupancy: Option<&OccupancyGrid>) -> nerf_core::Result<Vec<WrittenFile>> {
     let mut scene = scene.clone();
-    scene.format = scene::SCENE_FORMAT.into();
+    // Today's format (a contracted field's own), whatever the description was read as.
+    scene.set_contraction(scene.contraction);
     scene.networks = None;
     let mut files: Vec<(String, Vec<u8>)> = Vec::with_capacity(graphs.len() + 2);
     scene.graphs.clear();
@@ -81,6 +82,10 @@ pub fn read_occupancy(dir: &Path, scene: &SceneDescription) -> nerf_core::Result
     let grid = OccupancyGrid::load(&bundle_file(dir, &o.file, "occupancy.file")?)?;
     if grid.resolution() != o.resolution || grid.bound() != o.bound {
         let problem = format!("occupancy: the grid file is {}³ over ±{}, scene.json says {}³ over ±{}", grid.resolution(), grid.bound(), o.resolution, o.bound);
+        return Err(nerf_core::Error::invalid(dir.join(SCENE_FILE), problem));
+    }
+    if grid.contraction() != scene.contraction {
+        let problem = format!("occupancy: the grid file's contraction is {:?}, scene.json's {:?}", grid.contraction(), scene.contraction);
         return Err(nerf_core::Error::invalid(dir.join(SCENE_FILE), problem));
     }
     Ok(Some(grid))

@@ -6,16 +6,19 @@ use nerf_core::camera::Pose;
 use nerf_core::dataset::ScenePlacement;
 use nerf_core::field::Role;
 use nerf_core::io::limits::{self, MAX_FRAMES, Origin};
-use nerf_core::sample::SamplingConfig;
+use nerf_core::sample::{Contraction, SamplingConfig};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::Path;
 
 /// The `format` of the `scene.json` this version writes.
 pub const SCENE_FORMAT: &str = "nerf-rs-scene-2";
+/// The `format` of a contracted field's `scene.json` (`contraction` set; readers that do not
+/// know it refuse the bundle rather than march it wrong).
+pub const SCENE_FORMAT_CONTRACTED: &str = "nerf-rs-scene-3";
 /// Earlier `scene.json` formats this version still reads: `nerf-rs-scene-1` names the graphs
 /// under `networks` (a hash-grid field's as `networks.coarse`) and repeats NDC in the placement.
-pub const READ_FORMATS: [&str; 2] = ["nerf-rs-scene-1", SCENE_FORMAT];
+pub const READ_FORMATS: [&str; 3] = ["nerf-rs-scene-1", SCENE_FORMAT, SCENE_FORMAT_CONTRACTED];
 /// The scene description's file name.
 pub const SCENE_FILE: &str = "scene.json";
 /// The camera convention, spelled out for readers of `scene.json`.
@@ -58,9 +61,17 @@ pub struct SceneDescription {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub direction_encoding: Option<EncodingDescription>,
     /// Marching: equal intervals over [near, far], a sample at each middle where the occupancy
-    /// grid is occupied. Absent: 256.
+    /// grid is occupied (contracted: segments of `march_steps / 4` intervals growing 4× each,
+    /// `nerf_core::render::grid::march_segments`). Absent: 256.
     #[serde(default = "default_march_steps")]
     pub march_steps: usize,
+    /// How points are contracted before the field and the occupancy grid see them (the graph
+    /// contracts its input itself; marching contracts to find cells). Absent: not contracted.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub contraction: Option<Contraction>,
+    /// [`Contraction::describe`], for other implementations (written with `contraction`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub contraction_definition: Option<String>,
     /// Graph files by role (`field`, or `coarse` and `fine`), relative to the bundle.
     #[serde(default)]
     pub graphs: BTreeMap<Role, String>,
@@ -171,12 +182,21 @@ impl SceneDescription {
             position_encoding: None,
             direction_encoding: None,
             march_steps,
+            contraction: None,
+            contraction_definition: None,
             graphs: BTreeMap::new(),
             networks: None,
             poses: ScenePoses::default(),
             occupancy: None,
             placement: None,
         }
+    }
+
+    /// Contract (or not), with the format and definition that go with it.
+    pub fn set_contraction(&mut self, contraction: Option<Contraction>) {
+        self.contraction = contraction;
+        self.contraction_definition = contraction.map(|c| c.describe().to_string());
+        self.format = if contraction.is_some() { SCENE_FORMAT_CONTRACTED } else { SCENE_FORMAT }.into();
     }
 
     /// Whether the field is defined inside its box only ([`bounded`](Self::bounded), or a
@@ -208,6 +228,9 @@ impl SceneDescription {
         let at = |field| Origin::Field(path, field);
         if !READ_FORMATS.contains(&self.format.as_str()) {
             return Err(at("format").error(format!("{:?}, expected one of {READ_FORMATS:?}", self.format)));
+        }
+        if self.contraction.is_some() != (self.format == SCENE_FORMAT_CONTRACTED) {
+            return Err(at("contraction").error(format!("{:?} with format {:?}: a contracted field is {SCENE_FORMAT_CONTRACTED:?}, and only it", self.contraction, self.format)));
         }
         limits::check_camera(&self.camera.camera, at("camera"))?;
         limits::check_sampling(&self.sampling, at("sampling"))?;

@@ -33,6 +33,13 @@ pub fn write_bundle<F: CompileField>(dir: &Path, bundle: &Bundle<F>, options: &C
     if scene.bounded && bundle.occupancy.is_none() {
         return Err(ExportError::Network(format!("a {} field is defined inside its box only: the bundle needs its occupancy grid", scene.field)));
     }
+    scene.set_contraction(field.contraction());
+    if let Some(grid) = &bundle.occupancy
+        && grid.contraction() != scene.contraction
+    {
+        let problem = format!("the field's contraction is {:?}, its occupancy grid's {:?}", scene.contraction, grid.contraction());
+        return Err(ExportError::Network(problem));
+    }
     let graphs = field.compile(&mut scene, options)?;
     let graphs = graphs.into_iter().map(|(role, model)| (role, model.encode_to_vec())).collect();
     Ok(nerf_bundle::write_bundle(dir, &scene, graphs, bundle.occupancy.as_ref())?)

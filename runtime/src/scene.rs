@@ -97,7 +97,7 @@ impl OrtScene {
         let occupancy = if options.skip_empty_space { read_occupancy(dir, &description)? } else { None };
         // A bounded field's box is its grid's (scene.json checks it has one).
         let bounded = description.is_bounded().then(|| description.occupancy.as_ref().map(|o| o.bound)).flatten();
-        let occupancy = marching_grid(occupancy, bounded);
+        let occupancy = marching_grid(occupancy, bounded, description.contraction);
         // Marching evaluates at most MARCH_SEGMENT samples per ray per call, the dense path all.
         let s = &description.sampling;
         let samples_per_ray = if occupancy.is_some() { MARCH_SEGMENT } else { s.n_coarse + s.n_fine };

@@ -26,6 +26,10 @@ pub trait TrainedField: std::fmt::Debug + Send + Sync {
     /// Half the side of the origin-centred cube the field is defined in, for a field defined
     /// there only (always marched); `None` for a field defined everywhere.
     fn bounded(&self) -> Option<f32>;
+    /// How points are contracted before the field reads them (`None`: they are not).
+    fn contraction(&self) -> Option<nerf_core::sample::Contraction> {
+        None
+    }
     /// The field as the shared renderer evaluates it, its networks running on `device`.
     fn evaluator<'a>(&'a self, device: &Device) -> Box<dyn Field<Error = Infallible> + 'a>;
     /// The concrete field, for tools and tests that need its modules.
@@ -36,7 +40,7 @@ impl<'f> dyn TrainedField + 'f {
     /// The grid the field is marched through (see [`marching_grid`]): `occupancy`, or for a
     /// bounded field its whole box.
     pub fn marching_grid(&self, occupancy: Option<OccupancyGrid>) -> Option<OccupancyGrid> {
-        marching_grid(occupancy, self.bounded())
+        marching_grid(occupancy, self.bounded(), self.contraction())
     }
 
     /// Render one view deterministically through the shared renderer (`device` runs the networks).

@@ -151,7 +151,7 @@ fn start_or_resume(run: &RunDir, options: &TrainOptions) -> Result<(Box<dyn Fiel
     };
     let frame = match &recorded {
         Some(p) => SceneFrame::Recorded(p.transform),
-        None => SceneFrame::Fit { bound: config.occupancy.bound, ndc: options.ndc },
+        None => SceneFrame::Fit { bound: config.occupancy.bound, ndc: options.ndc, contraction: config.occupancy.contraction },
     };
     let format = match options.format {
         Some(f) => f,

@@ -129,7 +129,7 @@ fn transforms(work: &Path) -> Result<Box<dyn Harness>, String> {
 /// Loads every view of the dataset in `dir` as training does (fitted, with pixels) and the
 /// test split as `nerf render --split` does (poses and sizes, downscaled).
 fn load_as_commands_do(dir: &Path) -> Result<(), String> {
-    let options = |images, downscale| LoadOptions { format: None, downscale, images, background: Background::White, frame: SceneFrame::Fit { bound: 1.5, ndc: None } };
+    let options = |images, downscale| LoadOptions { format: None, downscale, images, background: Background::White, frame: SceneFrame::Fit { bound: 1.5, ndc: None, contraction: None } };
     let all = load_dataset(dir, CaptureSplit::All, &options(true, 1)).map(drop).map_err(|e| e.to_string());
     all.and(load_dataset(dir, CaptureSplit::Test, &options(false, 2)).map(drop).map_err(|e| e.to_string()))
 }

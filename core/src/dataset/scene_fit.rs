@@ -53,6 +53,35 @@ pub fn fit_to_field(capture: &Capture, bound: f32) -> Result<SceneTransform> {
     capture.camera_fit(RING_FRACTION * bound)
 }
 
+/// How far from the centre the farthest camera of a contracted capture sits: on the unit
+/// sphere, inside the inner cube ‖x‖∞ ≤ 1 that contraction leaves as it is (nerfstudio scales
+/// poses into [−1, 1] too); the object inside the ring, the room in the contracted shell.
+pub const CONTRACTED_RING: f32 = 1.0;
+
+/// Far for a contracted capture's rays: marching's segments reach 170 units
+/// ([`crate::render::grid::march_segments`]), where the contracted shell is within 1/170 of its
+/// outer face.
+pub const CONTRACTED_FAR: f32 = 100.0;
+
+/// The transform (applied after the parser's own) that places `capture` for a contracted
+/// field: centred where the optical axes meet, the farthest camera [`CONTRACTED_RING`] away,
+/// whatever its kind (an instant-ngp `aabb_scale` box is not used: the contraction reaches
+/// everything).
+pub fn fit_contracted(capture: &Capture) -> Result<SceneTransform> {
+    capture.camera_fit(CONTRACTED_RING)
+}
+
+/// Near and far for rays of a contracted capture (poses in the field's frame): near from the
+/// file's depth bounds (LLFF: 0.9 · nearest) when it has them, at most half the ring's radius,
+/// else 1/30 of it; far [`CONTRACTED_FAR`].
+pub fn contracted_near_far(capture: &Capture) -> (f32, f32) {
+    let near = match capture.near_far {
+        Some((near, far)) if near > 0.0 && far > near => near.min(0.5 * CONTRACTED_RING),
+        _ => BOX_NEAR_FRACTION * CONTRACTED_RING,
+    };
+    (near, CONTRACTED_FAR)
+}
+
 /// Near and far for rays of a fitted capture (poses in the field's frame): the file's depth
 /// bounds (LLFF: 0.9 · nearest, farthest, as nerf-pytorch without NDC) when it has them, never
 /// past the cube as seen from the farthest camera (`|o| + √3·bound`); otherwise from

@@ -13,7 +13,7 @@ use super::capture::{Capture, CaptureFormat, CaptureSplit, detect_format};
 use super::images::{Background, Decoded, check_divisible, load_image};
 use super::instant_ngp::load_instant_ngp;
 use super::llff::load_llff;
-use super::scene_fit::{CameraPath, OrbitPath, SpiralPath, field_near_far, fit_to_field};
+use super::scene_fit::{CameraPath, OrbitPath, SpiralPath, contracted_near_far, field_near_far, fit_contracted, fit_to_field};
 use super::{Split, SplitData, View};
 use crate::error::{Error, Result};
 use crate::camera::ndc::Ndc;
@@ -29,6 +29,8 @@ pub enum SceneFrame {
         /// NDC rays: `Some(true)`/`Some(false)` as asked, `None` for LLFF captures whose
         /// cameras all face one way ([`Capture::forward_facing`]), as nerf-pytorch's default.
         ndc: Option<bool>,
+        /// A contracted field ([`fit_contracted`]): no NDC, the cameras inside the inner cube.
+        contraction: Option<crate::sample::Contraction>,
     },
     /// The transform a run or bundle recorded, from the file's world: everything after the
     /// run started (evaluation data never changes it).
@@ -129,6 +131,15 @@ fn load_blender_dataset(dir: &Path, split: CaptureSplit, options: &LoadOptions) 
 
 fn load_capture_dataset(mut capture: Capture, split: CaptureSplit, options: &LoadOptions) -> Result<Dataset> {
     let placement = match options.frame {
+        SceneFrame::Fit { ndc: Some(true), contraction: Some(_), .. } => {
+            return Err(Error::invalid(&capture.source, "NDC rays and a contracted field exclude each other: train without --ndc or without --contract"));
+        }
+        SceneFrame::Fit { contraction: Some(_), .. } => {
+            let fit = fit_contracted(&capture)?;
+            capture.renormalise(&fit);
+            let orbit = OrbitPath::around(&capture.poses()).map(CameraPath::Circle);
+            ScenePlacement { format: capture.format, transform: capture.transform, near_far: Some(contracted_near_far(&capture)), orbit, ndc: None }
+        }
         SceneFrame::Fit { ndc, .. } if ndc.unwrap_or(capture.format == CaptureFormat::Llff && capture.forward_facing) => {
             ndc_placement(&capture)?
         }
@@ -242,7 +253,7 @@ mod tests {
     fn captures_split_every_eighth_skip_missing_images_and_composite() {
         let dir = tempfile::tempdir().unwrap();
         ngp_capture(dir.path());
-        let fit = SceneFrame::Fit { bound: 1.5, ndc: None };
+        let fit = SceneFrame::Fit { bound: 1.5, ndc: None, contraction: None };
         let all = load_dataset(dir.path(), CaptureSplit::All, &options(fit, 1, Background::White)).unwrap();
         // 9 of 10 frames have an image; the missing one is named in a warning.
         assert_eq!(all.data.views.len(), 9);
@@ -251,7 +262,7 @@ mod tests {
         // A ring is not forward-facing: no NDC unless asked, and asked without depth bounds
         // it is refused naming the file.
         assert_eq!(all.placement.ndc, None);
-        let forced = options(SceneFrame::Fit { bound: 1.5, ndc: Some(true) }, 1, Background::White);
+        let forced = options(SceneFrame::Fit { bound: 1.5, ndc: Some(true), contraction: None }, 1, Background::White);
         let err = load_dataset(dir.path(), CaptureSplit::All, &forced).unwrap_err().to_string();
         assert!(err.contains("transforms.json") && err.contains("NDC rays need depth bounds"), "{err}");
         // Test = views 0 and 8 of the 9 (files 00 and 09), train the other 7, val = test.
@@ -279,10 +290,25 @@ mod tests {
     }
 
     #[test]
+    fn a_contracted_fit_puts_the_farthest_camera_on_the_unit_sphere() {
+        let dir = tempfile::tempdir().unwrap();
+        ngp_capture(dir.path());
+        let contraction = Some(crate::sample::Contraction::Linf);
+        let fit = load_dataset(dir.path(), CaptureSplit::All, &options(SceneFrame::Fit { bound: 1.5, ndc: None, contraction }, 1, Background::White)).unwrap();
+        let farthest = fit.data.views.iter().map(|v| v.pose.origin().length()).fold(0.0f32, f32::max);
+        assert!((farthest - 1.0).abs() < 1e-5, "farthest camera at {farthest}: aabb_scale is not used");
+        assert_eq!(fit.placement.near_far, Some((1.0 / 30.0, 100.0)));
+        assert_eq!(fit.placement.ndc, None);
+        let both = options(SceneFrame::Fit { bound: 1.5, ndc: Some(true), contraction }, 1, Background::White);
+        let err = load_dataset(dir.path(), CaptureSplit::All, &both).unwrap_err().to_string();
+        assert!(err.contains("transforms.json") && err.contains("exclude each other"), "{err}");
+    }
+
+    #[test]
     fn the_fit_is_recorded_and_a_recorded_transform_is_used_as_is() {
         let dir = tempfile::tempdir().unwrap();
         ngp_capture(dir.path());
-        let fit = load_dataset(dir.path(), CaptureSplit::All, &options(SceneFrame::Fit { bound: 1.5, ndc: None }, 1, Background::White)).unwrap();
+        let fit = load_dataset(dir.path(), CaptureSplit::All, &options(SceneFrame::Fit { bound: 1.5, ndc: None, contraction: None }, 1, Background::White)).unwrap();
         let p = &fit.placement;
         // instant-ngp's default mapping (scale 0.33, offset 0.5), then aabb_scale 2 → ±1.5: ×1.5.
         assert!((p.transform.scale - 0.33 * 1.5).abs() < 1e-6, "{:?}", p.transform);
@@ -314,7 +340,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let cfg = SyntheticSceneConfig { width: 8, height: 8, n_train: 3, n_val: 2, n_test: 1, ..Default::default() };
         generate_scene(dir.path(), &cfg).unwrap();
-        let o = options(SceneFrame::Fit { bound: 1.5, ndc: None }, 1, Background::White);
+        let o = options(SceneFrame::Fit { bound: 1.5, ndc: None, contraction: None }, 1, Background::White);
         let all = load_dataset(dir.path(), CaptureSplit::All, &o).unwrap();
         assert_eq!(all.data.views.len(), 6);
         assert_eq!(all.placement.transform, SceneTransform::identity());

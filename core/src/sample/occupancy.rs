@@ -382,9 +382,15 @@ struct Header {
 
 /// The grid a field is marched through: its occupancy grid, or, for a field defined inside the
 /// cube ±`bounded` only, one occupied cell over that cube (every interval inside it is
-/// evaluated). `None`: sample densely.
-pub fn marching_grid(occupancy: Option<OccupancyGrid>, bounded: Option<f32>) -> Option<OccupancyGrid> {
-    occupancy.or_else(|| bounded.map(OccupancyGrid::whole_cube))
+/// evaluated; over the whole contracted world where the field is `contraction`'s). `None`:
+/// sample densely.
+pub fn marching_grid(occupancy: Option<OccupancyGrid>, bounded: Option<f32>, contraction: Option<Contraction>) -> Option<OccupancyGrid> {
+    occupancy.or_else(|| {
+        bounded.map(|b| match contraction {
+            Some(c) => OccupancyGrid::whole_world(c),
+            None => OccupancyGrid::whole_cube(b),
+        })
+    })
 }
 
 #[cfg(test)]

@@ -17,6 +17,10 @@ pub trait CompileField {
     /// Half the side of the origin-centred cube the field is defined in, for a field defined
     /// there only (always marched; `scene.json` `bounded`); `None`: defined everywhere.
     fn bounded(&self) -> Option<f32>;
+    /// How points are contracted before the field reads them (`scene.json` `contraction`).
+    fn contraction(&self) -> Option<nerf_core::sample::Contraction> {
+        None
+    }
     /// The opset used when none is asked for.
     fn default_opset(&self) -> i64 {
         crate::DEFAULT_OPSET
@@ -34,6 +38,9 @@ impl<T: CompileField + ?Sized> CompileField for Box<T> {
     }
     fn bounded(&self) -> Option<f32> {
         (**self).bounded()
+    }
+    fn contraction(&self) -> Option<nerf_core::sample::Contraction> {
+        (**self).contraction()
     }
     fn default_opset(&self) -> i64 {
         (**self).default_opset()
@@ -56,6 +63,12 @@ macro_rules! lowerings {
             fn bounded(&self) -> Option<f32> {
                 match self {
                     $(PlainField::$kind(plain) => plain.bounded(),)*
+                }
+            }
+
+            fn contraction(&self) -> Option<nerf_core::sample::Contraction> {
+                match self {
+                    $(PlainField::$kind(plain) => plain.contraction(),)*
                 }
             }
 

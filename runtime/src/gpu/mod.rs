@@ -126,6 +126,9 @@ fn kernel_source() -> String {
 impl<B: Backend> GpuMarch<B> {
     /// `backend` with `grid` in its memory.
     pub fn with_backend(backend: B, grid: &OccupancyGrid) -> std::result::Result<Self, String> {
+        if grid.contraction().is_some() {
+            return Err("the GPU loop does not march contracted grids yet".into());
+        }
         let r = grid.resolution();
         let side = r + 2;
         let mut padded = vec![0u8; side * side * side];

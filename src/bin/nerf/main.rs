@@ -41,6 +41,11 @@ enum Command {
         /// `false`; default: on for LLFF captures whose cameras all face one way.
         #[arg(long)]
         ndc: Option<bool>,
+        /// Contract the unbounded world around a capture (mip-NeRF 360's scene contraction,
+        /// L∞ norm): the cameras inside the cube ±1, everything beyond drawn into ±2, marching
+        /// steps that grow with distance (docs/captures.md). For the ngp field; not with NDC.
+        #[arg(long)]
+        contract: bool,
         /// TOML file overriding the preset's settings (any subset of the keys of config.toml).
         #[arg(long)]
         config: Option<PathBuf>,
@@ -378,11 +383,14 @@ fn main() -> Result<()> {
     let cli = Cli::parse();
     let progress = std::io::stderr().is_terminal();
     match cli.command {
-        Command::Train { data, format, ndc, config, preset, downscale, iters, time_budget_min, seed, out, serve, host, port, viewer, snapshot_every } => {
+        Command::Train { data, format, ndc, contract, config, preset, downscale, iters, time_budget_min, seed, out, serve, host, port, viewer, snapshot_every } => {
             let mut cfg = match &config {
                 Some(path) => TrainConfig::from_toml_file(path, preset)?,
                 None => preset.unwrap_or(Preset::DEFAULT).config(),
             };
+            if contract {
+                cfg = cfg.contracted(nerf_core::sample::Contraction::Linf).map_err(|e| anyhow::anyhow!("--contract: {e}"))?;
+            }
             if let Some(seed) = seed {
                 cfg.seed = seed;
             }

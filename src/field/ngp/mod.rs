@@ -31,6 +31,10 @@ impl TrainedField for NgpField {
         Some(self.spec.bound.enclosing_half_size())
     }
 
+    fn contraction(&self) -> Option<nerf_core::sample::Contraction> {
+        self.spec.bound.contraction
+    }
+
     fn evaluator<'a>(&'a self, device: &Device) -> Box<dyn Field<Error = std::convert::Infallible> + 'a> {
         Box::new(NgpEvaluator { field: self, device: device.clone() })
     }

@@ -89,6 +89,10 @@ impl CompileField for PlainNgp {
         Some(self.spec.bound.enclosing_half_size())
     }
 
+    fn contraction(&self) -> Option<nerf_core::sample::Contraction> {
+        self.spec.bound.contraction
+    }
+
     fn default_opset(&self) -> i64 {
         DEFAULT_OPSET
     }
