@@ -229,3 +229,40 @@ fn a_forward_facing_capture_trains_on_ndc_rays_and_renders_alike_everywhere() {
     train_capture(&data, &cube, 2, Some(false));
     assert_eq!(RunDir::open(&cube).unwrap().read_config().unwrap().sampling.ndc, None);
 }
+
+#[test]
+fn a_contracted_capture_renders_alike_everywhere() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = capture(dir.path());
+    let run = dir.path().join("run");
+    let config = tiny_ngp().contracted(nerf_core::sample::Contraction::Linf).unwrap();
+    let options = TrainOptions { format: None, data: data.clone(), run: run.clone(), config, ndc: None, downscale: 1, time_budget_min: None, iters: Some(60), progress: false };
+    train(&options).unwrap();
+
+    // The cameras (40 units from where they look) on the unit sphere; near 1/30, far 100; the
+    // grids' cube the contracted ±2.
+    let placement = RunDir::open(&run).unwrap().read_source().unwrap().unwrap().placement.unwrap();
+    assert!((placement.transform.scale - 1.0 / 40.0).abs() < 1e-6, "{:?}", placement.transform);
+    let config = RunDir::open(&run).unwrap().read_config().unwrap();
+    assert_eq!((config.sampling.near, config.sampling.far), (1.0 / 30.0, 100.0));
+    assert_eq!((config.occupancy.bound, config.occupancy.contraction), (2.0, Some(nerf_core::sample::Contraction::Linf)));
+
+    // Its bundle says so (scene-3, a NERFOCC2 grid); burn, onnxruntime and numpy render alike.
+    let bundle = dir.path().join("bundle");
+    let (ok, text) = nerf(&["export", "--run", s(&run), "--out", s(&bundle)]);
+    assert!(ok, "{text}");
+    let scene = nerf_bundle::read_scene(&bundle).unwrap();
+    assert_eq!((scene.format.as_str(), scene.contraction), ("nerf-rs-scene-3", Some(nerf_core::sample::Contraction::Linf)));
+    assert_eq!(&std::fs::read(bundle.join("occupancy.bin")).unwrap()[..8], b"NERFOCC2");
+    let ort = dir.path().join("ort");
+    let (ok, text) = nerf_render(&["--bundle", s(&bundle), "--split", "test", "--data", s(&data), "--out", s(&ort), "--npy"]);
+    assert!(ok && text.contains("PSNR"), "{text}");
+    let diff = check_parity(&run, &bundle, &data, "train_0", &ort.join("train_0.npy"), &dir.path().join("burn"));
+    assert!(diff < 1e-5, "burn vs onnxruntime, contracted: max |Δ| {diff}");
+
+    // Contraction is for the hash-grid field, and not with NDC rays.
+    let (ok, text) = nerf(&["train", "--data", s(&data), "--contract", "--preset", "paper", "--out", s(&dir.path().join("mlp"))]);
+    assert!(!ok && text.contains("--contract: a contracted scene needs the ngp field"), "{text}");
+    let (ok, text) = nerf(&["train", "--data", s(&data), "--contract", "--ndc", "true", "--iters", "1", "--out", s(&dir.path().join("ndc"))]);
+    assert!(!ok && text.contains("transforms.json") && text.contains("exclude each other"), "{text}");
+}
