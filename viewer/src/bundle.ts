@@ -1,7 +1,20 @@
-// scene.json and occupancy.bin of a scene bundle (formats nerf-rs-scene-1 and -2), as
-// render_rays.py reads them: graph files by role, the bounded flag, the occupancy grid.
+// scene.json and occupancy.bin of a scene bundle (formats nerf-rs-scene-1, -2 and -3, the last
+// a contracted field's), as render_rays.py reads them: graph files by role, the bounded flag,
+// the contraction, the occupancy grid (NERFOCC1, or NERFOCC2 over a contracted world).
 
+import { CONTRACTED_HALF_SIZE } from "./contraction";
 import type { Grid } from "./march";
+
+/** The format of a contracted field's scene.json, and only of one. */
+export const SCENE_FORMAT_CONTRACTED = "nerf-rs-scene-3";
+
+/** Whether scene.json's field is contracted ("contraction": "linf", the only one there is). */
+export function isContracted(scene: any): boolean {
+  const c = scene.contraction;
+  if (c === undefined || c === null) return false;
+  if (c !== "linf") throw new Error(`scene.json: contraction: ${JSON.stringify(c)} is unknown (this viewer knows "linf")`);
+  return true;
+}
 
 /** A field defined inside its grid's box only: "bounded", or a version-1 hash-grid bundle. */
 export function isBounded(scene: any): boolean {
@@ -40,26 +53,53 @@ export function checkScene(scene: any): void {
   const steps = scene.march_steps ?? 256;
   need(steps >= 1 && steps <= 4096, `march_steps: ${steps} is outside 1..4096`);
   need(!isBounded(scene) || !!scene.occupancy, "occupancy: a bounded field needs its occupancy grid");
+  // A reader that marched a contracted field as an uncontracted one would draw it wrong: the two
+  // go together (bundle/src/scene.rs).
+  const contracted = isContracted(scene);
+  need(contracted === (scene.format === SCENE_FORMAT_CONTRACTED),
+    `contraction: ${JSON.stringify(scene.contraction ?? null)} with format ${JSON.stringify(scene.format)}: a contracted field is ${SCENE_FORMAT_CONTRACTED}, and only it`);
+  need(!contracted || !scene.occupancy || scene.occupancy.bound === CONTRACTED_HALF_SIZE,
+    `occupancy: a contracted grid covers [-2, 2]^3, scene.json says bound ${scene.occupancy?.bound}`);
   need(!!scene.poses, "poses: missing");
 }
 
-/** occupancy.bin: "NERFOCC1", u32 resolution, f32 bound, f32 threshold, then R³ f32 densities. */
+/** occupancy.bin: "NERFOCC1", u32 resolution, f32 bound, f32 threshold, then R³ f32 densities;
+ *  or "NERFOCC2" (a contracted world): the same, then u32 contraction (1: L∞) before the cells
+ *  (24 header bytes), bound 2. */
 export function parseGrid(buf: ArrayBuffer): Grid {
   const bytes = new Uint8Array(buf);
   const magic = String.fromCharCode(...bytes.subarray(0, 8));
-  if (buf.byteLength < 20 || magic !== "NERFOCC1") throw new Error("occupancy.bin: not an occupancy grid (missing NERFOCC1 header)");
-  const view = new DataView(buf);
+  const contracted = magic === "NERFOCC2" && buf.byteLength >= 24;
+  if (!contracted && (buf.byteLength < 20 || magic !== "NERFOCC1")) throw new Error("occupancy.bin: not an occupancy grid (missing NERFOCC1 or NERFOCC2 header)");
+  const view = new DataView(buf), header = contracted ? 24 : 20;
   const res = view.getUint32(8, true), bound = view.getFloat32(12, true), threshold = view.getFloat32(16, true);
   if (res < 1 || res > 512) throw new Error(`occupancy.bin: resolution ${res} is outside 1..512`);
-  const want = 20 + 4 * res ** 3;
+  if (contracted) checkContractedHeader(view.getUint32(20, true), bound);
+  const want = header + 4 * res ** 3;
   if (buf.byteLength !== want) throw new Error(`occupancy.bin: ${buf.byteLength} bytes, expected ${want} for a ${res}³ grid (truncated?)`);
   const occupied = new Uint8Array(res ** 3);
-  for (let i = 0; i < occupied.length; i++) occupied[i] = view.getFloat32(20 + 4 * i, true) > threshold ? 1 : 0;
-  return { res, bound, occupied };
+  for (let i = 0; i < occupied.length; i++) occupied[i] = view.getFloat32(header + 4 * i, true) > threshold ? 1 : 0;
+  return contracted ? { res, bound, occupied, contracted } : { res, bound, occupied };
 }
 
-/** The grid a bounded field is marched through without occupancy.bin (--dense): one occupied cell. */
-export function wholeBox(bound: number): Grid {
+/** A NERFOCC2 header's contraction and bound, as core/src/sample/occupancy.rs checks them. */
+function checkContractedHeader(contraction: number, bound: number): void {
+  if (contraction !== 1) throw new Error(`occupancy.bin: unknown contraction ${contraction} in the NERFOCC2 header (this viewer knows 1: L-infinity)`);
+  if (bound !== CONTRACTED_HALF_SIZE) throw new Error(`occupancy.bin: a contracted grid covers [-2, 2]^3, the header says bound ${bound}`);
+}
+
+/** The grid file must be contracted exactly when scene.json's field is (bundle/src/lib.rs). */
+export function checkGridContraction(scene: any, grid: Grid): void {
+  const name = (c: boolean) => (c ? '"linf"' : "none");
+  const contracted = isContracted(scene);
+  if (!!grid.contracted !== contracted)
+    throw new Error(`scene.json: occupancy: the grid file's contraction is ${name(!!grid.contracted)}, scene.json's ${name(contracted)}`);
+}
+
+/** The grid a bounded field is marched through without occupancy.bin (--dense): one occupied
+ *  cell over its box, or over the whole contracted world (every step of every segment). */
+export function wholeBox(bound: number, contracted = false): Grid {
+  if (contracted) return { res: 1, bound: CONTRACTED_HALF_SIZE, occupied: new Uint8Array([1]), contracted };
   return { res: 1, bound, occupied: new Uint8Array([1]) };
 }
 

@@ -7,15 +7,23 @@
 // occupied cell the steps up to where the ray leaves it (the cell shrunk by the margin) are
 // emitted untested, as grid.rs does. Rays march lazily: `next` hands out a ray's next few samples
 // and remembers where it stopped, so a ray that terminates early never marches the rest.
+// A contracted grid (nerf-rs-scene-3) is marched in segments by contracted.ts.
 
+
+import { contractionFactor } from "./contraction";
 
 const f = Math.fround;
 
-/** Occupied cells of occupancy.bin: cell (i, j, k) of p is floor((p + b) / 2b · R); outside is empty. */
-export interface Grid { res: number; bound: number; occupied: Uint8Array }
+/** Occupied cells of occupancy.bin: cell (i, j, k) of p is floor((p + b) / 2b · R); outside is empty.
+ *  `contracted` (NERFOCC2): p is contracted first (contraction.ts) and b is 2. */
+export interface Grid { res: number; bound: number; occupied: Uint8Array; contracted?: boolean }
 
 /** Is point (x, y, z) in an occupied cell? */
 export function isOccupied(g: Grid, x: number, y: number, z: number): boolean {
+  if (g.contracted) {
+    const s = contractionFactor(x, y, z);
+    x = f(x * s); y = f(y * s); z = f(z * s);
+  }
   const b = f(g.bound), two = f(2 * b), R = g.res;
   const u = f(f(f(x + b) / two) * R), v = f(f(f(y + b) / two) * R), w = f(f(f(z + b) / two) * R);
   if (!(u >= 0 && u < R && v >= 0 && v < R && w >= 0 && w < R)) return false;
@@ -71,9 +79,19 @@ function slab(ox: number, oy: number, oz: number, dx: number, dy: number, dz: nu
   slabEnter = enter; slabLeave = leave;
 }
 
+/** What renderMarch asks of a march over every ray: `t[k]` of each step k (over all segments),
+ *  `cursor[r]` the next step ray r tests, `end[r]` one past its last, and `next` (see RayMarch). */
+export interface Marcher {
+  readonly t: Float32Array;
+  readonly cursor: Int32Array;
+  readonly end: Int32Array;
+  tested: number;
+  next(r: number, max: number, pts: Float32Array, ks: Int32Array, at: number): number;
+}
+
 /** Every ray's march through `grid`: step k samples t[k] = near + (k + 0.5)·interval (in f32);
  *  `cursor[r]` is the next step ray r tests, `end[r]` one past its last. Shapes: o, d [n, 3]. */
-export class RayMarch {
+export class RayMarch implements Marcher {
   /** t of each step: [steps]. */
   readonly t: Float32Array;
   readonly cursor: Int32Array;

@@ -3,7 +3,9 @@
 // termination), vectorised over batches of points for the field. Pure: the field is a callback.
 
 import { norm3 } from "./camera";
-import { type Grid, RayMarch } from "./march";
+import { ContractedMarch } from "./contracted";
+import { marchSegments } from "./contraction";
+import { type Grid, type Marcher, RayMarch } from "./march";
 
 const f = Math.fround;
 
@@ -157,7 +159,8 @@ export async function renderDense(s: Sampling, white: boolean, coarse: Field, fi
  *  samples, and compositing them. */
 export interface MarchTiming { marchMs: number; compositeMs: number }
 
-/** march(): march_steps equal intervals over [near, far], a sample at each middle, only samples in
+/** march(): march_steps equal intervals over [near, far] (a contracted grid: the segments of
+ *  contraction.ts's marchSegments, δ of each sample its segment's), a sample at each middle, only samples in
  *  occupied cells evaluated (marched lazily with empty-space skipping, see march.ts), front to
  *  back in segments of `segment` occupied samples per ray; a ray stops after the segment where
  *  its transmittance falls below `minTransmittance`. Rays take turns in a queue, each handing
@@ -171,10 +174,17 @@ export async function renderMarch(s: Sampling, steps: number, white: boolean, gr
   const clock = { marchMs: 0, compositeMs: 0 };
   let t0 = performance.now();
   const vd = viewDirs(view);
-  const march = new RayMarch(grid, o, d, near, interval, steps), t = march.t, cursor = march.cursor, end = march.end;
+  const march: Marcher = grid.contracted ? new ContractedMarch(grid, o, d, marchSegments(near, far, steps, true))
+    : new RayMarch(grid, o, d, near, interval, steps);
+  const t = march.t, cursor = march.cursor, end = march.end;
+  // Contracted: each step's own interval (null: every step's is `interval`, in stepLen).
+  const stepInterval = march instanceof ContractedMarch ? march.interval : null;
   const rgb = new Float32Array(3 * n), depth = new Float32Array(n), acc = new Float32Array(n);
-  const done = new Int32Array(n), trans = new Float32Array(n).fill(1), stepLen = new Float32Array(n);
-  for (let r = 0; r < n; r++) stepLen[r] = f(interval * norm3(d[3 * r], d[3 * r + 1], d[3 * r + 2]));
+  const done = new Int32Array(n), trans = new Float32Array(n).fill(1), stepLen = new Float32Array(n), dNorm = new Float32Array(n);
+  for (let r = 0; r < n; r++) {
+    dNorm[r] = norm3(d[3 * r], d[3 * r + 1], d[3 * r + 2]);
+    stepLen[r] = f(interval * dNorm[r]);
+  }
   // A ring of the rays waiting for their next samples: each ray is in it at most once.
   const queue = new Int32Array(Math.max(n, 1));
   let head = 0, queued = 0;
@@ -205,10 +215,11 @@ export async function renderMarch(s: Sampling, steps: number, white: boolean, gr
     // Composite each ray's samples in order; the segment count runs over its occupied samples.
     let p = 0;
     for (let q = 0; q < batch; q++) {
-      const r = rays[q], p0 = p, len = stepLen[r];
+      const r = rays[q], p0 = p, len = stepLen[r], dn = dNorm[r];
       let T = trans[r], stopped = false, cr = rgb[3 * r], cg = rgb[3 * r + 1], cb = rgb[3 * r + 2], z = depth[r], a = acc[r], nd = done[r];
       for (let c = 0; c < counts[q]; c++, p++) {
-        const alpha = f(1 - f(Math.exp(f(-Math.max(sig[p], 0) * len))));
+        const delta = stepInterval === null ? len : f(stepInterval[ks[p]] * dn);
+        const alpha = f(1 - f(Math.exp(f(-Math.max(sig[p], 0) * delta))));
         const w = f(alpha * T);
         cr = f(cr + f(w * col[3 * p])); cg = f(cg + f(w * col[3 * p + 1])); cb = f(cb + f(w * col[3 * p + 2]));
         z = f(z + f(w * t[ks[p]]));

@@ -5,7 +5,7 @@
 
 import type * as OrtModule from "onnxruntime-web/wasm";
 import { cameraRays, ndcRays, outputSize, pinhole, resized } from "./camera";
-import { type GraphInfo, checkScene, graphFiles, graphInfo, isBounded, parseGrid, wholeBox } from "./bundle";
+import { type GraphInfo, checkGridContraction, checkScene, graphFiles, graphInfo, isBounded, isContracted, parseGrid, wholeBox } from "./bundle";
 import type { Grid } from "./march";
 import { type Field, MAX_POINTS, type MarchTiming, renderDense, renderMarch } from "./render";
 import type { FromWorker, Intrinsics, Provider, ToWorker } from "./protocol";
@@ -107,8 +107,10 @@ async function load(bundleUrl: string, ortUrl: string, dense: boolean, ep: strin
     fields = await Promise.all(graphs.map((g) => open(ort, g, provider)));
   }
   let grid: Grid | null = null;
-  if (scene.occupancy && !dense) grid = parseGrid(await fetchOk(new URL(scene.occupancy.file, bundleUrl).href));
-  else if (isBounded(scene)) grid = wholeBox(scene.occupancy.bound);
+  if (scene.occupancy && !dense) {
+    grid = parseGrid(await fetchOk(new URL(scene.occupancy.file, bundleUrl).href));
+    checkGridContraction(scene, grid);
+  } else if (isBounded(scene)) grid = wholeBox(scene.occupancy.bound, isContracted(scene));
   if (grid) emptyReach(grid); // once per bundle, not per frame
 
   // Another bundle replaces this one (a live snapshot): its sessions are freed once no render uses

@@ -4,6 +4,8 @@
 // with --enable-unsafe-webgpu (a software WebGPU adapter) renders the portable hash-grid fixture
 // on WebGPU, which must agree with its WASM frame to 1e-5, and a bitwise graph, which must fall
 // back to WASM with the reason on the stats line (both skip, saying so, without an adapter).
+// The contracted fixture (nerf-rs-scene-3: marched in segments through a NERFOCC2 grid) must
+// match nerf-render to 1e-5 on every test pose on WASM, and on WebGPU (a smaller frame).
 //
 // The pages are served by `nerf-render --bundle B --serve --port P --viewer dist/` on a free
 // loopback port. Environment: NERF_SERVE_CMD swaps the server: a shell command with {root},
@@ -21,10 +23,12 @@ import { tmpdir } from "node:os";
 import { join, resolve } from "node:path";
 import { chromium } from "playwright-core";
 import { serve } from "./serve.mjs";
-import { REPO, frameError, freePort, nativeFrame } from "./common.mjs";
+import { REPO, frameError, freePort, nativeFrame, nativeTestFrames } from "./common.mjs";
 
 /** A tiny hash-grid bundle in the portable lowering (fixtures/ngp-portable/README.md). */
 const PORTABLE = resolve(import.meta.dirname, "fixtures/ngp-portable");
+/** The same over a contracted world (fixtures/ngp-contracted/README.md). */
+const CONTRACTED = resolve(import.meta.dirname, "fixtures/ngp-contracted");
 
 const VIEWER = resolve(import.meta.dirname, "..");
 const DIST = join(VIEWER, "dist");
@@ -69,12 +73,12 @@ before(async () => {
 });
 after(async () => { await browser?.close(); await gpuBrowser?.close(); });
 
-/** Render test pose 0 in the page; returns { frame, stats, line, isolated }. */
-async function pageFrame(bundle, width, height, extra = "", on = browser) {
+/** Render test pose `pose` in the page; returns { frame, stats, line, isolated }. */
+async function pageFrame(bundle, width, height, extra = "", on = browser, pose = 0) {
   const server = await startServer(bundle);
   const page = await on.newPage();
   try {
-    await page.goto(`${server.url}?pose=test:0&width=${width}&height=${height}${extra}`);
+    await page.goto(`${server.url}?pose=test:${pose}&width=${width}&height=${height}${extra}`);
     await page.waitForFunction(() => document.body.dataset.state, null, { timeout: 300_000 });
     const r = await page.evaluate(() => ({
       state: document.body.dataset.state, error: document.getElementById("error")?.textContent,
@@ -112,6 +116,35 @@ compare("lego", join(REPO, "models/lego"), 100);
 compare("lego", join(REPO, "models/lego"), 50, true);
 compare("lego-ngp", join(REPO, "models/lego-ngp"), 400);
 compare("ngp-portable", PORTABLE, 100);
+
+/** The contracted fixture's test poses in the page (`on`'s browser) against nerf-render's at
+ * `width` (default: full size): max |Δrgb| <= 1e-5 each; returns the pages' results. */
+async function compareContracted(t, on, width, poses = Infinity) {
+  const native = nativeTestFrames(CONTRACTED, width).slice(0, poses), pages = [];
+  for (const [i, { name, frame }] of native.entries()) {
+    const [h, w] = frame.shape;
+    const r = await pageFrame(CONTRACTED, w, h, "", on, i);
+    const { maxDiff, psnr } = frameError(r.frame, frame);
+    t.diagnostic(`ngp-contracted ${name}: ${w}×${h}, max |Δrgb| ${maxDiff.toExponential(2)}, PSNR ${psnr.toFixed(1)} dB, ${r.stats.points} points; ${r.line}`);
+    assert.ok(r.stats.points > 1000, `${r.stats.points} points: the view sees the scene`);
+    assert.ok(maxDiff <= 1e-5, `${name}: max |Δrgb| ${maxDiff} > 1e-5`);
+    pages.push(r);
+  }
+  return pages;
+}
+
+test("ngp-contracted: a contracted bundle's test poses match nerf-render to 1e-5 (WASM)", { timeout: 600_000 }, async (t) => {
+  const pages = await compareContracted(t, browser);
+  assert.equal(pages.length, 2);
+  for (const r of pages) assert.equal(r.stats.backend, "wasm");
+});
+
+// WebGPU on the software adapter is slow: one small frame.
+test("webgpu: the contracted bundle on WebGPU matches nerf-render to 1e-5", { timeout: 600_000 }, async (t) => {
+  if (!gpuAdapter) { t.skip("chromium offers no WebGPU adapter here"); return; }
+  const [r] = await compareContracted(t, gpuBrowser, 9, 1);
+  assert.equal(r.stats.backend, "webgpu", r.line);
+});
 
 /** max |a − b| over two frames of the same size. */
 function maxDiff(a, b) {

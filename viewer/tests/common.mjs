@@ -39,6 +39,17 @@ export function nativeFrame(bundle, width, dense) {
   } finally { rmSync(out, { recursive: true, force: true }); }
 }
 
+/** nerf-render's exact output for each of scene.json's test poses, at `width` (default: the
+ * camera's size): [{ name, frame: [H, W, 5] }] in pose order. */
+export function nativeTestFrames(bundle, width) {
+  const out = mkdtempSync(join(tmpdir(), "nerf-native-"));
+  try {
+    nerfRender(["--bundle", bundle, "--split", "test", "--out", out, "--npy", ...(width ? ["--width", String(width)] : [])]);
+    const poses = JSON.parse(readFileSync(join(bundle, "scene.json"), "utf8")).poses.test;
+    return poses.map((p) => ({ name: p.name, frame: readNpy(join(out, `${p.name}.npy`)) }));
+  } finally { rmSync(out, { recursive: true, force: true }); }
+}
+
 /** A page's rgb [H·W·3] against a native [H, W, C] frame: { maxDiff, psnr }. */
 export function frameError(rgb, native) {
   const [h, w, c] = native.shape;
