@@ -50,6 +50,8 @@ class GpuLoop:
     grid on GPU ``gpu``."""
 
     def __init__(self, cupy: Any, gpu: int, grid: R.Grid) -> None:
+        if grid.contraction is not None:
+            raise ValueError("the GPU loop does not march contracted grids yet")
         self.cp = cupy
         self.gpu = gpu
         with cupy.cuda.Device(gpu):

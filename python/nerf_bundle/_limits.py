@@ -31,4 +31,4 @@ DEFAULT_MARCH_STEPS = 256
 #: Most points per onnxruntime run of one session.
 POINTS_PER_RUN = 2_048
 #: The scene.json formats read.
-READ_FORMATS = ("nerf-rs-scene-1", "nerf-rs-scene-2")
+READ_FORMATS = ("nerf-rs-scene-1", "nerf-rs-scene-2", "nerf-rs-scene-3")

@@ -28,6 +28,10 @@ ROUND_BLOCK = 32768
 MARCH_BLOCK = 16384
 #: The working set takes rays from the queue once at most this fraction of it is still marching.
 MARCH_REFILL = 0.5
+#: Steps a probe in a contracted grid's shell tests at once (no boxes there: every step is tested).
+SHELL_WINDOW = 16
+#: The most segments a contracted march has (``MAX_SEGMENTS``).
+MAX_SEGMENTS = 8
 
 FieldFn = Callable[[np.ndarray, np.ndarray], Tuple[np.ndarray, np.ndarray]]
 
@@ -44,6 +48,52 @@ def expf(x: np.ndarray) -> np.ndarray:
 def lengths(d: np.ndarray) -> np.ndarray:
     """‖d‖ per row, float32, as ``length``: sqrt(x·x + y·y + z·z)."""
     return np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])
+
+
+def contract(p: np.ndarray) -> None:
+    """``Contraction::Linf.apply`` in place on ``p`` [3, ...] float32, in its order: n = max(|x|,
+    |y|, |z|) (a NaN operand skipped, as ``f32::max``), m = n if n > 1 else 1, r = 1/m,
+    f = (2 − r)·r, c = x·f. Inside the cube ±1, f = 1: points stay as they are, bit for bit."""
+    n = np.fmax(np.fmax(np.abs(p[0]), np.abs(p[1])), np.abs(p[2]))
+    r = F32(1) / np.where(n > F32(1), n, F32(1))
+    f = F32(2) - r
+    f *= r
+    p *= f
+
+
+def march_segments(near: np.float32, far: np.float32, steps: int, contraction: Optional[str]) -> List[Tuple[np.float32, np.float32, int]]:
+    """``march_segments``: (start, interval, steps) of the stretches marching steps through.
+    Uncontracted: one, ``steps`` intervals over [near, far]. Contracted: n = max(steps/4, 1)
+    intervals each, the first interval 2/n, each next one 4× the last, each start the last
+    plus n × its interval (float32), while a start lies before ``far`` (at most
+    ``MAX_SEGMENTS``).
+
+    Example: near 0.1, far 200, 1024 steps → intervals 2/256, 1/32, 1/8, 1/2, 2 from 0.1, 2.1,
+    10.1, 42.1, 170.1."""
+    near, far = F32(near), F32(far)
+    if contraction is None:
+        return [(near, F32((far - near) / F32(steps)), steps)]
+    n = max(steps // 4, 1)
+    start, interval = near, F32(2) / F32(n)
+    segments = []
+    while True:
+        segments.append((start, interval, n))
+        start = F32(start + F32(n) * interval)
+        interval = F32(interval * F32(4))
+        if not start < far or len(segments) == MAX_SEGMENTS:
+            return segments
+
+
+def _step_times(segments: List[Tuple[np.float32, np.float32, int]], past: int, dtype: type) -> np.ndarray:
+    """Each step's t = start + (k + 0.5)·interval in ``dtype`` (float32: ``March::t``; float64:
+    the real t), segment after segment, then ``past`` more steps of the last segment."""
+    parts = []
+    for j, (start, interval, n) in enumerate(segments):
+        k = np.arange(n + (past if j == len(segments) - 1 else 0), dtype=dtype)
+        k += dtype(0.5)
+        k *= dtype(interval)
+        parts.append(dtype(start) + k)
+    return np.concatenate(parts)
 
 
 def unit(v: np.ndarray) -> np.ndarray:
@@ -90,11 +140,19 @@ def _corner_sides(cells: np.ndarray, octant: int) -> np.ndarray:
 @dataclass
 class Grid:
     """Occupancy grid: ``occupied`` [R³] flat bool (cell (i, j, k) at (i·R + j)·R + k) over the
-    cube ±``bound``."""
+    cube ±``bound``; with ``contraction`` ("linf"), over the contracted world (bound 2): a point
+    is contracted (:func:`contract`) before its cell is found."""
 
     occupied: np.ndarray
     resolution: int
     bound: np.float32
+    contraction: Optional[str] = None
+
+    def inner_cells(self) -> Tuple[int, int]:
+        """The cells lo..hi − 1 per axis that lie inside the cube ±1 of a contracted grid, where
+        the contraction leaves points as they are (cell i spans −2 + 4i/R .. −2 + 4(i + 1)/R)."""
+        r = self.resolution
+        return (r + 3) // 4, 3 * r // 4
 
     def padded(self) -> np.ndarray:
         """[R + 2]³ bool, cached: the grid with one empty cell on every side (outside the cube
@@ -143,12 +201,15 @@ class Grid:
     def occupied_along(self, o: np.ndarray, d: np.ndarray, t: np.ndarray) -> np.ndarray:
         """Whether the points o + t·d (float32, as ``point_at``) lie in occupied cells, for
         ``o``, ``d`` [3, m] and ``t`` [w, m] → [w, m] bool. The cell is
-        ``OccupancyGrid::cell``'s, bit for bit: u = (v + b) / (2b) · R per axis; outside the
-        cube (or NaN) falls in the padding, which is empty."""
+        ``OccupancyGrid::cell``'s, bit for bit: u = (v + b) / (2b) · R per axis (v contracted
+        first on a contracted grid); outside the cube (or NaN) falls in the padding, which is
+        empty."""
         b, r = self.bound, self.resolution
         two_b, rf, side = F32(2) * b, F32(r), r + 2
         u = t * d[:, None, :]  # [3, w, m]
         u += o[:, None, :]
+        if self.contraction is not None:
+            contract(u)
         u += b
         u /= two_b
         u *= rf
@@ -165,10 +226,10 @@ class Grid:
         index += side * side + side + 1
         return self.padded().reshape(-1).take(index)
 
-    def t_range(self, o: np.ndarray, d: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
-        """A conservative [t0, t1] per ray outside which no point lies in the cube, for ``o``,
-        ``d`` [3, n] float64."""
-        b = np.float64(self.bound) * (1 + 1e-3) + 1e-6
+    def t_range(self, o: np.ndarray, d: np.ndarray, half: Optional[float] = None) -> Tuple[np.ndarray, np.ndarray]:
+        """A conservative [t0, t1] per ray outside which no point lies in the cube (of half-side
+        ``half``, default the grid's bound), for ``o``, ``d`` [3, n] float64."""
+        b = np.float64(self.bound if half is None else half) * (1 + 1e-3) + 1e-6
         with np.errstate(divide="ignore", invalid="ignore"):
             a = (-b - o) / d
             c = (b - o) / d
@@ -209,6 +270,12 @@ class Marcher:
     along a cell face, non-finite values) tests a window of steps with the exact float32 cell
     instead. So the samples are those of testing every step, bit for bit.
 
+    On a contracted grid the steps are those of :func:`march_segments` (intervals growing 4×
+    a segment; δ = the sample's own interval · ‖d‖), every step of every segment is marched
+    (the grid covers the world), boxes are used only inside the cube ±1, where contraction
+    leaves points as they are, and in the shell every step is tested with the contracted
+    float32 cell, ``SHELL_WINDOW`` at a time (as ``RayMarch`` does).
+
     The rays probe together, one numpy operation per step of the loop over a working set of
     rays (:meth:`_march`).
 
@@ -217,14 +284,22 @@ class Marcher:
 
     def __init__(self, grid: Grid, o: np.ndarray, d: np.ndarray, near: np.float32, far: np.float32, steps: int) -> None:
         self.grid = grid
-        self.steps = steps
-        self.interval = F32((far - near) / F32(steps))
-        # Step k samples t = near + (k + 0.5)·interval; past `steps` (windows, lanes past a
-        # ray's last sample) only ever masked out.
-        self.t = (near + (np.arange(steps + PAST, dtype=F32) + F32(0.5)) * self.interval).astype(F32)
+        segments = march_segments(near, far, steps, grid.contraction)
+        self.steps = sum(n for _, _, n in segments)
+        # Step k samples t = start + (k + 0.5)·interval of its segment, the segments one after
+        # the other; past `steps` (windows, lanes past a ray's last sample) only ever masked out.
+        past = PAST if grid.contraction is None else SHELL_WINDOW + MARCH_SEGMENT
+        self.t = _step_times(segments, past, F32)
+        self.t_real = _step_times(segments, past, np.float64)
         self.o = np.ascontiguousarray(o.T, F32)  # [3, n]
         self.d = np.ascontiguousarray(d.T, F32)
-        self.delta = (self.interval * lengths(d)).astype(F32)
+        if grid.contraction is None:
+            self.interval, self.intervals = segments[0][1], None
+            self.delta = (self.interval * lengths(d)).astype(F32)
+        else:
+            # δ = the sample's segment's interval · ‖d‖ (:meth:`deltas`).
+            self.interval, self.norm = None, lengths(d).astype(F32)
+            self.intervals = np.concatenate([np.full(n, i, F32) for _, i, n in segments] + [np.full(past, segments[-1][1], F32)])
         self._boxes(self.o.astype(np.float64), self.d.astype(np.float64), near)
         self.tests = 0  # steps tested one by one so far (for measuring)
         self.probes = 0  # probes so far (for measuring)
@@ -235,12 +310,13 @@ class Marcher:
         α + β·t per axis, ``coef`` [n, 19] = α, β, then per axis 1/β, |1/β| and the terms of the
         t at which the ray enters and leaves a box of cells shrunk by the margin m, and the
         ray's offset into ``table`` (:meth:`Grid.corner_tables`, at the octant it heads into);
-        and the real t of each step. Rays a block at a time, so the temporaries stay in cache."""
-        grid, steps, n = self.grid, self.steps, o.shape[1]
+        and on a contracted grid, per axis, the terms of the cells from a probe's to the far
+        face of the cube ±1 (columns 19..24). Rays a block at a time, so the temporaries stay in
+        cache."""
+        grid, n = self.grid, o.shape[1]
         r = grid.resolution
-        interval, near64 = np.float64(self.interval), np.float64(near)
-        self.t_real = near64 + (np.arange(steps + PAST, dtype=np.float64) + 0.5) * interval
-        self.coef = np.empty((n, 19))
+        near64 = np.float64(near)
+        self.coef = np.empty((n, 19 if grid.contraction is None else 25))
         self.cursor = np.empty(n, np.intp)
         self.end = np.empty(n, np.intp)
         octant = np.empty(n, np.intp)
@@ -263,13 +339,19 @@ class Marcher:
         grid, steps = self.grid, self.steps
         r, b = grid.resolution, np.float64(grid.bound)
         scale_u = r / (2.0 * b)
-        interval = np.float64(self.interval)
-        t_max = float(np.abs(self.t_real[[0, steps - 1]]).max()) if steps else 0.0
         rows = slice(first, first + o.shape[1])
         with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-            t0, t1 = grid.t_range(o, d)
-            k0 = np.floor((t0 - near64) / interval - 0.5) - 1
-            k1 = np.ceil((t1 - near64) / interval - 0.5) + 2
+            if self.intervals is None:
+                interval = np.float64(self.interval)
+                t_max = float(np.abs(self.t_real[[0, steps - 1]]).max()) if steps else 0.0
+                t0, t1 = grid.t_range(o, d)
+                k0 = np.floor((t0 - near64) / interval - 0.5) - 1
+                k1 = np.ceil((t1 - near64) / interval - 0.5) + 2
+                steps_ok = np.isfinite(interval) and interval > 0
+            else:
+                k0, k1, t_max = self._contracted_range(o, d)
+                t = self.t_real
+                steps_ok = bool(np.isfinite(t).all() and (np.diff(t) > 0).all())
             scale = np.abs(o) + t_max * np.abs(d)
             np.maximum(scale, float(b), out=scale)
             scale = np.maximum(np.maximum(scale[0], scale[1]), scale[2])
@@ -298,7 +380,7 @@ class Marcher:
                 leave[flat] = np.where(safe, 1e300, -3e300)[flat]
             # Rays the boxes cannot handle (non-finite, a non-positive interval) only test windows.
             usable = np.isfinite(coef).all(axis=0) & np.isfinite(scale) & (margin < 0.25)
-        if not (np.isfinite(interval) and interval > 0):
+        if not steps_ok:
             usable[:] = False
         if not usable.all():
             coef[:, ~usable] = 0.0
@@ -306,9 +388,30 @@ class Marcher:
             leave[:, ~usable] = -np.inf
         # Ray by ray: a ray's coefficients are one row to fetch.
         self.coef[rows, :18] = coef.T
+        if self.intervals is not None:
+            # Cells to the inner cube's far face along the ray: hi − cell heading up, cell + 1 − lo down.
+            lo, hi = grid.inner_cells()
+            self.coef[rows, 19:22] = np.where(up, -1.0, 1.0).T
+            self.coef[rows, 22:25] = np.where(up, float(hi), float(1 - lo)).T
         self.cursor[rows] = np.clip(np.nan_to_num(k0, nan=0, posinf=steps, neginf=0), 0, steps)
         self.end[rows] = np.clip(np.nan_to_num(k1, nan=steps, posinf=steps, neginf=0), 0, steps)
         return up[0] * 4 + up[1] * 2 + up[2], usable
+
+    def _contracted_range(self, o: np.ndarray, d: np.ndarray) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """A contracted grid covers the whole world: every step is marched (first 0, end
+        ``steps``). Boxes are used inside the cube ±1 only, so the rounding to cover is that of
+        the steps there: per ray, the largest |t| of a step inside it (conservatively)."""
+        m, t = o.shape[1], self.t_real
+        t0, t1 = self.grid.t_range(o, d, 1.0)
+        lo, hi = np.maximum(t0, t[0]), np.minimum(t1, t[self.steps - 1])
+        t_max = np.where(lo <= hi, np.maximum(np.abs(lo), np.abs(hi)), abs(t[0]))
+        return np.zeros(m), np.full(m, float(self.steps)), t_max
+
+    def deltas(self, k: np.ndarray, ray: np.ndarray) -> np.ndarray:
+        """δ of the samples at steps ``k`` of rays ``ray`` (flat, alike): interval · ‖d‖, float32."""
+        if self.intervals is None:
+            return self.delta.take(ray)
+        return self.intervals.take(k) * self.norm.take(ray)
 
     def next(self, rays: np.ndarray, n: int = MARCH_SEGMENT) -> Tuple[np.ndarray, np.ndarray]:
         """The next (at most) ``n`` occupied steps of each of ``rays`` (indices, any order):
@@ -356,7 +459,9 @@ class Marcher:
         res, side = self.grid.resolution, self.grid.resolution + 2
         # Cell (i, j, k) → its place in a table (the ray's offset added).
         place = np.array([side * side, side, 1], np.float64)
-        inv_interval, t0 = 1.0 / np.float64(self.interval), self.t_real[0]
+        contracted = self.intervals is not None
+        if not contracted:
+            inv_interval, t0 = 1.0 / np.float64(self.interval), self.t_real[0]
         size = min(len(queue), MARCH_BLOCK)
         pos, queue = queue[:size], queue[size:]
         c = np.ascontiguousarray(self.coef.take(rays[pos], axis=0).T)
@@ -383,6 +488,8 @@ class Marcher:
             np.copyto(index_buf[:w], index, casting="unsafe")
             level = table.take(index_buf[:w], out=level_buf[:w])
             sides.take(level, out=reach)
+            if contracted:
+                inner, reach = self._inner_box(c, u, reach)
             # The box's faces in t per axis: the cell's (u·inv), the far one `reach` cells on
             # (reach·|inv|), shrunk by the margin.
             u *= c[6:9]
@@ -397,14 +504,20 @@ class Marcher:
             sure = enter <= t
             sure &= t <= leave
             sure &= alive
-            # Steps to the first past the box (at least one), within the ray's end.
-            last = leave
-            last -= t0
-            last *= inv_interval
-            np.floor(last, out=last)
-            np.clip(last, k, e - 1, out=last)
-            move = last.astype(np.intp)
-            move += 1
+            if contracted:
+                sure &= inner
+                # The segments' steps are not evenly spaced: the last at or before the exit.
+                move = np.searchsorted(self.t_real, leave, side="right")
+                np.clip(move, k + 1, e, out=move)
+            else:
+                # Steps to the first past the box (at least one), within the ray's end.
+                last = leave
+                last -= t0
+                last *= inv_interval
+                np.floor(last, out=last)
+                np.clip(last, k, e - 1, out=last)
+                move = last.astype(np.intp)
+                move += 1
             move -= k
             # An occupied box gives its steps as samples, as many as the ray still needs; an
             # empty box is skipped.
@@ -418,6 +531,11 @@ class Marcher:
             k += move
             # Within the margin of the box's faces: test a window of steps exactly.
             unsure = np.flatnonzero(alive & ~sure)
+            if contracted:
+                # In the shell every step is tested, many at a time.
+                shell = ~inner[unsure]
+                self._window(rays, unsure[shell], pos, k, e, f, runs, n, SHELL_WINDOW)
+                unsure = unsure[~shell]
             if unsure.size:
                 self._window(rays, unsure, pos, k, e, f, runs, n, WINDOW)
             alive &= f < n
@@ -444,9 +562,20 @@ class Marcher:
                     c, k, e, f, pos = c[:, alive], k[alive], e[alive], f[alive], pos[alive]
                     alive = np.ones(live, bool)
 
+    def _inner_box(self, c: np.ndarray, cell: np.ndarray, reach: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+        """On a contracted grid, boxes stay inside the cube ±1 (where contraction is the
+        identity, so cells are world boxes): for probes in ``cell`` [3, w] (cell coordinates),
+        whether the cell lies inside it, and the box's reach per axis [3, w], cut at its far face."""
+        lo, hi = self.grid.inner_cells()
+        limit = c[19:22] * cell
+        limit += c[22:25]
+        inner = ((limit >= 1) & (limit <= hi - lo)).all(axis=0)
+        np.minimum(limit, reach, out=limit)
+        return inner, limit
+
     def _window(self, rays: np.ndarray, rows: np.ndarray, pos: np.ndarray, k: np.ndarray, e: np.ndarray, f: np.ndarray,
                 runs: list, n: int, width: int) -> None:
-        """Test the next ``width`` (≤ ``WINDOW``) steps of the marching rays ``rows`` with the
+        """Test the next ``width`` (``WINDOW`` or ``SHELL_WINDOW``) steps of the marching rays ``rows`` with the
         exact float32 cell; record the occupied ones (as many as needed) as runs of one step and
         move the rays on."""
         if not rows.size:
@@ -488,13 +617,15 @@ def occupied_samples(grid: Grid, o: np.ndarray, d: np.ndarray, near: np.float32,
     offsets = np.zeros(len(o) + 1, np.int64)
     np.cumsum(counts, out=offsets[1:])
     t = np.empty(offsets[-1], F32)
+    steps = np.empty(offsets[-1], np.intp)
     filled = offsets[:-1].copy()
     for live, k, valid in parts:
         cnt = valid.sum(axis=1)
         where = (filled[live][:, None] + np.arange(k.shape[1])[None, :])[valid]
-        t[where] = marcher.t[k[valid]]
+        steps[where] = k[valid]
         filled[live] += cnt
-    return Packed(t, np.repeat(marcher.delta, counts), offsets)
+    t[:] = marcher.t[steps]
+    return Packed(t, marcher.deltas(steps, np.repeat(rays, counts)), offsets)
 
 
 @dataclass
@@ -654,7 +785,9 @@ def _round_block(field: FieldFn, marcher: Marcher, viewdirs: np.ndarray, k: np.n
         colour[a:b], sigma[a:b] = field(points[a:b], dirs[a:b])
     now = stages.lap("field", now)
     alpha = np.zeros((s, m), F32)
-    alpha.reshape(-1)[at] = alpha_of(sigma, marcher.delta.take(ray))
+    # Each sample's step only where δ depends on it (contracted segments).
+    delta = marcher.delta.take(ray) if marcher.intervals is None else marcher.deltas(k.take(at), ray)
+    alpha.reshape(-1)[at] = alpha_of(sigma, delta)
     lane_colour = np.zeros((3, s, m), F32)
     for c in range(3):
         lane_colour[c].reshape(-1)[at] = colour[:, c]

@@ -19,6 +19,12 @@ from ._limits import (MAX_CHUNK, MAX_FRAME_PIXELS, MAX_FRAMES, MAX_GRAPH_BYTES, 
 __all__ = ["BundleError"]
 
 F32 = np.float32
+#: The scene.json format of a contracted field, and of it only (``SCENE_FORMAT_CONTRACTED``).
+CONTRACTED_FORMAT = READ_FORMATS[2]
+#: The contractions this version knows: scene.json's name → NERFOCC2's code.
+CONTRACTIONS = {"linf": 1}
+#: The half-size of the cube a contracted world fills (``CONTRACTED_HALF_SIZE``).
+CONTRACTED_BOUND = F32(2)
 
 
 class BundleError(Exception):
@@ -305,6 +311,24 @@ def _check_placement(r: _Reader, scene: Dict[str, Any]) -> None:
         r.object(orbit, "placement.orbit")
 
 
+def _check_contraction(r: _Reader, scene: Dict[str, Any]) -> Optional[str]:
+    """``contraction`` (a name of :data:`CONTRACTIONS`; missing or null: none) and
+    ``contraction_definition`` (text for other readers)."""
+    v = r.get(scene, "contraction", "", "optional")
+    if v is not _ABSENT and not (isinstance(v, str) and v in CONTRACTIONS):
+        raise r.error("contraction", f"{_show(v)} is not a contraction this version knows (expected one of "
+                                     f"{', '.join(map(repr, CONTRACTIONS))})")
+    text = r.get(scene, "contraction_definition", "", "optional")
+    if text is not _ABSENT:
+        r.string(text, "contraction_definition")
+    return None if v is _ABSENT else v
+
+
+def contraction_of(scene: Dict[str, Any]) -> Optional[str]:
+    """The (checked) scene's contraction, or None."""
+    return scene.get("contraction")
+
+
 def is_bounded(scene: Dict[str, Any]) -> bool:
     """A field defined inside its grid's box only: "bounded", or a version-1 hash-grid bundle."""
     return scene.get("bounded") is True or (scene.get("format") == READ_FORMATS[0] and scene.get("field", "mlp") == "ngp")
@@ -379,7 +403,11 @@ def check_scene(scene: Any, where: str) -> None:
         r.f32(r.get(occ, "bound", "occupancy"), "occupancy.bound")
     _check_placement(r, scene)
     _check_graphs(r, scene, s["n_fine"])
+    contraction = _check_contraction(r, scene)
     # The checks after reading, in SceneDescription::check's order.
+    if (contraction is not None) != (fmt == CONTRACTED_FORMAT):
+        raise r.error("contraction", f"{_show(contraction)} with format {_show(fmt)}: a contracted field is "
+                                     f"{_show(CONTRACTED_FORMAT)}, and only it")
     if is_bounded(scene) and occ is _ABSENT:
         raise r.error("occupancy", "a bounded field is defined inside its box only and marched through its occupancy grid: the bundle needs one")
     if steps == 0:
@@ -437,14 +465,17 @@ def read_scene(path: str) -> Dict[str, Any]:
     return scene
 
 
-def read_grid(path: str) -> Tuple[np.ndarray, np.float32, np.float32]:
-    """occupancy.bin: the header (resolution, bound and threshold checked) before the cells.
-    Returns (density [R, R, R] float32, bound, threshold)."""
+def read_grid(path: str) -> Tuple[np.ndarray, np.float32, np.float32, Optional[str]]:
+    """occupancy.bin: the header (resolution, bound and threshold checked; NERFOCC2's
+    contraction known, its bound 2) before the cells. Returns (density [R, R, R] float32, bound,
+    threshold, contraction or None)."""
     bounded_file(path, MAX_GRAPH_BYTES)
     with open(path, "rb") as f:
-        header = f.read(20)
-        if len(header) < 20 or header[:8] != b"NERFOCC1":
-            raise BundleError(f"{path}: not an occupancy grid (missing NERFOCC1 header; truncated?)")
+        header = f.read(24)
+        magic = header[:8]
+        size = 24 if magic == b"NERFOCC2" else 20
+        if len(header) < size or magic not in (b"NERFOCC1", b"NERFOCC2"):
+            raise BundleError(f"{path}: not an occupancy grid (missing NERFOCC1 or NERFOCC2 header; truncated?)")
         res = int(np.frombuffer(header[8:12], "<u4")[0])
         bound, threshold = np.frombuffer(header[12:20], "<f4")
         if not 1 <= res <= MAX_GRID_RESOLUTION:
@@ -453,22 +484,42 @@ def read_grid(path: str) -> Tuple[np.ndarray, np.float32, np.float32]:
         if not (np.isfinite(bound) and bound > 0 and np.isfinite(threshold)):
             raise BundleError(f"{path}: bad header: resolution {res}, bound {bound}, threshold {threshold} "
                               "(need a positive finite bound and a finite threshold)")
-        want = 20 + 4 * res ** 3
-        size = os.path.getsize(path)
-        if size != want:
-            raise BundleError(f"{path}: {size} bytes, expected {want} for a {res}³ grid (truncated?)")
-        density = np.frombuffer(f.read(want - 20), "<f4")
+        contraction = _grid_contraction(path, header, bound) if size == 24 else None
+        want = size + 4 * res ** 3
+        have = os.path.getsize(path)
+        if have != want:
+            raise BundleError(f"{path}: {have} bytes, expected {want} for a {res}³ grid (truncated?)")
+        f.seek(size)
+        density = np.frombuffer(f.read(want - size), "<f4")
         if density.size != res ** 3:
-            raise BundleError(f"{path}: {20 + 4 * density.size} bytes, expected {want} for a {res}³ grid (truncated?)")
-    return density.reshape(res, res, res), F32(bound), F32(threshold)
+            raise BundleError(f"{path}: {size + 4 * density.size} bytes, expected {want} for a {res}³ grid (truncated?)")
+    return density.reshape(res, res, res), F32(bound), F32(threshold), contraction
 
 
-def check_grid_matches(scene_path: str, scene: Dict[str, Any], res: int, bound: np.float32) -> None:
-    """The grid file covers what scene.json says (``read_occupancy``)."""
+def _grid_contraction(path: str, header: bytes, bound: np.float32) -> str:
+    """NERFOCC2's contraction word (a name of :data:`CONTRACTIONS`); its grid covers ±2."""
+    code = int(np.frombuffer(header[20:24], "<u4")[0])
+    names = {c: name for name, c in CONTRACTIONS.items()}
+    if code not in names:
+        raise BundleError(f"{path}: unknown contraction {code} in the NERFOCC2 header (this version knows "
+                          f"{', '.join(f'{c}: {n}' for c, n in names.items())})")
+    if bound != CONTRACTED_BOUND:
+        raise BundleError(f"{path}: a contracted grid covers [-2, 2]^3, the header says bound {bound}")
+    return names[code]
+
+
+def check_grid_matches(scene_path: str, scene: Dict[str, Any], grid_path: str, res: int, bound: np.float32,
+                       contraction: Optional[str]) -> None:
+    """The grid file covers what scene.json says, contracted as it says (``read_occupancy``)."""
     occ = scene["occupancy"]
     if res != occ["resolution"] or bound != F32(occ["bound"]):
         raise BundleError(f"{scene_path}: occupancy: the grid file is {res}³ over ±{bound}, scene.json says "
                           f"{occ['resolution']}³ over ±{F32(occ['bound'])}")
+    if contraction != contraction_of(scene):
+        def said(c: Optional[str]) -> str:
+            return "none" if c is None else repr(c)
+        raise BundleError(f"{scene_path}: occupancy: the grid file {grid_path}'s contraction is {said(contraction)}, "
+                          f"scene.json's {said(contraction_of(scene))}")
 
 
 def check_pose(matrix: Any, where: str, field: str) -> np.ndarray:

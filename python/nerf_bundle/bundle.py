@@ -14,8 +14,8 @@ from . import _render as R
 from ._field import GPU_POINTS_PER_RUN, Graph, parse_device
 from ._limits import (DEFAULT_CHUNK, DEFAULT_MARCH_STEPS, MAX_FRAMES, MAX_FRAME_PIXELS, MAX_GRAPH_BYTES, MAX_IMAGE_SIDE,
                       MAX_POINTS_PER_CALL, MAX_THREADS, POINTS_PER_RUN)
-from ._validate import (bounded_file, bundle_file, check_chunk, check_count, check_grid_matches, check_pose, graph_files,
-                        is_bounded, read_grid, read_scene)
+from ._validate import (CONTRACTED_BOUND, bounded_file, bundle_file, check_chunk, check_count, check_grid_matches, check_pose,
+                        contraction_of, graph_files, is_bounded, read_grid, read_scene)
 from .camera import Camera, ndc_rays, reference_orbit
 
 F32 = np.float32
@@ -139,17 +139,23 @@ class Bundle:
             graphs[role] = Graph(file, workers, providers, points_per_run, gpu)
         occ = scene.get("occupancy")
         grid = None
+        contraction = contraction_of(scene)
         if occ and skip_empty_space:
-            density, bound, threshold = read_grid(bounded_file(bundle_file(path, occ["file"], "occupancy.file"), MAX_GRAPH_BYTES, "occupancy.file"))
-            check_grid_matches(os.path.join(path, "scene.json"), scene, density.shape[0], bound)
-            grid = R.Grid((density > threshold).reshape(-1), density.shape[0], bound)
+            file = bounded_file(bundle_file(path, occ["file"], "occupancy.file"), MAX_GRAPH_BYTES, "occupancy.file")
+            density, bound, threshold, grid_contraction = read_grid(file)
+            check_grid_matches(os.path.join(path, "scene.json"), scene, file, density.shape[0], bound, grid_contraction)
+            grid = R.Grid((density > threshold).reshape(-1), density.shape[0], bound, contraction)
         elif is_bounded(scene):
-            grid = R.Grid(np.ones(1, bool), 1, F32(occ["bound"]))
+            # One occupied cell over the field's box (``marching_grid``): a contracted field's is the whole world.
+            box = CONTRACTED_BOUND if contraction is not None else F32(occ["bound"])
+            grid = R.Grid(np.ones(1, bool), 1, box, contraction)
         bundle = cls(path, scene, graphs, grid, skip_empty_space)
         if gpu is not None:
             bundle.device = f"cuda:{gpu}"
-            cupy = _gpu.cupy_or_none() if grid is not None else None
+            cupy = _gpu.cupy_or_none() if grid is not None and grid.contraction is None else None
             why = "CuPy is not installed (pip install cupy-cuda13x, or `bash scripts/setup.sh --gpu`)"
+            if grid is not None and grid.contraction is not None:
+                why = "the GPU loop does not march contracted grids yet"
             if cupy is not None:
                 try:
                     bundle._gpu_loop = _gpu.GpuLoop(cupy, gpu, grid)
