@@ -77,3 +77,23 @@ def distort(scene: dict) -> None:
 def captured(tmp_path_factory) -> Path:
     """A copy of models/spheres whose camera has distortion and an off-centre principal point."""
     return edited_bundle(tmp_path_factory.mktemp("captured") / "captured", distort)
+
+
+def sessions_that_say_cuda(monkeypatch) -> None:
+    """onnxruntime as if it were the GPU wheel: CPU sessions that report the CUDA provider."""
+    import onnxruntime as ort
+
+    monkeypatch.setattr(ort, "get_available_providers", lambda: ["CUDAExecutionProvider", "CPUExecutionProvider"])
+    real = ort.InferenceSession
+
+    class SaysCuda:
+        def __init__(self, model, opts, providers=None, **kw):
+            self._s = real(model, opts, providers=["CPUExecutionProvider"])
+
+        def get_providers(self):
+            return ["CUDAExecutionProvider", "CPUExecutionProvider"]
+
+        def __getattr__(self, name):
+            return getattr(self._s, name)
+
+    monkeypatch.setattr(ort, "InferenceSession", SaysCuda)

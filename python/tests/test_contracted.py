@@ -16,7 +16,7 @@ import nerf_bundle
 from nerf_bundle import BundleError
 from nerf_bundle import _render as R
 from nerf_bundle._validate import read_grid
-from conftest import REPO
+from conftest import REPO, sessions_that_say_cuda
 
 F32 = np.float32
 FIXTURE = REPO / "viewer" / "tests" / "fixtures" / "ngp-contracted"
@@ -346,23 +346,9 @@ def test_scene_json_contraction_is_checked(tmp_path):
 
 def test_the_gpu_loop_declines_a_contracted_grid(monkeypatch):
     """As nerf-render's: a warning, and the numpy loop."""
-    import onnxruntime as ort
     from nerf_bundle import _gpu
 
-    monkeypatch.setattr(ort, "get_available_providers", lambda: ["CUDAExecutionProvider", "CPUExecutionProvider"])
-    real = ort.InferenceSession
-
-    class SaysCuda:
-        def __init__(self, model, opts, providers=None, **kw):
-            self._s = real(model, opts, providers=["CPUExecutionProvider"])
-
-        def get_providers(self):
-            return ["CUDAExecutionProvider", "CPUExecutionProvider"]
-
-        def __getattr__(self, name):
-            return getattr(self._s, name)
-
-    monkeypatch.setattr(ort, "InferenceSession", SaysCuda)
+    sessions_that_say_cuda(monkeypatch)
     monkeypatch.setattr(_gpu, "cupy_or_none", lambda: pytest.fail("CuPy asked for a contracted grid"))
     with pytest.warns(UserWarning, match="does not march contracted grids"):
         bundle = nerf_bundle.Bundle.open(FIXTURE, device="cuda")

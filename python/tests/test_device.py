@@ -11,7 +11,7 @@ import onnxruntime as ort
 import pytest
 
 import nerf_bundle
-from conftest import MODELS, REPO
+from conftest import MODELS, REPO, sessions_that_say_cuda
 
 CUDA = "CUDAExecutionProvider" in ort.get_available_providers()
 
@@ -93,26 +93,8 @@ def test_op_types_tell_the_bitwise_lowering_from_the_portable_one():
     assert "BitwiseXor" not in portable and {"Gather", "MatMul"} <= portable
 
 
-def _sessions_that_say_cuda(monkeypatch):
-    """onnxruntime as if it were the GPU wheel: CPU sessions that report the CUDA provider."""
-    monkeypatch.setattr(ort, "get_available_providers", lambda: ["CUDAExecutionProvider", "CPUExecutionProvider"])
-    real = ort.InferenceSession
-
-    class SaysCuda:
-        def __init__(self, model, opts, providers=None, **kw):
-            self._s = real(model, opts, providers=["CPUExecutionProvider"])
-
-        def get_providers(self):
-            return ["CUDAExecutionProvider", "CPUExecutionProvider"]
-
-        def __getattr__(self, name):
-            return getattr(self._s, name)
-
-    monkeypatch.setattr(ort, "InferenceSession", SaysCuda)
-
-
 def test_without_cupy_the_loop_stays_in_numpy_and_says_so(monkeypatch):
-    _sessions_that_say_cuda(monkeypatch)
+    sessions_that_say_cuda(monkeypatch)
     monkeypatch.setitem(sys.modules, "cupy", None)  # `import cupy` fails
     with pytest.warns(UserWarning, match="CuPy is not installed.*numpy on the CPU"):
         bundle = nerf_bundle.Bundle.open(MODELS / "lego-ngp", device="cuda")
@@ -124,7 +106,7 @@ def test_kernels_that_cannot_start_leave_the_loop_in_numpy(monkeypatch):
     """A CuPy whose compiler fails (no NVRTC, an old driver): a warning with its error."""
     from nerf_bundle import _gpu
 
-    _sessions_that_say_cuda(monkeypatch)
+    sessions_that_say_cuda(monkeypatch)
     monkeypatch.setattr(_gpu, "cupy_or_none", lambda: object())
 
     def failing(self, cupy, gpu, grid):
