@@ -86,6 +86,7 @@ impl Preset {
                 rays_per_image: default_rays_per_image(),
                 jitter_pixels: None,
                 early_stop_transmittance: 0.0,
+                appearance: false,
             },
             Preset::CpuFast => TrainConfig {
                 preset: *self,
@@ -266,6 +267,12 @@ pub struct TrainConfig {
     /// every sample. A config file without the key (runs from before it) takes the preset's.
     #[serde(default)]
     pub early_stop_transmittance: f32,
+    /// Learn a code per training image that the colour MLP sees (nerfacto's appearance
+    /// embedding, [`crate::field::ngp::appearance`]), for captures whose exposure or white
+    /// balance changes between photos; renders and bundles use the codes' mean. The hash-grid
+    /// field only. Absent: off.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub appearance: bool,
 }
 
 /// Default [`TrainConfig::target_samples`].
@@ -400,6 +407,9 @@ impl TrainConfig {
         }
         if !(self.precrop_fraction > 0.0 && self.precrop_fraction <= 1.0) {
             return Err("precrop_fraction must be in (0, 1]".into());
+        }
+        if self.appearance && self.field != FieldKind::Ngp {
+            return Err(format!("appearance: per-image appearance codes are the ngp field's (field = {:?})", self.field.name()));
         }
         if !(0.0..1.0).contains(&self.early_stop_transmittance) {
             return Err(format!("early_stop_transmittance = {}: must be in [0, 1)", self.early_stop_transmittance));

@@ -5,7 +5,7 @@ use crate::error::{Error, Result};
 use crate::evaluate::LoadedRun;
 use crate::field::TrainedField;
 use crate::config::TrainConfig;
-use nerf_bundle::scene::{NamedPose, SceneDescription};
+use nerf_bundle::scene::{FixedAppearance, NamedPose, SceneDescription};
 use nerf_bundle::{WrittenFile, pose_matrix};
 use nerf_core::PinholeCamera;
 use nerf_core::camera::{ORBIT_FRAMES, Pose};
@@ -58,13 +58,19 @@ impl RunScene {
 /// no test poses), marched through `occupancy` (a bounded field without one: its whole box).
 pub fn field_bundle<'a>(field: &'a dyn TrainedField, config: &TrainConfig, camera: &PinholeCamera, occupancy: Option<OccupancyGrid>) -> Bundle<Box<dyn CompileField + 'a>> {
     let mut scene = SceneDescription::new(camera, &config.sampling, config.white_background, config.render_steps());
+    scene.appearance = field.appearance().cloned();
     scene.poses.orbit = Pose::orbit(ORBIT_FRAMES).iter().map(pose_matrix).collect();
     Bundle { field: field.lowering(), scene, occupancy: field.marching_grid(occupancy) }
 }
 
-/// Compile the latest checkpoint of `run` into a bundle at `out` as `options` ask.
-pub fn export_run(run: &Path, out: &Path, options: &CompileOptions) -> Result<Vec<WrittenFile>> {
-    let loaded = LoadedRun::open(run)?;
+/// Compile the latest checkpoint of `run` into a bundle at `out` as `options` ask, rendering
+/// with the `appearance` code (default: the mean) when the field has per-image codes.
+pub fn export_run(run: &Path, out: &Path, options: &CompileOptions, appearance: Option<&FixedAppearance>) -> Result<Vec<WrittenFile>> {
+    let mut loaded = LoadedRun::open(run)?;
+    if let Some(fixed) = appearance {
+        let path = run.join("config.toml");
+        loaded.model.fix_appearance(fixed).map_err(|problem| Error::Invalid { path, problem: format!("--appearance: {problem}") })?;
+    }
     let mut bundle = field_bundle(loaded.model.as_ref(), &loaded.config, &loaded.camera, loaded.occupancy.clone());
     RunScene::read(loaded.source.as_ref()).apply(&mut bundle.scene);
     Ok(write_bundle(out, &bundle, options)?)

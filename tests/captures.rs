@@ -32,6 +32,11 @@ fn phone_camera() -> PinholeCamera {
 /// A transforms.json (nerfstudio style: no aabb_scale) over the generated scene's train and
 /// test poses, its images (under `images/`) rendered through [`phone_camera`].
 fn capture(dir: &Path) -> PathBuf {
+    capture_exposed(dir, |_| 1.0)
+}
+
+/// [`capture`] with training image `k`'s colours scaled by `exposure(k)`.
+fn capture_exposed(dir: &Path, exposure: impl Fn(usize) -> f32) -> PathBuf {
     let cfg = SyntheticSceneConfig { width: 32, height: 32, n_train: 14, n_val: 0, n_test: 2, seed: 3 };
     let out = dir.join("capture");
     std::fs::create_dir_all(out.join("images")).unwrap();
@@ -40,7 +45,9 @@ fn capture(dir: &Path) -> PathBuf {
     for split in [Split::Train, Split::Test] {
         for (k, pose) in split_poses(&cfg, split).iter().enumerate() {
             let name = format!("{split}_{k}.png");
-            save_png_rgba(&out.join("images").join(&name), 32, 32, &render_reference(pose, &camera)).unwrap();
+            let gain = if split == Split::Train { exposure(k) } else { 1.0 };
+            let image: Vec<[f32; 4]> = render_reference(pose, &camera).iter().map(|p| [p[0] * gain, p[1] * gain, p[2] * gain, p[3]]).collect();
+            save_png_rgba(&out.join("images").join(&name), 32, 32, &image).unwrap();
             let o = to_capture(pose.origin());
             let r = pose.0;
             let m = [[r[0][0], r[0][1], r[0][2], o.x], [r[1][0], r[1][1], r[1][2], o.y], [r[2][0], r[2][1], r[2][2], o.z], [0.0, 0.0, 0.0, 1.0]];
@@ -265,4 +272,83 @@ fn a_contracted_capture_renders_alike_everywhere() {
     assert!(!ok && text.contains("--contract: a contracted scene needs the ngp field"), "{text}");
     let (ok, text) = nerf(&["train", "--data", s(&data), "--contract", "--ndc", "true", "--iters", "1", "--out", s(&dir.path().join("ndc"))]);
     assert!(!ok && text.contains("transforms.json") && text.contains("exclude each other"), "{text}");
+}
+
+#[test]
+fn appearance_codes_learn_each_image_exposure_and_bundles_hold_the_fixed_one() {
+    let dir = tempfile::tempdir().unwrap();
+    // Odd training images taken at 60% of the exposure of the others.
+    let gain = |k: usize| if k % 2 == 1 { 0.6 } else { 1.0 };
+    let data = capture_exposed(dir.path(), gain);
+    let run = dir.path().join("run");
+    let config = nerf::config::TrainConfig { appearance: true, ..tiny_ngp() };
+    let options = TrainOptions { format: None, data: data.clone(), run: run.clone(), config, ndc: None, downscale: 1, time_budget_min: None, iters: Some(120), progress: false };
+    train(&options).unwrap();
+
+    // Each image's code renders its exposure: the field through a dark image's code is darker
+    // than through a bright one's, from the same pose.
+    let loaded = nerf::field::load_latest(&RunDir::open(&run).unwrap(), &nerf::backend::cpu()).unwrap();
+    let mut field = loaded.model;
+    assert_eq!(field.appearance(), Some(&nerf_bundle::scene::FixedAppearance::Mean));
+    let camera = phone_camera();
+    let pose = split_poses(&SyntheticSceneConfig { width: 32, height: 32, n_train: 14, n_val: 0, n_test: 2, seed: 3 }, Split::Test)[0];
+    let mut brightness = |image: &str| {
+        field.fix_appearance(&nerf_bundle::scene::FixedAppearance::parse(image)).unwrap();
+        let rendered = field.render(&nerf::backend::cpu(), loaded.occupancy.as_ref(), &camera, &pose, &loaded.config.render_options(), &mut |_, _| {});
+        // The object's own colour: the pixels less the white behind them, per unit of opacity.
+        let r = &rendered.rays;
+        let colour: f64 = r.rgb.iter().zip(&r.acc).map(|(p, &a)| (p[0] + p[1] + p[2] - 3.0 * (1.0 - a)) as f64).sum();
+        colour / r.acc.iter().map(|&a| a as f64).sum::<f64>()
+    };
+    // The run's training images (the loader holds some of the file's frames back for testing).
+    let codes: serde_json::Value = serde_json::from_slice(&std::fs::read(RunDir::open(&run).unwrap().latest_checkpoint().unwrap().unwrap().dir.join("appearance.json")).unwrap()).unwrap();
+    let images: Vec<String> = codes["images"].as_array().unwrap().iter().map(|v| v.as_str().unwrap().to_string()).collect();
+    let is_dark = |name: &str| name.strip_prefix("train_").is_some_and(|k| gain(k.parse().unwrap()) < 1.0);
+    let (dark_images, bright_images): (Vec<&String>, Vec<&String>) = images.iter().partition(|n| is_dark(n));
+    assert!(dark_images.len() >= 4 && bright_images.len() >= 4, "{images:?}");
+    let mut average = |names: &[&String]| names.iter().map(|n| brightness(n)).sum::<f64>() / names.len() as f64;
+    let (dark, bright) = (average(&dark_images), average(&bright_images));
+    let mean = brightness("mean");
+    assert!(dark < 0.9 * bright && dark < mean && mean < bright, "rendered brightness: dark images' codes {dark:.3}, bright ones' {bright:.3}, the mean {mean:.3}");
+    let held_back = (0..14).map(|k| format!("train_{k}")).find(|n| !images.contains(n)).unwrap();
+    let err = field.fix_appearance(&nerf_bundle::scene::FixedAppearance::parse(&held_back)).unwrap_err();
+    assert!(err.contains(&format!("{held_back:?}")) && err.contains(&images[..2].join(", ")), "{err}");
+
+    // The bundle holds the mean code as color.0's bias and says so; burn, onnxruntime and numpy
+    // render alike.
+    let code = |k: usize| -> Vec<f32> { codes["codes"].as_array().unwrap()[k * 32..(k + 1) * 32].iter().map(|v| v.as_f64().unwrap() as f32).collect() };
+    let n = images.len();
+    let bias_of = |bundle: &Path| {
+        let model = nerf_bundle::read_model(&bundle.join("field.onnx")).unwrap();
+        nerf_bundle::ngp::read_ngp(&model).unwrap().layers[2].bias.clone()
+    };
+    let bundle = dir.path().join("bundle");
+    let (ok, text) = nerf(&["export", "--run", s(&run), "--out", s(&bundle)]);
+    assert!(ok, "{text}");
+    assert_eq!(nerf_bundle::read_scene(&bundle).unwrap().appearance, Some(nerf_bundle::scene::FixedAppearance::Mean));
+    let mean_code: Vec<f32> = (0..32).map(|c| ((0..n).map(|k| code(k)[c] as f64).sum::<f64>() / n as f64) as f32).collect();
+    assert_eq!(bias_of(&bundle), mean_code);
+    assert!(mean_code.iter().any(|&v| v.abs() > 1e-3), "the codes moved: {mean_code:?}");
+    let ort = dir.path().join("ort");
+    let (ok, text) = nerf_render(&["--bundle", s(&bundle), "--split", "test", "--data", s(&data), "--out", s(&ort), "--npy"]);
+    assert!(ok, "{text}");
+    let diff = check_parity(&run, &bundle, &data, &held_back, &ort.join(format!("{held_back}.npy")), &dir.path().join("burn"));
+    assert!(diff < 1e-5, "burn vs onnxruntime with an appearance code: max |Δ| {diff}");
+
+    // Another image's code on request; unknown names and bundles are refused clearly.
+    let (ok, text) = nerf(&["export", "--run", s(&run), "--out", s(&bundle), "--appearance", &images[3]]);
+    assert!(ok, "{text}");
+    assert_eq!(nerf_bundle::read_scene(&bundle).unwrap().appearance, Some(nerf_bundle::scene::FixedAppearance::parse(&images[3])));
+    assert_eq!(bias_of(&bundle), code(3));
+    let (ok, text) = nerf(&["export", "--run", s(&run), "--out", s(&dir.path().join("nope")), "--appearance", "IMG_9"]);
+    assert!(!ok && text.contains("--appearance") && text.contains("IMG_9") && text.contains(&images[0]), "{text}");
+    assert!(!dir.path().join("nope").exists());
+    let (ok, text) = nerf(&["export", "--bundle", s(&bundle), "--out", s(&dir.path().join("again")), "--appearance", "mean"]);
+    assert!(!ok && text.contains("give --run"), "{text}");
+    let plain = dir.path().join("plain");
+    train_capture(&data, &plain, 2, None);
+    let (ok, text) = nerf(&["export", "--run", s(&plain), "--out", s(&dir.path().join("plain-bundle")), "--appearance", "mean"]);
+    assert!(!ok && text.contains("trained without --appearance"), "{text}");
+    let (ok, text) = nerf(&["train", "--data", s(&data), "--appearance", "--preset", "paper", "--iters", "1", "--out", s(&dir.path().join("mlp"))]);
+    assert!(!ok && text.contains("appearance codes are the ngp field's"), "{text}");
 }

@@ -177,6 +177,18 @@ fn a_resumed_ngp_run_equals_an_uninterrupted_one() {
         assert_eq!(RunDir::open(&resumed).unwrap().read_config().unwrap().jitter_pixels, Some(jitter));
         assert_same_field(&straight, &resumed);
     }
+    // Per-image appearance codes and their Adam state resume too.
+    let with_codes = |run: &Path, iters: usize| {
+        let config = nerf::config::TrainConfig { appearance: true, ..tiny_ngp() };
+        train(&TrainOptions { format: None, data: scene.clone(), run: run.to_path_buf(), config, ndc: None, downscale: 1, time_budget_min: None, iters: Some(iters), progress: false }).unwrap();
+    };
+    let (straight, resumed) = (dir.path().join("straight-codes"), dir.path().join("resumed-codes"));
+    with_codes(&straight, 40);
+    with_codes(&resumed, 20);
+    with_codes(&resumed, 40);
+    assert_same_field(&straight, &resumed);
+    let codes = |run: &Path| std::fs::read(run.join("checkpoints/step-0000040/appearance.json")).unwrap();
+    assert!(codes(&straight) == codes(&resumed), "appearance codes or their Adam state differ after resuming");
     // The decision reaches the trainer: the same downscaled run through pixel centres differs.
     let centres = dir.path().join("centres2");
     let config = nerf::config::TrainConfig { jitter_pixels: Some(false), ..tiny_ngp() };

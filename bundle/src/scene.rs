@@ -72,6 +72,11 @@ pub struct SceneDescription {
     /// [`Contraction::describe`], for other implementations (written with `contraction`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub contraction_definition: Option<String>,
+    /// For a field trained with per-image appearance codes: the one code it renders with,
+    /// already inside the graph (color.0's bias), recorded for people and tools. Absent: the
+    /// field has no appearance codes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub appearance: Option<FixedAppearance>,
     /// Graph files by role (`field`, or `coarse` and `fine`), relative to the bundle.
     #[serde(default)]
     pub graphs: BTreeMap<Role, String>,
@@ -184,6 +189,7 @@ impl SceneDescription {
             march_steps,
             contraction: None,
             contraction_definition: None,
+            appearance: None,
             graphs: BTreeMap::new(),
             networks: None,
             poses: ScenePoses::default(),
@@ -268,6 +274,11 @@ impl SceneDescription {
         if let Some((field, _)) = test.chain(orbit).find(|(_, m)| !finite(m)) {
             return Err(Origin::Field(path, &field).error("has a non-finite entry"));
         }
+        if let Some(FixedAppearance::Image { image }) = &self.appearance {
+            if image.is_empty() || image.len() > 255 || image.chars().any(char::is_control) {
+                return Err(at("appearance.image").error(format!("{image:?} is not an image name")));
+            }
+        }
         if let Some(o) = &self.occupancy {
             limits::check_plain_file_name(&o.file, at("occupancy.file"))?;
             limits::check_grid_resolution(o.resolution, at("occupancy.resolution"))?;
@@ -276,6 +287,37 @@ impl SceneDescription {
             }
         }
         Ok(())
+    }
+}
+
+/// Which per-image appearance code a field renders with ([`SceneDescription::appearance`]):
+/// `{"fixed": "mean"}` or `{"fixed": "image", "image": NAME}`.
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(tag = "fixed", rename_all = "lowercase", deny_unknown_fields)]
+pub enum FixedAppearance {
+    /// The mean of the training images' codes (nerfacto's choice for novel views).
+    #[default]
+    Mean,
+    /// The code of the training image of that name (its file stem).
+    Image {
+        /// The image's name.
+        image: String,
+    },
+}
+
+impl FixedAppearance {
+    /// `mean`, or a training image's name.
+    pub fn parse(text: &str) -> Self {
+        if text == "mean" { FixedAppearance::Mean } else { FixedAppearance::Image { image: text.to_string() } }
+    }
+}
+
+impl std::fmt::Display for FixedAppearance {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            FixedAppearance::Mean => write!(f, "the mean of the training images' codes"),
+            FixedAppearance::Image { image } => write!(f, "training image {image:?}'s code"),
+        }
     }
 }
 
@@ -354,6 +396,26 @@ mod tests {
         assert_eq!(far.check(path).unwrap_err().to_string(), "b/scene.json: poses.orbit[1]: has a non-finite entry");
         s.poses.test[0].transform_matrix[0][0] = f32::NAN;
         assert_eq!(s.check(path).unwrap_err().to_string(), "b/scene.json: poses.test[0].transform_matrix: has a non-finite entry");
+    }
+
+    #[test]
+    fn a_fixed_appearance_is_spelt_and_checked() {
+        let path = Path::new("b/scene.json");
+        assert_eq!(serde_json::to_value(FixedAppearance::Mean).unwrap(), serde_json::json!({"fixed": "mean"}));
+        assert_eq!(serde_json::to_value(FixedAppearance::parse("r_3")).unwrap(), serde_json::json!({"fixed": "image", "image": "r_3"}));
+        assert_eq!(FixedAppearance::parse("mean"), FixedAppearance::Mean);
+        let mut s = scene("mlp", 0);
+        s.graphs = [(Role::Coarse, "coarse.onnx".into())].into();
+        assert!(!serde_json::to_string(&s).unwrap().contains("appearance"), "absent unless the field has codes");
+        s.appearance = Some(FixedAppearance::parse("IMG_0001"));
+        s.check(path).unwrap();
+        let again: SceneDescription = serde_json::from_str(&serde_json::to_string(&s).unwrap()).unwrap();
+        assert_eq!(again, s);
+        s.appearance = Some(FixedAppearance::parse("a\nb"));
+        assert!(s.check(path).unwrap_err().to_string().contains("appearance.image"));
+        let mut v = serde_json::to_value(&again).unwrap();
+        v["appearance"] = serde_json::json!({"fixed": "median"});
+        assert!(serde_json::from_value::<SceneDescription>(v).is_err());
     }
 
     #[test]

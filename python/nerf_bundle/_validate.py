@@ -8,6 +8,7 @@ import json
 import math
 import os
 import stat
+import unicodedata
 from typing import Any, Dict, List, Optional, Tuple
 
 import numpy as np
@@ -324,6 +325,23 @@ def _check_contraction(r: _Reader, scene: Dict[str, Any]) -> Optional[str]:
     return None if v is _ABSENT else v
 
 
+def _check_appearance(r: _Reader, scene: Dict[str, Any]) -> None:
+    """``appearance`` (optional): the per-image appearance code the graph renders with,
+    ``{"fixed": "mean"}`` or ``{"fixed": "image", "image": NAME}`` (informational: the code is
+    already color.0's bias inside the graph)."""
+    v = r.get(scene, "appearance", "", "optional")
+    if v is _ABSENT:
+        return
+    fixed = r.string(r.get(r.object(v, "appearance"), "fixed", "appearance"), "appearance.fixed")
+    if fixed == "mean":
+        r.object(v, "appearance", ("fixed",))
+    elif fixed == "image":
+        r.object(v, "appearance", ("fixed", "image"))
+        r.string(r.get(v, "image", "appearance"), "appearance.image")
+    else:
+        raise r.error("appearance.fixed", f'{_show(fixed)} is not "mean" or "image"')
+
+
 def contraction_of(scene: Dict[str, Any]) -> Optional[str]:
     """The (checked) scene's contraction, or None."""
     return scene.get("contraction")
@@ -404,6 +422,7 @@ def check_scene(scene: Any, where: str) -> None:
     _check_placement(r, scene)
     _check_graphs(r, scene, s["n_fine"])
     contraction = _check_contraction(r, scene)
+    _check_appearance(r, scene)
     # The checks after reading, in SceneDescription::check's order.
     if (contraction is not None) != (fmt == CONTRACTED_FORMAT):
         raise r.error("contraction", f"{_show(contraction)} with format {_show(fmt)}: a contracted field is "
@@ -414,6 +433,11 @@ def check_scene(scene: Any, where: str) -> None:
         raise r.error("march_steps", "must be at least 1 (got 0 steps)")
     if steps > MAX_SAMPLES_PER_RAY:
         raise r.error("march_steps", f"{steps} steps is more than the limit of {MAX_SAMPLES_PER_RAY}")
+    appearance = scene.get("appearance")
+    if isinstance(appearance, dict) and appearance.get("fixed") == "image":
+        image = appearance["image"]
+        if not image or len(image.encode()) > 255 or any(unicodedata.category(c) == "Cc" for c in image):
+            raise r.error("appearance.image", f"{_show(image)} is not an image name")
     if occ is not _ABSENT:
         plain_name(where, "occupancy.file", occ["file"])
         res = occ["resolution"]

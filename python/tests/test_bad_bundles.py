@@ -206,9 +206,17 @@ def test_every_field_is_checked_when_the_bundle_opens(tmp_path):
         ("no-fine", lambda j: j["networks"].__setitem__("fine", None), "scene.json: networks: graphs [coarse] with sampling.n_fine 64"),
         ("encoding", lambda j: j["position_encoding"].__setitem__("frequencies", "many"), "scene.json: position_encoding.frequencies: expected an array"),
         ("placement", lambda j: j.__setitem__("placement", {"format": "blender"}), "scene.json: placement.transform: missing"),
+        ("appearance-kind", lambda j: j.__setitem__("appearance", {"fixed": "median"}), "scene.json: appearance.fixed: 'median' is not \"mean\" or \"image\""),
+        ("appearance-extra", lambda j: j.__setitem__("appearance", {"fixed": "mean", "image": "r_0"}), "scene.json: appearance: unknown field 'image'"),
+        ("appearance-no-image", lambda j: j.__setitem__("appearance", {"fixed": "image"}), "scene.json: appearance.image: missing"),
+        ("appearance-newline", lambda j: j.__setitem__("appearance", {"fixed": "image", "image": "a\nb"}), "scene.json: appearance.image: 'a\\nb' is not an image name"),
     ]
     for name, f, needle in cases:
         refused(edit(name, f), needle)
+
+    # A fixed appearance is recorded for people and tools: the graph holds it already.
+    for fixed in ({"fixed": "mean"}, {"fixed": "image", "image": "r_7"}):
+        nerf_bundle.Bundle.open(edit("appearance-" + fixed["fixed"], lambda j: j.__setitem__("appearance", fixed)), threads=1)
 
     deep = copy_bundle(SPHERES, tmp_path / "deep")
     scene = (deep / "scene.json").read_text()

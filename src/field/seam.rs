@@ -13,6 +13,7 @@ use nerf_core::PinholeCamera;
 use nerf_core::camera::Pose;
 use nerf_core::dataset::SplitData;
 use nerf_core::field::Field;
+use nerf_bundle::scene::FixedAppearance;
 use nerf_export::CompileField;
 use nerf_core::render::{RenderOptions, RenderedImage, render_image};
 use nerf_core::sample::occupancy::{OccupancyGrid, marching_grid};
@@ -30,10 +31,24 @@ pub trait TrainedField: std::fmt::Debug + Send + Sync {
     fn contraction(&self) -> Option<nerf_core::sample::Contraction> {
         None
     }
+    /// Which per-image appearance code the field renders with (`None`: it has no codes).
+    fn appearance(&self) -> Option<&FixedAppearance> {
+        None
+    }
+    /// Render with `fixed` instead (`nerf export --appearance`); an error for a field without
+    /// codes, or naming an image that is not one of its training images.
+    fn fix_appearance(&mut self, fixed: &FixedAppearance) -> std::result::Result<(), String> {
+        Err(no_appearance_codes(fixed))
+    }
     /// The field as the shared renderer evaluates it, its networks running on `device`.
     fn evaluator<'a>(&'a self, device: &Device) -> Box<dyn Field<Error = Infallible> + 'a>;
     /// The concrete field, for tools and tests that need its modules.
     fn as_any(&self) -> &dyn std::any::Any;
+}
+
+/// [`TrainedField::fix_appearance`]'s error for a field without codes.
+pub fn no_appearance_codes(fixed: &FixedAppearance) -> String {
+    format!("{fixed}: the field has no appearance codes (it was trained without --appearance)")
 }
 
 impl<'f> dyn TrainedField + 'f {

@@ -109,7 +109,7 @@ fn trained_run(work: &Path) -> Result<(PathBuf, PathBuf), String> {
 fn exported_bundle(work: &Path) -> Result<PathBuf, String> {
     let (_, run) = trained_run(work)?;
     let bundle = work.join("bundle");
-    nerf::export::export_run(&run, &bundle, &Default::default()).map_err(|e| e.to_string())?;
+    nerf::export::export_run(&run, &bundle, &Default::default(), None).map_err(|e| e.to_string())?;
     Ok(bundle)
 }
 

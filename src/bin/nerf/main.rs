@@ -46,6 +46,11 @@ enum Command {
         /// steps that grow with distance (docs/captures.md). For the ngp field; not with NDC.
         #[arg(long)]
         contract: bool,
+        /// Learn a code per training image for its exposure and white balance (nerfacto's
+        /// appearance embedding); renders and bundles use the codes' mean (`nerf export
+        /// --appearance` picks another). For the ngp field.
+        #[arg(long)]
+        appearance: bool,
         /// TOML file overriding the preset's settings (any subset of the keys of config.toml).
         #[arg(long)]
         config: Option<PathBuf>,
@@ -257,6 +262,10 @@ enum Command {
         /// from --bundle.
         #[arg(long, value_enum)]
         tables: Option<Tables>,
+        /// For a run trained with --appearance: the code the bundle renders with, `mean` (the
+        /// default) or a training image's name (its file stem), recorded in scene.json.
+        #[arg(long)]
+        appearance: Option<String>,
     },
     /// Mesh a trained run or a scene bundle: the surface where the density crosses --threshold,
     /// by marching cubes over the field's box, as a binary PLY (positions, normals, colours) in
@@ -383,13 +392,16 @@ fn main() -> Result<()> {
     let cli = Cli::parse();
     let progress = std::io::stderr().is_terminal();
     match cli.command {
-        Command::Train { data, format, ndc, contract, config, preset, downscale, iters, time_budget_min, seed, out, serve, host, port, viewer, snapshot_every } => {
+        Command::Train { data, format, ndc, contract, appearance, config, preset, downscale, iters, time_budget_min, seed, out, serve, host, port, viewer, snapshot_every } => {
             let mut cfg = match &config {
                 Some(path) => TrainConfig::from_toml_file(path, preset)?,
                 None => preset.unwrap_or(Preset::DEFAULT).config(),
             };
             if contract {
                 cfg = cfg.contracted(nerf_core::sample::Contraction::Linf).map_err(|e| anyhow::anyhow!("--contract: {e}"))?;
+            }
+            if appearance {
+                cfg.appearance = true;
             }
             if let Some(seed) = seed {
                 cfg.seed = seed;
@@ -473,14 +485,18 @@ fn main() -> Result<()> {
             }
             println!("train with: nerf train --data {} --out <run-dir>", out.display());
         }
-        Command::Export { run, bundle, out, opset, portable, tables } => {
+        Command::Export { run, bundle, out, opset, portable, tables, appearance } => {
+            if appearance.is_some() && run.is_none() {
+                bail!("--appearance picks one of a run's codes: give --run (a bundle holds one code already)");
+            }
+            let appearance = appearance.as_deref().map(nerf_bundle::scene::FixedAppearance::parse);
             let tables = tables.map(|t| match t {
                 Tables::F32 => nerf_export::TablePrecision::F32,
                 Tables::F16 => nerf_export::TablePrecision::F16,
             });
             let options = nerf_export::CompileOptions { opset, portable, tables: tables.unwrap_or_default() };
             let files = match (run, bundle) {
-                (Some(run), _) => nerf::export::export_run(&run, &out, &options)?,
+                (Some(run), _) => nerf::export::export_run(&run, &out, &options, appearance.as_ref())?,
                 (None, Some(bundle)) => nerf::export::export_bundle(&bundle, &out, &options, tables)?,
                 (None, None) => unreachable!("clap requires --run or --bundle"),
             };

@@ -90,7 +90,7 @@ pub fn bench_ngp_render(bundle: Option<&Path>, steps: usize, data: &Path, progre
             let options = nerf::train::TrainOptions { format: None, data: data.to_path_buf(), run: run.clone(), config, ndc: None, downscale: 1, time_budget_min: None, iters: Some(steps), progress };
             let summary = nerf::train::train(&options)?;
             let out = temporary.path().join("bundle");
-            nerf::export::export_run(&run, &out, &CompileOptions::default())?;
+            nerf::export::export_run(&run, &out, &CompileOptions::default(), None)?;
             (out, format!("ngp preset, {} steps here ({:.1} min)", summary.steps, summary.minutes))
         }
     };

@@ -8,6 +8,7 @@
 use burn::module::{Module, Param, ParamId};
 use burn::nn::Linear;
 use burn::tensor::activation::{relu, sigmoid};
+use super::appearance::RenderedAppearance;
 use super::fused::FusedMlps;
 use burn::tensor::{Device, Tensor, TensorData};
 use nerf_core::field::ngp::hash_grid::HashGrid;
@@ -96,6 +97,9 @@ pub struct NgpField {
     pub grid: HashGrid,
     /// The networks.
     pub mlps: NgpMlps,
+    /// Per-image appearance codes and the one the field renders with (color.0's bias), for a
+    /// field trained with them.
+    pub appearance: Option<RenderedAppearance>,
 }
 
 impl NgpField {
@@ -103,7 +107,7 @@ impl NgpField {
     pub fn new(spec: NgpSpec, seed: u64, device: &Device) -> Result<Self, String> {
         spec.validate().map_err(|e| e.to_string())?;
         let grid = HashGrid::new(spec.grid, seed).map_err(|e| e.to_string())?;
-        Ok(NgpField { spec, grid, mlps: NgpMlps::new(&spec, &mut Rng::new(seed).fork(), device) })
+        Ok(NgpField { spec, grid, mlps: NgpMlps::new(&spec, &mut Rng::new(seed).fork(), device), appearance: None })
     }
 
     /// World points in the unit cube, and their grid features `[n, L·F]` (what the grid's
@@ -114,9 +118,14 @@ impl NgpField {
         (unit, features)
     }
 
-    /// The MLPs as [`FusedMlps`] (a copy of their weights).
+    /// The MLPs as [`FusedMlps`] (a copy of their weights), with the fixed appearance's code
+    /// as color.0's bias.
     pub fn fused(&self) -> FusedMlps {
-        FusedMlps::from_mlps(&self.spec, &self.mlps)
+        let fused = FusedMlps::from_mlps(&self.spec, &self.mlps);
+        match &self.appearance {
+            Some(a) => fused.with_color_bias(a.code().to_vec()),
+            None => fused,
+        }
     }
 
     /// rgb and σ at world points with unit view directions (no gradient), through the
@@ -136,19 +145,27 @@ impl NgpField {
         self.fused().density(&features)
     }
 
-    /// The field as plain data for the ONNX compiler.
+    /// The field as plain data for the ONNX compiler: zero biases, but color.0's, which is the
+    /// fixed appearance's code when the field has one.
     pub fn to_plain(&self) -> PlainNgp {
         let layers = self
             .mlps
             .weights()
             .into_iter()
             .zip(self.spec.layer_shapes())
-            .map(|(weight, (name, in_dim, out_dim))| DenseLayer { name, in_dim, out_dim, weight, bias: vec![0.0; out_dim] })
+            .map(|(weight, (name, in_dim, out_dim))| {
+                let bias = match &self.appearance {
+                    Some(a) if name == "color.0" => a.code().to_vec(),
+                    _ => vec![0.0; out_dim],
+                };
+                DenseLayer { name, in_dim, out_dim, weight, bias }
+            })
             .collect();
         PlainNgp { spec: self.spec, table: self.grid.params().to_vec(), layers }
     }
 
-    /// A field from plain data (biases must be zero: the MLPs have none).
+    /// A field from plain data (biases must be zero: the MLPs have none, and a fixed
+    /// appearance is not read back as codes).
     pub fn from_plain(plain: &PlainNgp, device: &Device) -> Result<Self, String> {
         plain.validate().map_err(|e| e.to_string())?;
         if let Some(l) = plain.layers.iter().find(|l| l.bias.iter().any(|&b| b != 0.0)) {
@@ -161,7 +178,7 @@ impl NgpField {
             .map(|l| Linear { weight: Param::from_tensor(Tensor::from_data(TensorData::new(l.weight.clone(), [l.in_dim, l.out_dim]), device)), bias: None })
             .collect();
         let color = layers.split_off(2);
-        Ok(NgpField { spec: plain.spec, grid, mlps: NgpMlps { density: layers, color } })
+        Ok(NgpField { spec: plain.spec, grid, mlps: NgpMlps { density: layers, color }, appearance: None })
     }
 }
 
@@ -219,7 +236,7 @@ mod tests {
         for _ in 0..40 {
             let fused = field.fused();
             let (unit, features) = field.encode(&points);
-            let ((rgb, _), saved) = fused.forward_train(&features, &sh);
+            let ((rgb, _), saved) = fused.forward_train(&features, &sh, None);
             let count = (3 * n) as f32;
             let mut loss = 0.0;
             let grad_rgb: Vec<[f32; 3]> = rgb.iter().zip(&target).map(|(c, t)| [0, 1, 2].map(|k| {
@@ -227,7 +244,7 @@ mod tests {
                 2.0 * (c[k] - t[k]) / count
             })).collect();
             losses.push(loss);
-            let (mlp_grads, grad_features) = fused.backward(&features, &sh, &saved, &grad_rgb, &vec![0.0; n]);
+            let (mlp_grads, grad_features) = fused.backward(&features, &sh, None, &saved, &grad_rgb, &vec![0.0; n]);
             field.grid.backward(&unit, &grad_features, &mut grad);
             assert!(grad.touched_entries() > 0 && grad.to_dense().iter().any(|&g| g != 0.0), "the table gets gradients");
             table_adam.step(&mut field.grid, &mut grad);

@@ -59,11 +59,44 @@ pub struct FusedMlps {
     widths: Widths,
     /// density.0, density.1, color.0, color.1, color.2, each `[in, out]`.
     weights: [Vec<f32>; 5],
+    /// A bias of color.0 for every row: a field's fixed appearance (`[color_hidden]`; see
+    /// [`super::appearance`]). `None`: the MLPs are bias-free.
+    color_bias: Option<Vec<f32>>,
 }
 
-/// The weights' gradients, in the same order and layout as the weights.
+/// Learnt codes added to color.0's pre-activation row by row: row `r` adds code
+/// `code_of_row[r]` of `codes` (`[codes, color_hidden]` row-major), the appearance of the
+/// image the row's ray came from ([`super::appearance`]).
+#[derive(Debug, Clone, Copy)]
+pub struct RowCodes<'a> {
+    /// The codes, `[codes, color_hidden]`.
+    pub codes: &'a [f32],
+    /// One code index per row.
+    pub code_of_row: &'a [u32],
+}
+
+impl<'a> RowCodes<'a> {
+    /// The codes of rows `r0..r1`.
+    fn rows(self, r0: usize, r1: usize) -> Self {
+        RowCodes { codes: self.codes, code_of_row: &self.code_of_row[r0..r1] }
+    }
+}
+
+/// The weights' gradients, in the same order and layout as the weights, and the codes'
+/// gradient when the pass had [`RowCodes`] (else empty).
 #[derive(Debug, Clone, PartialEq)]
-pub struct MlpGradients(pub [Vec<f32>; 5]);
+pub struct MlpGradients {
+    /// density.0, density.1, color.0, color.1, color.2, each `[in, out]`.
+    pub weights: [Vec<f32>; 5],
+    /// `[codes, color_hidden]`, laid out as [`RowCodes::codes`].
+    pub codes: Vec<f32>,
+}
+
+impl MlpGradients {
+    fn zeros(w: Widths, codes: usize) -> Self {
+        MlpGradients { weights: w.weight_lens().map(|len| vec![0.0f32; len]), codes: vec![0.0; codes] }
+    }
+}
 
 /// What [`FusedMlps::forward_train`] keeps for the backward pass.
 #[derive(Debug)]
@@ -83,7 +116,14 @@ impl FusedMlps {
         for (w, len) in weights.iter().zip(lens) {
             assert_eq!(w.len(), len, "ngp MLP weights do not match the spec's widths");
         }
-        FusedMlps { widths, weights }
+        FusedMlps { widths, weights, color_bias: None }
+    }
+
+    /// The same MLPs adding `bias` (`[color_hidden]`) to color.0 on every row.
+    pub fn with_color_bias(mut self, bias: Vec<f32>) -> Self {
+        assert_eq!(bias.len(), self.widths.color_hidden, "color.0's bias is not [color_hidden]");
+        self.color_bias = Some(bias);
+        self
     }
 
     /// σ and rgb at `rows` points from grid features `[rows, L·F]` and view harmonics
@@ -98,7 +138,7 @@ impl FusedMlps {
             || vec![0.0f32; BLOCK_ROWS * per_row],
             |scratch, (b, (rgb, sigma))| {
                 let (features, sh) = self.block_inputs(features, sh, b, rgb.len());
-                self.forward_block(features, sh, &mut scratch[..rgb.len() * per_row], rgb, sigma);
+                self.forward_block(features, sh, None, &mut scratch[..rgb.len() * per_row], rgb, sigma);
             },
         );
         (rgb, sigma)
@@ -140,9 +180,11 @@ impl FusedMlps {
         sigma
     }
 
-    /// [`forward`](Self::forward), keeping the activations for [`backward`](Self::backward).
-    pub fn forward_train(&self, features: &[f32], sh: &[f32]) -> ((Vec<[f32; 3]>, Vec<f32>), SavedActivations) {
+    /// [`forward`](Self::forward), keeping the activations for [`backward`](Self::backward);
+    /// `codes`, when given, add to color.0 row by row (in place of the fixed bias).
+    pub fn forward_train(&self, features: &[f32], sh: &[f32], codes: Option<RowCodes>) -> ((Vec<[f32; 3]>, Vec<f32>), SavedActivations) {
         let rows = self.rows(features, sh);
+        self.check_codes(codes, rows);
         let per_row = self.widths.saved_per_row();
         let mut saved = vec![0.0f32; rows * per_row];
         let mut rgb = vec![[0.0f32; 3]; rows];
@@ -154,14 +196,24 @@ impl FusedMlps {
             .enumerate()
             .for_each(|(b, ((saved, rgb), sigma))| {
                 let (features, sh) = self.block_inputs(features, sh, b, rgb.len());
-                self.forward_block(features, sh, saved, rgb, sigma);
+                let r0 = b * BLOCK_ROWS;
+                self.forward_block(features, sh, codes.map(|c| c.rows(r0, r0 + rgb.len())), saved, rgb, sigma);
             });
         ((rgb, sigma), SavedActivations { saved, rows })
     }
 
-    /// One block of `n` rows; `saved` is the block's `[n, saved_per_row]` laid out as
-    /// [`Block`] says.
-    fn forward_block(&self, features: &[f32], sh: &[f32], saved: &mut [f32], rgb: &mut [[f32; 3]], sigma: &mut [f32]) {
+    /// `codes` are whole codes, one index per row and each index a code.
+    fn check_codes(&self, codes: Option<RowCodes>, rows: usize) {
+        if let Some(c) = codes {
+            let count = c.codes.len() / self.widths.color_hidden;
+            assert!(c.codes.len() == count * self.widths.color_hidden && c.code_of_row.len() == rows, "codes are not [k, color_hidden] with one index per row");
+            assert!(c.code_of_row.iter().all(|&k| (k as usize) < count), "a row's code index is past the codes");
+        }
+    }
+
+    /// One block of `n` rows (`codes` sliced to them); `saved` is the block's
+    /// `[n, saved_per_row]` laid out as [`Block`] says.
+    fn forward_block(&self, features: &[f32], sh: &[f32], codes: Option<RowCodes>, saved: &mut [f32], rgb: &mut [[f32; 3]], sigma: &mut [f32]) {
         let w = self.widths;
         let n = rgb.len();
         let [w0, w1, c0, c1, c2] = &self.weights;
@@ -178,6 +230,16 @@ impl FusedMlps {
         let (c0_geometry, c0_sh) = c0.split_at(w.geometry * w.color_hidden);
         matmul(n, w.color_hidden, w.geometry, b.color1, w.color_hidden, false, View::rows(&b.density_out[1..], w.density_out()), View::rows(c0_geometry, w.color_hidden));
         matmul(n, w.color_hidden, SH4_DIM, b.color1, w.color_hidden, true, View::rows(sh, SH4_DIM), View::rows(c0_sh, w.color_hidden));
+        let ch = w.color_hidden;
+        match (codes, &self.color_bias) {
+            (Some(c), _) => {
+                for (row, &k) in b.color1.chunks_exact_mut(ch).zip(c.code_of_row) {
+                    row.iter_mut().zip(&c.codes[k as usize * ch..(k as usize + 1) * ch]).for_each(|(v, b)| *v += b);
+                }
+            }
+            (None, Some(bias)) => b.color1.chunks_exact_mut(ch).for_each(|row| row.iter_mut().zip(bias).for_each(|(v, b)| *v += b)),
+            (None, None) => {}
+        }
         relu(b.color1);
         matmul(n, w.color_hidden, w.color_hidden, b.color2, w.color_hidden, false, View::rows(b.color1, w.color_hidden), View::rows(c1, w.color_hidden));
         relu(b.color2);
@@ -190,11 +252,14 @@ impl FusedMlps {
         }
     }
 
-    /// The weights' gradients and the features' gradient `[rows, L·F]` for a loss whose
-    /// gradients with respect to rgb and σ are `grad_rgb` and `grad_sigma`.
-    pub fn backward(&self, features: &[f32], sh: &[f32], saved: &SavedActivations, grad_rgb: &[[f32; 3]], grad_sigma: &[f32]) -> (MlpGradients, Vec<f32>) {
+    /// The weights' (and `codes`') gradients and the features' gradient `[rows, L·F]` for a
+    /// loss whose gradients with respect to rgb and σ are `grad_rgb` and `grad_sigma`; `codes`
+    /// are those of the forward pass.
+    pub fn backward(&self, features: &[f32], sh: &[f32], codes: Option<RowCodes>, saved: &SavedActivations, grad_rgb: &[[f32; 3]], grad_sigma: &[f32]) -> (MlpGradients, Vec<f32>) {
         let w = self.widths;
         let rows = saved.rows;
+        self.check_codes(codes, rows);
+        let code_len = codes.map_or(0, |c| c.codes.len());
         assert!(features.len() == rows * w.features && sh.len() == rows * SH4_DIM, "backward: inputs are not those of the forward pass");
         assert!(grad_rgb.len() == rows && grad_sigma.len() == rows, "backward: one rgb and one σ gradient per row");
         let per_row = w.saved_per_row();
@@ -206,7 +271,7 @@ impl FusedMlps {
             .par_chunks_mut(run_rows * w.features)
             .enumerate()
             .map(|(run, grad_features)| {
-                let mut grads = MlpGradients(w.weight_lens().map(|len| vec![0.0f32; len]));
+                let mut grads = MlpGradients::zeros(w, code_len);
                 let mut scratch = Scratch::new(w);
                 for (k, grad_features) in grad_features.chunks_mut(BLOCK_ROWS * w.features).enumerate() {
                     let r0 = run * run_rows + k * BLOCK_ROWS;
@@ -215,6 +280,7 @@ impl FusedMlps {
                     self.backward_block(
                         &features[r0 * w.features..r1 * w.features],
                         &sh[r0 * SH4_DIM..r1 * SH4_DIM],
+                        codes.map(|c| c.rows(r0, r1)),
                         &saved.saved[r0 * per_row..r1 * per_row],
                         &grad_rgb[r0..r1],
                         &grad_sigma[r0..r1],
@@ -226,9 +292,9 @@ impl FusedMlps {
                 grads
             })
             .collect();
-        let mut total = MlpGradients(w.weight_lens().map(|len| vec![0.0f32; len]));
+        let mut total = MlpGradients::zeros(w, code_len);
         for p in &partials {
-            for (t, g) in total.0.iter_mut().zip(&p.0) {
+            for (t, g) in total.weights.iter_mut().chain([&mut total.codes]).zip(p.weights.iter().chain([&p.codes])) {
                 t.iter_mut().zip(g).for_each(|(t, g)| *t += g);
             }
         }
@@ -236,12 +302,12 @@ impl FusedMlps {
     }
 
     #[allow(clippy::too_many_arguments)]
-    fn backward_block(&self, features: &[f32], sh: &[f32], saved: &[f32], grad_rgb: &[[f32; 3]], grad_sigma: &[f32], grads: &mut MlpGradients, s: &mut Scratch, grad_features: &mut [f32]) {
+    fn backward_block(&self, features: &[f32], sh: &[f32], codes: Option<RowCodes>, saved: &[f32], grad_rgb: &[[f32; 3]], grad_sigma: &[f32], grads: &mut MlpGradients, s: &mut Scratch, grad_features: &mut [f32]) {
         let w = self.widths;
         let n = grad_rgb.len();
         let b = Block::view(saved, n, w);
         let [w0, w1, c0, c1, c2] = &self.weights;
-        let [gw0, gw1, gc0, gc1, gc2] = &mut grads.0;
+        let [gw0, gw1, gc0, gc1, gc2] = &mut grads.weights;
         let (hd, dout, ch, g) = (w.density_hidden, w.density_out(), w.color_hidden, w.geometry);
         // rgb = sigmoid(z)
         let dz = &mut s.rgb[..n * 3];
@@ -260,6 +326,12 @@ impl FusedMlps {
         let dc1 = &mut s.color1[..n * ch];
         matmul(n, ch, ch, dc1, ch, false, View::rows(dc2, ch), View::cols(c1, ch));
         relu_backward(dc1, b.color1);
+        // each row's code was added to color.0's pre-activation
+        if let Some(c) = codes {
+            for (d, &k) in dc1.chunks_exact(ch).zip(c.code_of_row) {
+                grads.codes[k as usize * ch..(k as usize + 1) * ch].iter_mut().zip(d).for_each(|(g, d)| *g += d);
+            }
+        }
         // color.0: its geometry rows, then its harmonic rows
         let (gc0_geometry, gc0_sh) = gc0.split_at_mut(g * ch);
         matmul(g, ch, n, gc0_geometry, ch, true, View::cols(&b.density_out[1..], dout), View::rows(dc1, ch));
@@ -285,7 +357,7 @@ impl MlpGradients {
     /// The gradients as burn's optimizer takes them, keyed by `mlps`' parameters.
     pub fn to_params(&self, mlps: &NgpMlps, device: &Device) -> burn::optim::GradientsParams {
         let mut params = burn::optim::GradientsParams::new();
-        for ((id, [i, o]), g) in mlps.weight_ids().into_iter().zip(&self.0) {
+        for ((id, [i, o]), g) in mlps.weight_ids().into_iter().zip(&self.weights) {
             params.register::<2>(id, Tensor::from_data(TensorData::new(g.clone(), [i, o]), device));
         }
         params

@@ -3,6 +3,7 @@
 //! the field seam ([`crate::field::seam`]).
 
 pub mod adam;
+pub mod appearance;
 mod field;
 pub mod fused;
 pub mod state;
@@ -21,6 +22,7 @@ use burn::tensor::Device;
 use nerf_core::dataset::SplitData;
 use nerf_core::field::{Field, FieldOutput, Stage};
 use nerf_export::CompileField;
+use appearance::{Appearance, FixedAppearance, RenderedAppearance};
 
 impl TrainedField for NgpField {
     fn lowering(&self) -> Box<dyn CompileField + '_> {
@@ -33,6 +35,16 @@ impl TrainedField for NgpField {
 
     fn contraction(&self) -> Option<nerf_core::sample::Contraction> {
         self.spec.bound.contraction
+    }
+
+    fn appearance(&self) -> Option<&FixedAppearance> {
+        self.appearance.as_ref().map(|a| a.fixed())
+    }
+
+    fn fix_appearance(&mut self, fixed: &FixedAppearance) -> std::result::Result<(), String> {
+        let Some(a) = &self.appearance else { return Err(crate::field::seam::no_appearance_codes(fixed)) };
+        self.appearance = Some(a.refixed(fixed.clone())?);
+        Ok(())
     }
 
     fn evaluator<'a>(&'a self, device: &Device) -> Box<dyn Field<Error = std::convert::Infallible> + 'a> {
@@ -49,6 +61,10 @@ pub fn load(config: &TrainConfig, checkpoint: &Checkpoint, device: &Device) -> R
     let mut field = NgpField::new(config.shapes.ngp, config.seed, device).map_err(Error::Config)?;
     checkpoint.load_model(&mut field.mlps)?;
     field.grid = state::load_grid(checkpoint, &config.shapes.ngp.grid, Default::default())?.0;
+    if config.appearance {
+        let codes = Appearance::read(&checkpoint.dir, config.shapes.ngp.color_hidden)?;
+        field.appearance = Some(RenderedAppearance::new(codes, FixedAppearance::Mean).expect("the mean always exists"));
+    }
     Ok(Box::new(field))
 }
 

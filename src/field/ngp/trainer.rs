@@ -5,7 +5,9 @@
 //! ([`super::fused`]), the features' gradient scattered into the table, sparse Adam on the
 //! table and burn's Adam on the MLPs.
 
+use super::appearance::{APPEARANCE_FILE, Appearance, FixedAppearance, RenderedAppearance};
 use super::field::NgpField;
+use super::fused::RowCodes;
 use super::state::{GRID_FILE, load_grid, state_to_bytes};
 use crate::config::TrainConfig;
 use crate::error::{Error, Result};
@@ -45,6 +47,8 @@ pub struct NgpTrainer {
     occupancy: OccupancyGrid,
     /// Samples per ray in the last step (sets the next step's ray count).
     samples_per_ray: f32,
+    /// One code per training image, when the run learns appearance.
+    appearance: Option<Appearance>,
 }
 
 impl NgpTrainer {
@@ -58,6 +62,7 @@ impl NgpTrainer {
         let table_adam = SparseAdam::new(table_adam_config(&config), &field.grid);
         let grad = HashGridGradient::new(&field.grid);
         let samples_per_ray = (config.target_samples as f32 / config.batch_rays.max(1) as f32).max(1.0);
+        let appearance = config.appearance.then(|| Appearance::new(train.views.iter().map(|v| v.name.clone()).collect(), config.shapes.ngp.color_hidden));
         Ok(NgpTrainer {
             rng: Rng::new(config.seed),
             occupancy: OccupancyGrid::from_config(&config.occupancy),
@@ -69,6 +74,7 @@ impl NgpTrainer {
             step: 0,
             config,
             samples_per_ray,
+            appearance,
         })
     }
 
@@ -79,7 +85,8 @@ impl NgpTrainer {
     /// The field without autodiff (a copy of the table; for renders and export).
     pub fn field_snapshot(&self) -> NgpField {
         let f = self.field();
-        NgpField { spec: f.spec, grid: f.grid.clone(), mlps: f.mlps.valid() }
+        let appearance = self.appearance.as_ref().map(|a| RenderedAppearance::new(a.clone(), FixedAppearance::Mean).expect("the mean always exists"));
+        NgpField { spec: f.spec, grid: f.grid.clone(), mlps: f.mlps.valid(), appearance }
     }
 
     /// Re-measure the grid's densities with the density MLP.
@@ -88,17 +95,18 @@ impl NgpTrainer {
         occupancy::update(&mut self.occupancy, &self.config.occupancy, &mut self.rng, |points| field.density(points));
     }
 
-    /// This step's rays, their target colours and the backgrounds they are composited on:
-    /// about `target_samples / samples_per_ray` rays, `rays_per_image` from each of several
-    /// random images. With random backgrounds each ray gets its own colour, and the target is
-    /// the (premultiplied) pixel over it.
-    fn draw_rays(&mut self) -> (Rays, Vec<[f32; 3]>, Vec<[f32; 3]>) {
+    /// This step's rays, their target colours, the backgrounds they are composited on and the
+    /// training image each came from: about `target_samples / samples_per_ray` rays,
+    /// `rays_per_image` from each of several random images. With random backgrounds each ray
+    /// gets its own colour, and the target is the (premultiplied) pixel over it.
+    fn draw_rays(&mut self) -> (Rays, Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<u32>) {
         let n_rays = ((self.config.target_samples as f32 / self.samples_per_ray.max(1.0)) as usize).clamp(MIN_RAYS, MAX_RAYS);
         let images = n_rays.div_ceil(self.config.rays_per_image.max(1));
         let background = self.config.train_background.unwrap_or(Background::from_white(self.config.white_background));
         let mut rays = Rays::with_capacity(n_rays);
         let mut targets = Vec::with_capacity(n_rays);
         let mut backgrounds = Vec::with_capacity(n_rays);
+        let mut image_of_ray = Vec::with_capacity(n_rays);
         for k in 0..images {
             let part = n_rays * (k + 1) / images - n_rays * k / images;
             let (index, pixels, target) = self.batcher.next_batch(&mut self.rng, part, None);
@@ -109,6 +117,7 @@ impl NgpTrainer {
                 Rays::for_pixels(&view.camera, &view.pose, &pixels)
             };
             rays.extend(self.config.sampling.warp_rays(drawn));
+            image_of_ray.resize(rays.len(), index as u32);
             for (&(i, j), mut t) in pixels.iter().zip(target) {
                 let b = match background {
                     Background::White => [1.0; 3],
@@ -124,7 +133,7 @@ impl NgpTrainer {
                 backgrounds.push(b);
             }
         }
-        (rays, targets, backgrounds)
+        (rays, targets, backgrounds, image_of_ray)
     }
 }
 
@@ -146,7 +155,7 @@ impl FieldTrainer for NgpTrainer {
         if occupancy::due(&self.config.occupancy, self.step) {
             self.update_occupancy();
         }
-        let (rays, targets, backgrounds) = self.draw_rays();
+        let (rays, targets, backgrounds, image_of_ray) = self.draw_rays();
         let s = &self.config.sampling;
         let mut samples = occupied_samples(&self.occupancy, &rays, s.near, s.far, self.config.march_steps, Some(&mut self.rng));
         self.step += 1;
@@ -178,16 +187,21 @@ impl FieldTrainer for NgpTrainer {
         self.samples_per_ray = n.max(1) as f32 / rays.len() as f32;
         let viewdirs = rays.view_directions();
         let mut sh = Vec::with_capacity(n * SH4_DIM);
+        let mut code_of_row = Vec::with_capacity(if self.appearance.is_some() { n } else { 0 });
         for r in 0..rays.len() {
             let ray_sh = sh4(viewdirs[r]);
             samples.ray(r).for_each(|_| sh.extend_from_slice(&ray_sh));
+            if self.appearance.is_some() {
+                code_of_row.resize(code_of_row.len() + samples.ray(r).len(), image_of_ray[r]);
+            }
         }
-        let ((rgb, sigma), saved) = mlps.forward_train(&features, &sh);
+        let codes = self.appearance.as_ref().map(|a| RowCodes { codes: a.codes(), code_of_row: &code_of_row });
+        let ((rgb, sigma), saved) = mlps.forward_train(&features, &sh, codes);
         let (colors, _) = composite_packed(&samples, &sigma, &rgb, &backgrounds);
         let (mse, grad_color) = mean_squared_error(&colors, &targets);
         let (grad_sigma, grad_rgb) = composite_packed_backward(&samples, &sigma, &rgb, &backgrounds, &grad_color);
         let forward_done = Instant::now();
-        let (mlp_grads, grad_features) = mlps.backward(&features, &sh, &saved, &grad_rgb, &grad_sigma);
+        let (mlp_grads, grad_features) = mlps.backward(&features, &sh, codes, &saved, &grad_rgb, &grad_sigma);
         let scatter = Instant::now();
         field.grid.backward(&unit, &grad_features, &mut self.grad);
         grid_s += scatter.elapsed().as_secs_f64();
@@ -197,6 +211,9 @@ impl FieldTrainer for NgpTrainer {
         self.table_adam.step(&mut field.grid, &mut self.grad);
         grid_s += backward_done.elapsed().as_secs_f64();
         field.mlps = self.optim.step(lr, field.mlps, params);
+        if let Some(a) = &mut self.appearance {
+            a.step(&mlp_grads.codes, lr as f32, self.config.adam_beta1, self.config.adam_beta2, self.config.adam_epsilon);
+        }
         self.field = Some(field);
         let timing = StepTiming {
             forward_s: (forward_done - start).as_secs_f64(),
@@ -210,11 +227,12 @@ impl FieldTrainer for NgpTrainer {
     fn save(&self, run: &RunDir, elapsed_s: f64) -> Result<Checkpoint> {
         let state = CheckpointState { samples_per_ray: Some(self.samples_per_ray), ..CheckpointState::new(self.step, self.rng.clone(), elapsed_s) };
         let field = self.field();
-        let files = [
+        let mut files = vec![
             ("model.bpk", Checkpoint::model_bytes(&field.mlps)?),
             ("optim.bpk", Checkpoint::optimizer_bytes(&self.optim)?),
             (GRID_FILE, state_to_bytes(&field.grid, &self.table_adam)),
         ];
+        files.extend(self.appearance.as_ref().map(|a| (APPEARANCE_FILE, a.to_bytes())));
         run.save_checkpoint(&files, Some(&self.occupancy), &state)
     }
 
@@ -229,6 +247,14 @@ impl FieldTrainer for NgpTrainer {
         self.field.as_mut().expect("field present").grid = grid;
         self.table_adam = adam;
         self.optim = checkpoint.load_optimizer(self.optim.clone())?;
+        if self.appearance.is_some() {
+            let codes = Appearance::read(&checkpoint.dir, self.config.shapes.ngp.color_hidden)?;
+            if codes.images() != self.appearance.as_ref().map_or(&[][..], |a| a.images()) {
+                let problem = "its codes are for other training images than this run's data (the images changed since it was saved)".to_string();
+                return Err(Error::invalid(&checkpoint.dir.join(APPEARANCE_FILE), problem));
+            }
+            self.appearance = Some(codes);
+        }
         if let Some(o) = checkpoint.load_occupancy()? {
             self.occupancy = o;
         }

@@ -59,7 +59,7 @@ fn forward_matches_burn() {
     for (r, (d, s)) in fused.density(&features).iter().zip(&sigma).enumerate() {
         assert!(close(*d, *s, 1e-6), "the density MLP alone, row {r}: {d} vs {s}");
     }
-    assert_eq!(fused.forward_train(&features, &sh).0, (rgb, sigma), "with or without the activations kept, the same outputs");
+    assert_eq!(fused.forward_train(&features, &sh, None).0, (rgb, sigma), "with or without the activations kept, the same outputs");
     assert_eq!(fused.forward(&[], &[]), (vec![], vec![]));
 }
 
@@ -80,8 +80,8 @@ fn backward_matches_finite_differences() {
     let fused = FusedMlps::from_mlps(&spec, &field(&spec, &device).mlps);
     let rows = 5;
     let (features, sh, grad_rgb, grad_sigma) = inputs(&spec, rows, 2);
-    let (_, saved) = fused.forward_train(&features, &sh);
-    let (grads, grad_features) = fused.backward(&features, &sh, &saved, &grad_rgb, &grad_sigma);
+    let (_, saved) = fused.forward_train(&features, &sh, None);
+    let (grads, grad_features) = fused.backward(&features, &sh, None, &saved, &grad_rgb, &grad_sigma);
     let eps = 1e-2f32;
     let mut rng = Rng::new(3);
     let mut checked = 0;
@@ -94,7 +94,7 @@ fn backward_matches_finite_differences() {
                 surrogate(&moved, &features, &sh, &grad_rgb, &grad_sigma)
             };
             let numeric = ((at(eps) - at(-eps)) / (2.0 * eps as f64)) as f32;
-            assert!(close(grads.0[layer][i], numeric, 2e-2), "layer {layer} weight {i}: {} vs {numeric}", grads.0[layer][i]);
+            assert!(close(grads.weights[layer][i], numeric, 2e-2), "layer {layer} weight {i}: {} vs {numeric}", grads.weights[layer][i]);
             checked += (numeric.abs() > 1e-3) as usize;
         }
     }
@@ -120,8 +120,8 @@ fn backward_and_adam_step_match_burn_autodiff() {
     let fused = FusedMlps::from_mlps(&spec, &field.mlps);
     let rows = 700;
     let (features, sh, grad_rgb, grad_sigma) = inputs(&spec, rows, 4);
-    let (_, saved) = fused.forward_train(&features, &sh);
-    let (grads, grad_features) = fused.backward(&features, &sh, &saved, &grad_rgb, &grad_sigma);
+    let (_, saved) = fused.forward_train(&features, &sh, None);
+    let (grads, grad_features) = fused.backward(&features, &sh, None, &saved, &grad_rgb, &grad_sigma);
 
     let f = Tensor::<2>::from_data(TensorData::new(features.clone(), [rows, spec.grid.output_dim()]), &device).require_grad();
     let s = Tensor::<2>::from_data(TensorData::new(sh.clone(), [rows, SH4_DIM]), &device);
@@ -137,7 +137,7 @@ fn backward_and_adam_step_match_burn_autodiff() {
     for (layer, (id, _)) in field.mlps.weight_ids().into_iter().enumerate() {
         let want = burn_params.get::<2>(id).unwrap().into_data().try_to_vec::<f32>().unwrap();
         let scale = want.iter().fold(0.0f32, |m, w| m.max(w.abs()));
-        for (i, (g, w)) in grads.0[layer].iter().zip(&want).enumerate() {
+        for (i, (g, w)) in grads.weights[layer].iter().zip(&want).enumerate() {
             assert!((g - w).abs() <= 1e-4 * scale, "layer {layer} weight {i}: {g} vs {w}");
         }
     }
@@ -167,8 +167,83 @@ fn backward_does_not_depend_on_the_thread_count() {
     let run = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
         pool.install(|| {
-            let ((rgb, sigma), saved) = fused.forward_train(&features, &sh);
-            (rgb, sigma, fused.backward(&features, &sh, &saved, &grad_rgb, &grad_sigma))
+            let ((rgb, sigma), saved) = fused.forward_train(&features, &sh, None);
+            (rgb, sigma, fused.backward(&features, &sh, None, &saved, &grad_rgb, &grad_sigma))
+        })
+    };
+    assert_eq!(run(1), run(3));
+}
+
+/// Three codes for `rows` rows, each row its own pick.
+fn random_codes(spec: &NgpSpec, rows: usize, seed: u64) -> (Vec<f32>, Vec<u32>) {
+    let mut rng = Rng::new(seed);
+    let codes = (0..3 * spec.color_hidden).map(|_| rng.uniform() * 2.0 - 1.0).collect();
+    let code_of_row = (0..rows).map(|_| rng.below(3) as u32).collect();
+    (codes, code_of_row)
+}
+
+#[test]
+fn codes_add_to_color_0_as_a_bias_would() {
+    let spec = spec();
+    let fused = FusedMlps::from_mlps(&spec, &field(&spec, &crate::backend::cpu()).mlps);
+    let rows = 300;
+    let (features, sh, _, _) = inputs(&spec, rows, 6);
+    let (codes, code_of_row) = random_codes(&spec, rows, 7);
+    let (rgb, sigma) = fused.forward_train(&features, &sh, Some(RowCodes { codes: &codes, code_of_row: &code_of_row })).0;
+    let plain = fused.forward(&features, &sh);
+    assert_eq!(sigma, plain.1, "codes leave σ alone");
+    let moved = rgb.iter().zip(&plain.0).filter(|(a, b)| a != b).count();
+    assert!(moved > rows * 9 / 10, "codes change the colours: {moved} of {rows}");
+    // Each row as the same MLPs with its code as color.0's bias.
+    let c = spec.color_hidden;
+    for k in 0..3 {
+        let biased = fused.clone().with_color_bias(codes[k * c..(k + 1) * c].to_vec());
+        let (want, _) = biased.forward(&features, &sh);
+        for r in (0..rows).filter(|&r| code_of_row[r] == k as u32) {
+            assert_eq!(rgb[r], want[r], "row {r}, code {k}");
+        }
+    }
+}
+
+#[test]
+fn the_codes_gradient_matches_finite_differences_and_the_thread_count_does_not_matter() {
+    let spec = spec();
+    let fused = FusedMlps::from_mlps(&spec, &field(&spec, &crate::backend::cpu()).mlps);
+    let rows = 7;
+    let (features, sh, grad_rgb, grad_sigma) = inputs(&spec, rows, 8);
+    let (codes, code_of_row) = random_codes(&spec, rows, 9);
+    let surrogate = |codes: &[f32]| {
+        let (rgb, _) = fused.forward_train(&features, &sh, Some(RowCodes { codes, code_of_row: &code_of_row })).0;
+        rgb.iter().zip(&grad_rgb).map(|(c, g)| (0..3).map(|k| c[k] as f64 * g[k] as f64).sum::<f64>()).sum::<f64>()
+    };
+    let row_codes = RowCodes { codes: &codes, code_of_row: &code_of_row };
+    let (_, saved) = fused.forward_train(&features, &sh, Some(row_codes));
+    let (grads, _) = fused.backward(&features, &sh, Some(row_codes), &saved, &grad_rgb, &grad_sigma);
+    assert_eq!(grads.codes.len(), codes.len());
+    let eps = 1e-2f32;
+    let mut checked = 0;
+    for i in 0..codes.len() {
+        let at = |delta: f32| {
+            let mut moved = codes.clone();
+            moved[i] += delta;
+            surrogate(&moved)
+        };
+        let numeric = ((at(eps) - at(-eps)) / (2.0 * eps as f64)) as f32;
+        assert!(close(grads.codes[i], numeric, 2e-2), "code value {i}: {} vs {numeric}", grads.codes[i]);
+        checked += (numeric.abs() > 1e-3) as usize;
+    }
+    assert!(checked > codes.len() / 3, "only {checked} of the codes' gradients are away from zero");
+    // Without codes the pass has no codes' gradient.
+    assert!(fused.backward(&features, &sh, None, &saved, &grad_rgb, &grad_sigma).0.codes.is_empty());
+
+    let rows = GRADIENT_RUNS * BLOCK_ROWS * 2 + 77;
+    let (features, sh, grad_rgb, grad_sigma) = inputs(&spec, rows, 10);
+    let (codes, code_of_row) = random_codes(&spec, rows, 11);
+    let row_codes = Some(RowCodes { codes: &codes, code_of_row: &code_of_row });
+    let run = |threads: usize| {
+        rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(|| {
+            let ((rgb, sigma), saved) = fused.forward_train(&features, &sh, row_codes);
+            (rgb, sigma, fused.backward(&features, &sh, row_codes, &saved, &grad_rgb, &grad_sigma))
         })
     };
     assert_eq!(run(1), run(3));
