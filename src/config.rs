@@ -87,6 +87,7 @@ impl Preset {
                 jitter_pixels: None,
                 early_stop_transmittance: 0.0,
                 appearance: false,
+                refine_cameras: false,
             },
             Preset::CpuFast => TrainConfig {
                 preset: *self,
@@ -273,6 +274,12 @@ pub struct TrainConfig {
     /// field only. Absent: off.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub appearance: bool,
+    /// Learn a pose correction per training image with the field (nerfstudio's camera
+    /// optimiser, [`crate::train::cameras`]), for captures whose poses are good but not
+    /// perfect; renders of the training views use the refined poses. The hash-grid field only,
+    /// on world rays (not NDC). Absent: off.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub refine_cameras: bool,
 }
 
 /// Default [`TrainConfig::target_samples`].
@@ -410,6 +417,9 @@ impl TrainConfig {
         }
         if self.appearance && self.field != FieldKind::Ngp {
             return Err(format!("appearance: per-image appearance codes are the ngp field's (field = {:?})", self.field.name()));
+        }
+        if self.refine_cameras && self.field != FieldKind::Ngp {
+            return Err(format!("refine_cameras: camera refinement is the ngp field's (field = {:?})", self.field.name()));
         }
         if !(0.0..1.0).contains(&self.early_stop_transmittance) {
             return Err(format!("early_stop_transmittance = {}: must be in [0, 1)", self.early_stop_transmittance));

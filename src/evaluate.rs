@@ -8,7 +8,8 @@ use crate::config::TrainConfig;
 use crate::lpips::{Availability, Lpips};
 use nerf_core::PinholeCamera;
 use nerf_core::camera::Pose;
-use nerf_core::dataset::{Background, ScenePlacement};
+use nerf_core::dataset::{Background, CaptureSplit, ScenePlacement};
+use crate::train::cameras::CameraCorrections;
 use nerf_core::frames::camera_path::CameraPathFile;
 use nerf_core::frames::spec::{FrameSpec, FramesReport};
 use nerf_core::frames::views::{Images, SplitChoice, split_views};
@@ -33,6 +34,8 @@ pub struct LoadedRun {
     /// Where its data came from and how the scene is placed in the field (`None` for older
     /// runs: Blender as it is).
     pub source: Option<RunSource>,
+    /// The training cameras' corrections, for runs that refined them.
+    pub cameras: Option<CameraCorrections>,
 }
 
 impl LoadedRun {
@@ -42,7 +45,7 @@ impl LoadedRun {
         let latest = crate::field::load_latest(&run, &crate::backend::cpu())?;
         let camera = run.read_camera()?;
         let source = run.read_source()?;
-        Ok(LoadedRun { config: latest.config, model: latest.model, camera, step: latest.state.step, occupancy: latest.occupancy, source })
+        Ok(LoadedRun { config: latest.config, model: latest.model, camera, step: latest.state.step, occupancy: latest.occupancy, source, cameras: latest.cameras })
     }
 
     /// Where the run placed its scene in the field (`None` for older runs: Blender as it is).
@@ -51,9 +54,18 @@ impl LoadedRun {
     }
 
     /// The views of `choice`, poses mapped into the field by the run's recorded transform
-    /// (never refitted to this data), images on the run's background as `images` says.
+    /// (never refitted to this data), images on the run's background as `images` says. A run
+    /// that refined its cameras renders its training views from their refined poses.
     pub fn split_views(&self, choice: &SplitChoice, images: Images) -> Result<Vec<FrameSpec>> {
-        Ok(split_views(choice, RunSource::transform_of(self.source.as_ref()), Background::from_white(self.config.white_background), images)?)
+        let mut views = split_views(choice, RunSource::transform_of(self.source.as_ref()), Background::from_white(self.config.white_background), images)?;
+        if let (Some(cameras), CaptureSplit::Train) = (&self.cameras, choice.split) {
+            for v in &mut views {
+                if let Some(pose) = cameras.corrected_by_name(&v.name, &v.pose) {
+                    v.pose = pose;
+                }
+            }
+        }
+        Ok(views)
     }
 
     /// The run's orbit: around a capture's cameras, else the reference orbit.

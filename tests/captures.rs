@@ -37,6 +37,12 @@ fn capture(dir: &Path) -> PathBuf {
 
 /// [`capture`] with training image `k`'s colours scaled by `exposure(k)`.
 fn capture_exposed(dir: &Path, exposure: impl Fn(usize) -> f32) -> PathBuf {
+    capture_with(dir, exposure, |_, pose| pose)
+}
+
+/// [`capture`] with training image `k`'s colours scaled by `exposure(k)` and its pose recorded
+/// as `recorded(k, its true pose)` (the image is taken from the true one).
+fn capture_with(dir: &Path, exposure: impl Fn(usize) -> f32, recorded: impl Fn(usize, Pose) -> Pose) -> PathBuf {
     let cfg = SyntheticSceneConfig { width: 32, height: 32, n_train: 14, n_val: 0, n_test: 2, seed: 3 };
     let out = dir.join("capture");
     std::fs::create_dir_all(out.join("images")).unwrap();
@@ -48,10 +54,8 @@ fn capture_exposed(dir: &Path, exposure: impl Fn(usize) -> f32) -> PathBuf {
             let gain = if split == Split::Train { exposure(k) } else { 1.0 };
             let image: Vec<[f32; 4]> = render_reference(pose, &camera).iter().map(|p| [p[0] * gain, p[1] * gain, p[2] * gain, p[3]]).collect();
             save_png_rgba(&out.join("images").join(&name), 32, 32, &image).unwrap();
-            let o = to_capture(pose.origin());
-            let r = pose.0;
-            let m = [[r[0][0], r[0][1], r[0][2], o.x], [r[1][0], r[1][1], r[1][2], o.y], [r[2][0], r[2][1], r[2][2], o.z], [0.0, 0.0, 0.0, 1.0]];
-            frames.push(serde_json::json!({"file_path": format!("images/{name}"), "transform_matrix": m}));
+            let pose = if split == Split::Train { recorded(k, *pose) } else { *pose };
+            frames.push(serde_json::json!({"file_path": format!("images/{name}"), "transform_matrix": capture_matrix(&pose)}));
         }
     }
     let d = camera.distortion.unwrap();
@@ -59,6 +63,13 @@ fn capture_exposed(dir: &Path, exposure: impl Fn(usize) -> f32) -> PathBuf {
         "k1": d.k1, "k2": d.k2, "p1": d.p1, "p2": d.p2, "frames": frames});
     std::fs::write(out.join("transforms.json"), serde_json::to_string_pretty(&file).unwrap()).unwrap();
     out
+}
+
+/// `pose` in the capture's world, as transforms.json's row-major 4×4.
+fn capture_matrix(pose: &Pose) -> [[f32; 4]; 4] {
+    let o = to_capture(pose.origin());
+    let r = pose.0;
+    [[r[0][0], r[0][1], r[0][2], o.x], [r[1][0], r[1][1], r[1][2], o.y], [r[2][0], r[2][1], r[2][2], o.z], [0.0, 0.0, 0.0, 1.0]]
 }
 
 /// `nerf render --npy` (burn) vs the `nerf-render --npy` frame at `ort_npy` (onnxruntime) for
@@ -351,4 +362,61 @@ fn appearance_codes_learn_each_image_exposure_and_bundles_hold_the_fixed_one() {
     assert!(!ok && text.contains("trained without --appearance"), "{text}");
     let (ok, text) = nerf(&["train", "--data", s(&data), "--appearance", "--preset", "paper", "--iters", "1", "--out", s(&dir.path().join("mlp"))]);
     assert!(!ok && text.contains("appearance codes are the ngp field's"), "{text}");
+}
+
+#[test]
+fn refined_cameras_are_saved_resumed_and_render_the_training_views() {
+    let dir = tempfile::tempdir().unwrap();
+    // Odd training images recorded 2° off their true orientation (about the world's vertical
+    // axis through the camera).
+    let misrecord = |k: usize, pose: Pose| {
+        if k.is_multiple_of(2) {
+            return pose;
+        }
+        let r = glam::Mat3::from_rotation_y(2f32.to_radians()) * pose.rotation();
+        let c = pose.origin();
+        Pose([0, 1, 2].map(|i| [r.col(0)[i], r.col(1)[i], r.col(2)[i], c[i]]))
+    };
+    let data = capture_with(dir.path(), |_| 1.0, misrecord);
+    let run = dir.path().join("run");
+    let config = nerf::config::TrainConfig { refine_cameras: true, ..tiny_ngp() };
+    let iters = nerf::train::cameras::WARM_UP_STEPS + 60;
+    let options = TrainOptions { format: None, data: data.clone(), run: run.clone(), config, ndc: None, downscale: 1, time_budget_min: None, iters: Some(iters), progress: false };
+    train(&options).unwrap();
+
+    // cameras.json: a correction per training image, small, and the poses they refine to.
+    let checkpoint = RunDir::open(&run).unwrap().latest_checkpoint().unwrap().unwrap();
+    let file: serde_json::Value = serde_json::from_slice(&std::fs::read(checkpoint.dir.join("cameras.json")).unwrap()).unwrap();
+    let refined: Vec<Pose> = serde_json::from_value(file["refined_poses"].clone()).unwrap();
+    let images: Vec<String> = serde_json::from_value(file["images"].clone()).unwrap();
+    let corrections: Vec<[f32; 6]> = serde_json::from_value(file["corrections"].clone()).unwrap();
+    assert_eq!((refined.len(), corrections.len()), (images.len(), images.len()));
+    let largest = corrections.iter().fold(0.0f32, |m, c| m.max(Vec3::from_slice(&c[..3]).length()));
+    assert!(largest > 1e-5 && largest < 1f32.to_radians(), "largest rotation {largest} rad");
+    let transform = nerf::run_dir::RunSource::transform_of(RunDir::open(&run).unwrap().read_source().unwrap().as_ref());
+
+    // Renders of the training views use the refined poses; of the test views, their own.
+    let (ok, text) = nerf(&["eval", "--run", s(&run), "--data", s(&data), "--split", "train", "--out", s(&dir.path().join("train-eval"))]);
+    assert!(ok, "{text}");
+    let loaded = nerf::evaluate::LoadedRun::open(&run).unwrap();
+    let choice = nerf_core::frames::views::SplitChoice { dir: data.clone(), format: None, split: nerf_core::dataset::CaptureSplit::Train, downscale: 1 };
+    let views = loaded.split_views(&choice, nerf_core::frames::views::Images::Skip).unwrap();
+    for v in &views {
+        let k = images.iter().position(|n| *n == v.name).unwrap();
+        let close = v.pose.0.iter().flatten().zip(refined[k].0.iter().flatten()).all(|(a, b)| (a - b).abs() < 1e-6);
+        assert!(close, "{}: {:?} vs the refined {:?}", v.name, v.pose, refined[k]);
+    }
+    let as_recorded = nerf_core::frames::views::split_views(&choice, transform, nerf_core::dataset::Background::White, nerf_core::frames::views::Images::Skip).unwrap();
+    let moved = views.iter().zip(&as_recorded).filter(|(a, b)| a.pose.0.iter().flatten().zip(b.pose.0.iter().flatten()).any(|(x, y)| (x - y).abs() > 1e-5)).count();
+    assert!(moved > views.len() / 2, "only {moved} of {} training views render from a refined pose", views.len());
+    let test = nerf_core::frames::views::SplitChoice { split: nerf_core::dataset::CaptureSplit::Test, ..choice };
+    let recorded = nerf_core::frames::views::split_views(&test, transform, nerf_core::dataset::Background::White, nerf_core::frames::views::Images::Skip).unwrap();
+    assert_eq!(loaded.split_views(&test, nerf_core::frames::views::Images::Skip).unwrap().iter().map(|v| v.pose).collect::<Vec<_>>(), recorded.iter().map(|v| v.pose).collect::<Vec<_>>());
+
+    // Not on NDC rays, and not for the MLP field.
+    let llff = forward_facing_capture(dir.path(), "ff", &[0, 1, 2, 3]);
+    let (ok, text) = nerf(&["train", "--data", s(&llff), "--refine-cameras", "--iters", "1", "--out", s(&dir.path().join("ndc"))]);
+    assert!(!ok && text.contains("NDC rays") && text.contains("--refine-cameras") && text.contains("ff"), "{text}");
+    let (ok, text) = nerf(&["train", "--data", s(&data), "--refine-cameras", "--preset", "paper", "--iters", "1", "--out", s(&dir.path().join("mlp"))]);
+    assert!(!ok && text.contains("camera refinement is the ngp field's"), "{text}");
 }

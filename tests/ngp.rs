@@ -177,18 +177,23 @@ fn a_resumed_ngp_run_equals_an_uninterrupted_one() {
         assert_eq!(RunDir::open(&resumed).unwrap().read_config().unwrap().jitter_pixels, Some(jitter));
         assert_same_field(&straight, &resumed);
     }
-    // Per-image appearance codes and their Adam state resume too.
+    // Per-image appearance codes, camera corrections and their Adam states resume too (past
+    // the corrections' warm-up, so that they move).
     let with_codes = |run: &Path, iters: usize| {
-        let config = nerf::config::TrainConfig { appearance: true, ..tiny_ngp() };
+        let config = nerf::config::TrainConfig { appearance: true, refine_cameras: true, ..tiny_ngp() };
         train(&TrainOptions { format: None, data: scene.clone(), run: run.to_path_buf(), config, ndc: None, downscale: 1, time_budget_min: None, iters: Some(iters), progress: false }).unwrap();
     };
     let (straight, resumed) = (dir.path().join("straight-codes"), dir.path().join("resumed-codes"));
-    with_codes(&straight, 40);
-    with_codes(&resumed, 20);
-    with_codes(&resumed, 40);
+    let steps = nerf::train::cameras::WARM_UP_STEPS + 30;
+    with_codes(&straight, steps);
+    with_codes(&resumed, steps - 20);
+    with_codes(&resumed, steps);
     assert_same_field(&straight, &resumed);
-    let codes = |run: &Path| std::fs::read(run.join("checkpoints/step-0000040/appearance.json")).unwrap();
-    assert!(codes(&straight) == codes(&resumed), "appearance codes or their Adam state differ after resuming");
+    let file = |run: &Path, name: &str| std::fs::read(run.join(format!("checkpoints/step-{steps:07}")).join(name)).unwrap();
+    assert!(file(&straight, "appearance.json") == file(&resumed, "appearance.json"), "appearance codes or their Adam state differ after resuming");
+    assert!(file(&straight, "cameras.json") == file(&resumed, "cameras.json"), "camera corrections or their Adam state differ after resuming");
+    let moved: serde_json::Value = serde_json::from_slice(&file(&resumed, "cameras.json")).unwrap();
+    assert!(moved["corrections"].as_array().unwrap().iter().flat_map(|c| c.as_array().unwrap()).any(|v| v.as_f64().unwrap() != 0.0), "the corrections moved");
     // The decision reaches the trainer: the same downscaled run through pixel centres differs.
     let centres = dir.path().join("centres2");
     let config = nerf::config::TrainConfig { jitter_pixels: Some(false), ..tiny_ngp() };

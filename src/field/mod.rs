@@ -14,6 +14,7 @@ use burn::tensor::Device;
 use nerf_core::dataset::SplitData;
 use nerf_core::field::FieldKind;
 use nerf_core::sample::occupancy::OccupancyGrid;
+use crate::train::cameras::CameraCorrections;
 
 macro_rules! kinds {
     ($($(#[$doc:meta])* $kind:ident { folder: $folder:ident, $($rest:tt)* },)*) => {
@@ -46,6 +47,8 @@ pub struct RunCheckpoint {
     pub state: CheckpointState,
     /// The occupancy grid, for runs that skip empty space.
     pub occupancy: Option<OccupancyGrid>,
+    /// The training cameras' corrections, for runs that refine them.
+    pub cameras: Option<CameraCorrections>,
 }
 
 /// The configuration and the latest checkpoint's field (and grid) of `run`, on `device`.
@@ -55,5 +58,6 @@ pub fn load_latest(run: &RunDir, device: &Device) -> Result<RunCheckpoint> {
     let state = checkpoint.state()?;
     let model = load(&config, &checkpoint, device)?;
     let occupancy = if config.skip_empty_space { checkpoint.load_occupancy()? } else { None };
-    Ok(RunCheckpoint { config, model, state, occupancy })
+    let cameras = if config.refine_cameras { Some(CameraCorrections::read(&checkpoint.dir)?) } else { None };
+    Ok(RunCheckpoint { config, model, state, occupancy, cameras })
 }

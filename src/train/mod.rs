@@ -1,7 +1,9 @@
 //! Training: the run loop ([`train`]) that drives any field's trainer through the seam
 //! ([`crate::field::FieldTrainer`]), and what the kinds' trainers share: the learning-rate
-//! schedule, the occupancy grid's updates and the compositing gradient of packed samples.
+//! schedule, the occupancy grid's updates, the compositing gradient of packed samples and the
+//! training cameras' corrections.
 
+pub mod cameras;
 pub mod occupancy;
 pub mod packed;
 mod run;

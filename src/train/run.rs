@@ -201,6 +201,10 @@ fn start_or_resume(run: &RunDir, options: &TrainOptions) -> Result<(Box<dyn Fiel
         let space = if placement.ndc.is_some() { "NDC rays" } else { "the field's frame" };
         eprintln!("{} capture: near {near:.4}, far {far:.4} in {space} (scale {:.4})", placement.format, placement.transform.scale);
     }
+    if config.refine_cameras && placement.ndc.is_some() {
+        let problem = "camera refinement corrects rays in the world, and this capture trains on NDC rays (forward-facing): train with --ndc false, or without --refine-cameras";
+        return Err(Error::invalid(&options.data, problem));
+    }
     let train_data = train.data;
     let camera = train_data.camera().ok_or_else(|| Error::invalid(&options.data, "the train split has no views"))?;
     let transform = placement.transform;

@@ -39,6 +39,28 @@ impl Contraction {
         }
     }
 
+    /// The gradient with respect to `p` of a loss whose gradient with respect to `apply(p)` is
+    /// `g` (the contraction's Jacobian, transposed, times `g`). Inside the cube it is `g`; in
+    /// the shell, with m = ‖p‖∞ reached on axis j: `c = (2/m − 1/m²)·p`, so
+    /// `∂L/∂p = (2/m − 1/m²)·g + e_j·sign(p_j)·(2/m³ − 2/m²)·(g·p)`.
+    pub fn backward(self, p: [f32; 3], g: [f32; 3]) -> [f32; 3] {
+        match self {
+            Contraction::Linf => {
+                let a = p.map(f32::abs);
+                let j = if a[0] >= a[1] && a[0] >= a[2] { 0 } else if a[1] >= a[2] { 1 } else { 2 };
+                let m = a[j];
+                if !(m > 1.0) {
+                    return g;
+                }
+                let f = (2.0 - 1.0 / m) / m;
+                let slope = (2.0 / m - 2.0) / (m * m) * (g[0] * p[0] + g[1] * p[1] + g[2] * p[2]);
+                let mut out = g.map(|v| v * f);
+                out[j] += p[j].signum() * slope;
+                out
+            }
+        }
+    }
+
     /// The world point whose contraction is `c` (‖c‖∞ < 2), for the occupancy grid's updates:
     /// its cells are boxes in contracted space, the field is asked about world points.
     pub fn invert(self, c: [f32; 3]) -> [f32; 3] {
@@ -70,6 +92,37 @@ impl Contraction {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn backward_matches_finite_differences() {
+        let c = Contraction::Linf;
+        let mut rng = crate::Rng::new(4);
+        let mut shell = 0;
+        for k in 0..400 {
+            // Inside the cube, in the shell and far out; every axis the largest in turn.
+            let scale = [0.9f32, 3.0, 40.0][k % 3];
+            let p = [0; 3].map(|_: i32| (rng.uniform() * 2.0 - 1.0) * scale);
+            let g = [0; 3].map(|_: i32| rng.uniform() * 2.0 - 1.0);
+            let loss = |q: [f64; 3]| {
+                let n = q[0].abs().max(q[1].abs()).max(q[2].abs());
+                let f = if n > 1.0 { (2.0 - 1.0 / n) / n } else { 1.0 };
+                (0..3).map(|d| q[d] * f * g[d] as f64).sum::<f64>()
+            };
+            let got = c.backward(p, g);
+            for d in 0..3 {
+                let eps = 1e-4 * (1.0 + p[d].abs() as f64);
+                let mut hi = p.map(|v| v as f64);
+                let mut lo = hi;
+                hi[d] += eps;
+                lo[d] -= eps;
+                let numeric = (loss(hi) - loss(lo)) / (2.0 * eps);
+                assert!((got[d] as f64 - numeric).abs() < 1e-4 * (1.0 + numeric.abs()), "p {p:?} axis {d}: {} vs {numeric}", got[d]);
+            }
+            shell += (p.iter().fold(0.0f32, |m, v| m.max(v.abs())) > 1.0) as usize;
+        }
+        assert!(shell > 200, "{shell} points in the shell");
+        assert_eq!(c.backward([0.5, -0.2, 0.1], [1.0, 2.0, 3.0]), [1.0, 2.0, 3.0], "identity inside");
+    }
 
     #[test]
     fn contraction_matches_hand_computed_values() {

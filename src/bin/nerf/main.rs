@@ -51,6 +51,10 @@ enum Command {
         /// --appearance` picks another). For the ngp field.
         #[arg(long)]
         appearance: bool,
+        /// Refine each training image's pose with the field (nerfstudio's camera optimiser):
+        /// for captures whose poses are good but not perfect. For the ngp field, not with NDC.
+        #[arg(long)]
+        refine_cameras: bool,
         /// TOML file overriding the preset's settings (any subset of the keys of config.toml).
         #[arg(long)]
         config: Option<PathBuf>,
@@ -392,7 +396,7 @@ fn main() -> Result<()> {
     let cli = Cli::parse();
     let progress = std::io::stderr().is_terminal();
     match cli.command {
-        Command::Train { data, format, ndc, contract, appearance, config, preset, downscale, iters, time_budget_min, seed, out, serve, host, port, viewer, snapshot_every } => {
+        Command::Train { data, format, ndc, contract, appearance, refine_cameras, config, preset, downscale, iters, time_budget_min, seed, out, serve, host, port, viewer, snapshot_every } => {
             let mut cfg = match &config {
                 Some(path) => TrainConfig::from_toml_file(path, preset)?,
                 None => preset.unwrap_or(Preset::DEFAULT).config(),
@@ -400,9 +404,8 @@ fn main() -> Result<()> {
             if contract {
                 cfg = cfg.contracted(nerf_core::sample::Contraction::Linf).map_err(|e| anyhow::anyhow!("--contract: {e}"))?;
             }
-            if appearance {
-                cfg.appearance = true;
-            }
+            cfg.appearance |= appearance;
+            cfg.refine_cameras |= refine_cameras;
             if let Some(seed) = seed {
                 cfg.seed = seed;
             }

@@ -244,7 +244,7 @@ mod tests {
                 2.0 * (c[k] - t[k]) / count
             })).collect();
             losses.push(loss);
-            let (mlp_grads, grad_features) = fused.backward(&features, &sh, None, &saved, &grad_rgb, &vec![0.0; n]);
+            let (mlp_grads, grad_features) = fused.backward(&features, &sh, None, &saved, &grad_rgb, &vec![0.0; n], None);
             field.grid.backward(&unit, &grad_features, &mut grad);
             assert!(grad.touched_entries() > 0 && grad.to_dense().iter().any(|&g| g != 0.0), "the table gets gradients");
             table_adam.step(&mut field.grid, &mut grad);

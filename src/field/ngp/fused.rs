@@ -254,8 +254,19 @@ impl FusedMlps {
 
     /// The weights' (and `codes`') gradients and the features' gradient `[rows, L·F]` for a
     /// loss whose gradients with respect to rgb and σ are `grad_rgb` and `grad_sigma`; `codes`
-    /// are those of the forward pass.
-    pub fn backward(&self, features: &[f32], sh: &[f32], codes: Option<RowCodes>, saved: &SavedActivations, grad_rgb: &[[f32; 3]], grad_sigma: &[f32]) -> (MlpGradients, Vec<f32>) {
+    /// are those of the forward pass. With `grad_sh` (`[rows, 16]`), the harmonics' gradient
+    /// too (for gradients that reach the view directions: camera refinement).
+    #[allow(clippy::too_many_arguments)]
+    pub fn backward(
+        &self,
+        features: &[f32],
+        sh: &[f32],
+        codes: Option<RowCodes>,
+        saved: &SavedActivations,
+        grad_rgb: &[[f32; 3]],
+        grad_sigma: &[f32],
+        grad_sh: Option<&mut [f32]>,
+    ) -> (MlpGradients, Vec<f32>) {
         let w = self.widths;
         let rows = saved.rows;
         self.check_codes(codes, rows);
@@ -267,16 +278,26 @@ impl FusedMlps {
         let blocks = rows.div_ceil(BLOCK_ROWS);
         let run_blocks = blocks.div_ceil(GRADIENT_RUNS).max(1);
         let run_rows = run_blocks * BLOCK_ROWS;
+        let runs = rows.div_ceil(run_rows);
+        let grad_sh_runs: Vec<Option<&mut [f32]>> = match grad_sh {
+            Some(g) => {
+                assert_eq!(g.len(), rows * SH4_DIM, "backward: the harmonics' gradient is not [n, 16]");
+                g.chunks_mut(run_rows * SH4_DIM).map(Some).collect()
+            }
+            None => (0..runs).map(|_| None).collect(),
+        };
         let partials: Vec<MlpGradients> = grad_features
             .par_chunks_mut(run_rows * w.features)
+            .zip(grad_sh_runs)
             .enumerate()
-            .map(|(run, grad_features)| {
+            .map(|(run, (grad_features, mut grad_sh))| {
                 let mut grads = MlpGradients::zeros(w, code_len);
                 let mut scratch = Scratch::new(w);
                 for (k, grad_features) in grad_features.chunks_mut(BLOCK_ROWS * w.features).enumerate() {
                     let r0 = run * run_rows + k * BLOCK_ROWS;
                     let n = grad_features.len() / w.features;
                     let r1 = r0 + n;
+                    let grad_sh = grad_sh.as_deref_mut().map(|g| &mut g[k * BLOCK_ROWS * SH4_DIM..(k * BLOCK_ROWS + n) * SH4_DIM]);
                     self.backward_block(
                         &features[r0 * w.features..r1 * w.features],
                         &sh[r0 * SH4_DIM..r1 * SH4_DIM],
@@ -287,6 +308,7 @@ impl FusedMlps {
                         &mut grads,
                         &mut scratch,
                         grad_features,
+                        grad_sh,
                     );
                 }
                 grads
@@ -302,7 +324,19 @@ impl FusedMlps {
     }
 
     #[allow(clippy::too_many_arguments)]
-    fn backward_block(&self, features: &[f32], sh: &[f32], codes: Option<RowCodes>, saved: &[f32], grad_rgb: &[[f32; 3]], grad_sigma: &[f32], grads: &mut MlpGradients, s: &mut Scratch, grad_features: &mut [f32]) {
+    fn backward_block(
+        &self,
+        features: &[f32],
+        sh: &[f32],
+        codes: Option<RowCodes>,
+        saved: &[f32],
+        grad_rgb: &[[f32; 3]],
+        grad_sigma: &[f32],
+        grads: &mut MlpGradients,
+        s: &mut Scratch,
+        grad_features: &mut [f32],
+        grad_sh: Option<&mut [f32]>,
+    ) {
         let w = self.widths;
         let n = grad_rgb.len();
         let b = Block::view(saved, n, w);
@@ -336,6 +370,9 @@ impl FusedMlps {
         let (gc0_geometry, gc0_sh) = gc0.split_at_mut(g * ch);
         matmul(g, ch, n, gc0_geometry, ch, true, View::cols(&b.density_out[1..], dout), View::rows(dc1, ch));
         matmul(SH4_DIM, ch, n, gc0_sh, ch, true, View::cols(sh, SH4_DIM), View::rows(dc1, ch));
+        if let Some(grad_sh) = grad_sh {
+            matmul(n, SH4_DIM, ch, grad_sh, SH4_DIM, false, View::rows(dc1, ch), View::cols(&c0[g * ch..], ch));
+        }
         let ddout = &mut s.density_out[..n * dout];
         matmul(n, g, ch, &mut ddout[1..], dout, false, View::rows(dc1, ch), View::cols(&c0[..g * ch], ch));
         // σ = trunc_exp(density_out[0])

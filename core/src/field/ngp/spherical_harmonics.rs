@@ -61,6 +61,39 @@ pub fn sh4(d: [f32; 3]) -> [f32; SH4_DIM] {
     ]
 }
 
+/// The gradient with respect to `d` of `Σ_k g[k]·sh4(d)[k]` (the polynomials differentiated
+/// as they are written, `d` a free 3-vector: normalising is the caller's).
+pub fn sh4_backward(d: [f32; 3], g: &[f32; SH4_DIM]) -> [f32; 3] {
+    let [x, y, z] = d;
+    let c = &SH4_CONSTANTS;
+    let (x2, y2, z2) = (x * x, y * y, z * z);
+    // ∂sh_k/∂(x, y, z), k = 1..15 (sh_0 is constant).
+    let partials: [[f32; 3]; 15] = [
+        [0.0, -c[1], 0.0],
+        [0.0, 0.0, c[1]],
+        [-c[1], 0.0, 0.0],
+        [c[2] * y, c[2] * x, 0.0],
+        [0.0, -c[2] * z, -c[2] * y],
+        [0.0, 0.0, 2.0 * c[3] * z],
+        [-c[2] * z, 0.0, -c[2] * x],
+        [2.0 * c[5] * x, -2.0 * c[5] * y, 0.0],
+        [-6.0 * c[6] * x * y, 3.0 * c[6] * (y2 - x2), 0.0],
+        [c[7] * y * z, c[7] * x * z, c[7] * x * y],
+        [0.0, c[8] * (1.0 - 5.0 * z2), -10.0 * c[8] * y * z],
+        [0.0, 0.0, c[9] * (15.0 * z2 - 3.0)],
+        [c[8] * (1.0 - 5.0 * z2), 0.0, -10.0 * c[8] * x * z],
+        [2.0 * c[10] * x * z, -2.0 * c[10] * y * z, c[10] * (x2 - y2)],
+        [3.0 * c[6] * (y2 - x2), 6.0 * c[6] * x * y, 0.0],
+    ];
+    let mut out = [0.0f32; 3];
+    for (p, &g) in partials.iter().zip(&g[1..]) {
+        for a in 0..3 {
+            out[a] += g * p[a];
+        }
+    }
+    out
+}
+
 /// [`sh4`] of many directions.
 ///
 /// # Shapes
@@ -73,6 +106,25 @@ pub fn sh4_all(dirs: &[[f32; 3]]) -> Vec<f32> {
 mod tests {
     use super::*;
     use std::f64::consts::PI;
+
+    #[test]
+    fn the_backward_pass_matches_finite_differences() {
+        let mut rng = crate::Rng::new(9);
+        for _ in 0..50 {
+            let d = [0; 3].map(|_: i32| rng.uniform() * 2.0 - 1.0);
+            let g: [f32; SH4_DIM] = [0; SH4_DIM].map(|_| rng.uniform() * 2.0 - 1.0);
+            let loss = |d: [f32; 3]| sh4(d).iter().zip(&g).map(|(s, g)| *s as f64 * *g as f64).sum::<f64>();
+            let got = sh4_backward(d, &g);
+            for a in 0..3 {
+                let eps = 1e-3f32;
+                let (mut hi, mut lo) = (d, d);
+                hi[a] += eps;
+                lo[a] -= eps;
+                let numeric = (loss(hi) - loss(lo)) / (hi[a] - lo[a]) as f64;
+                assert!((got[a] as f64 - numeric).abs() < 1e-3 * (1.0 + numeric.abs()), "{d:?} axis {a}: {} vs {numeric}", got[a]);
+            }
+        }
+    }
 
     #[test]
     fn constants_are_their_closed_forms() {

@@ -81,7 +81,9 @@ fn backward_matches_finite_differences() {
     let rows = 5;
     let (features, sh, grad_rgb, grad_sigma) = inputs(&spec, rows, 2);
     let (_, saved) = fused.forward_train(&features, &sh, None);
-    let (grads, grad_features) = fused.backward(&features, &sh, None, &saved, &grad_rgb, &grad_sigma);
+    let mut grad_sh = vec![f32::NAN; rows * SH4_DIM];
+    let (grads, grad_features) = fused.backward(&features, &sh, None, &saved, &grad_rgb, &grad_sigma, Some(&mut grad_sh));
+    assert_eq!(fused.backward(&features, &sh, None, &saved, &grad_rgb, &grad_sigma, None), (grads.clone(), grad_features.clone()), "asking for the harmonics' gradient changes nothing else");
     let eps = 1e-2f32;
     let mut rng = Rng::new(3);
     let mut checked = 0;
@@ -109,7 +111,17 @@ fn backward_matches_finite_differences() {
         assert!(close(grad_features[i], numeric, 2e-2), "feature {i}: {} vs {numeric}", grad_features[i]);
         checked += (numeric.abs() > 1e-3) as usize;
     }
-    assert!(checked > 40, "only {checked} of the checked gradients are away from zero");
+    for i in 0..sh.len() {
+        let at = |delta: f32| {
+            let mut moved = sh.clone();
+            moved[i] += delta;
+            surrogate(&fused, &features, &moved, &grad_rgb, &grad_sigma)
+        };
+        let numeric = ((at(eps) - at(-eps)) / (2.0 * eps as f64)) as f32;
+        assert!(close(grad_sh[i], numeric, 2e-2), "harmonic {i}: {} vs {numeric}", grad_sh[i]);
+        checked += (numeric.abs() > 1e-3) as usize;
+    }
+    assert!(checked > 80, "only {checked} of the checked gradients are away from zero");
 }
 
 #[test]
@@ -121,7 +133,7 @@ fn backward_and_adam_step_match_burn_autodiff() {
     let rows = 700;
     let (features, sh, grad_rgb, grad_sigma) = inputs(&spec, rows, 4);
     let (_, saved) = fused.forward_train(&features, &sh, None);
-    let (grads, grad_features) = fused.backward(&features, &sh, None, &saved, &grad_rgb, &grad_sigma);
+    let (grads, grad_features) = fused.backward(&features, &sh, None, &saved, &grad_rgb, &grad_sigma, None);
 
     let f = Tensor::<2>::from_data(TensorData::new(features.clone(), [rows, spec.grid.output_dim()]), &device).require_grad();
     let s = Tensor::<2>::from_data(TensorData::new(sh.clone(), [rows, SH4_DIM]), &device);
@@ -168,10 +180,22 @@ fn backward_does_not_depend_on_the_thread_count() {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
         pool.install(|| {
             let ((rgb, sigma), saved) = fused.forward_train(&features, &sh, None);
-            (rgb, sigma, fused.backward(&features, &sh, None, &saved, &grad_rgb, &grad_sigma))
+            let mut grad_sh = vec![0.0; rows * SH4_DIM];
+            let grads = fused.backward(&features, &sh, None, &saved, &grad_rgb, &grad_sigma, Some(&mut grad_sh));
+            (rgb, sigma, grads, grad_sh)
         })
     };
-    assert_eq!(run(1), run(3));
+    let one = run(1);
+    assert_eq!(one, run(3));
+    // A row's harmonics gradient is its own: rows from the second run of blocks on, passed
+    // alone, get the same values (the runs' slices line up).
+    let (r0, r1) = (rows / 2 + 5, rows / 2 + 205);
+    let f = spec.grid.output_dim();
+    let (features, sh) = (&features[r0 * f..r1 * f], &sh[r0 * SH4_DIM..r1 * SH4_DIM]);
+    let (_, saved) = fused.forward_train(features, sh, None);
+    let mut grad_sh = vec![0.0; (r1 - r0) * SH4_DIM];
+    fused.backward(features, sh, None, &saved, &grad_rgb[r0..r1], &grad_sigma[r0..r1], Some(&mut grad_sh));
+    assert_eq!(grad_sh, one.3[r0 * SH4_DIM..r1 * SH4_DIM]);
 }
 
 /// Three codes for `rows` rows, each row its own pick.
@@ -218,7 +242,7 @@ fn the_codes_gradient_matches_finite_differences_and_the_thread_count_does_not_m
     };
     let row_codes = RowCodes { codes: &codes, code_of_row: &code_of_row };
     let (_, saved) = fused.forward_train(&features, &sh, Some(row_codes));
-    let (grads, _) = fused.backward(&features, &sh, Some(row_codes), &saved, &grad_rgb, &grad_sigma);
+    let (grads, _) = fused.backward(&features, &sh, Some(row_codes), &saved, &grad_rgb, &grad_sigma, None);
     assert_eq!(grads.codes.len(), codes.len());
     let eps = 1e-2f32;
     let mut checked = 0;
@@ -234,7 +258,7 @@ fn the_codes_gradient_matches_finite_differences_and_the_thread_count_does_not_m
     }
     assert!(checked > codes.len() / 3, "only {checked} of the codes' gradients are away from zero");
     // Without codes the pass has no codes' gradient.
-    assert!(fused.backward(&features, &sh, None, &saved, &grad_rgb, &grad_sigma).0.codes.is_empty());
+    assert!(fused.backward(&features, &sh, None, &saved, &grad_rgb, &grad_sigma, None).0.codes.is_empty());
 
     let rows = GRADIENT_RUNS * BLOCK_ROWS * 2 + 77;
     let (features, sh, grad_rgb, grad_sigma) = inputs(&spec, rows, 10);
@@ -243,7 +267,7 @@ fn the_codes_gradient_matches_finite_differences_and_the_thread_count_does_not_m
     let run = |threads: usize| {
         rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(|| {
             let ((rgb, sigma), saved) = fused.forward_train(&features, &sh, row_codes);
-            (rgb, sigma, fused.backward(&features, &sh, row_codes, &saved, &grad_rgb, &grad_sigma))
+            (rgb, sigma, fused.backward(&features, &sh, row_codes, &saved, &grad_rgb, &grad_sigma, None))
         })
     };
     assert_eq!(run(1), run(3));

@@ -211,6 +211,17 @@ impl GridBound {
         let s = self.scale();
         [0, 1, 2].map(|d| (p[d] - self.min[d]) * s[d])
     }
+
+    /// The gradient with respect to the world point `p` of a loss whose gradient with respect
+    /// to [`to_unit`](Self::to_unit)`(p)` is `g`.
+    pub fn to_unit_backward(&self, p: [f32; 3], g: [f32; 3]) -> [f32; 3] {
+        let s = self.scale();
+        let g = [0, 1, 2].map(|d| g[d] * s[d]);
+        match self.contraction {
+            Some(c) => c.backward(p, g),
+            None => g,
+        }
+    }
 }
 
 #[cfg(test)]

@@ -199,6 +199,54 @@ impl HashGrid {
             }
         });
     }
+
+    /// The gradient with respect to the points of a loss whose gradient with respect to the
+    /// features is `grad_out` (tiny-cuda-nn's `dy_dx` path): per level, the trilinear weights'
+    /// derivatives along each axis times the corners' features, times the level's scale. A
+    /// coordinate outside [0, 1] is clamped, so its gradient is 0.
+    ///
+    /// # Shapes
+    /// `points`: `[n, 3]`, `grad_out`: `[n, L·F]` → `[n, 3]`.
+    pub fn position_gradient(&self, points: &[[f32; 3]], grad_out: &[f32]) -> Vec<[f32; 3]> {
+        let (width, f) = (self.output_dim(), self.config.features_per_level);
+        assert_eq!(grad_out.len(), points.len() * width, "hash grid position gradient: grad_out is not [n, L·F]");
+        let mut out = vec![[0.0f32; 3]; points.len()];
+        out.par_chunks_mut(TRANSPOSE_ROWS).enumerate().for_each(|(b, chunk)| {
+            for (i, dx) in chunk.iter_mut().enumerate() {
+                let r = b * TRANSPOSE_ROWS + i;
+                let x = points[r];
+                let inside = x.map(|v| (0.0..=1.0).contains(&v));
+                for (l, level) in self.levels.iter().enumerate() {
+                    let c = corners(level, x);
+                    let g = &grad_out[r * width + l * f..r * width + (l + 1) * f];
+                    // Per-axis weights again: w[d] = [1 − frac, frac].
+                    let w = [0, 1, 2].map(|d| {
+                        let pos = x[d].max(0.0).min(1.0) * level.scale + 0.5;
+                        let frac = pos - (pos as u32) as f32;
+                        [1.0 - frac, frac]
+                    });
+                    let base = level.offset as usize * f;
+                    let mut acc = [0.0f32; 3];
+                    for k in 0..8 {
+                        let e = base + c.index[k] as usize * f;
+                        let s: f32 = self.params[e..e + f].iter().zip(g).map(|(t, g)| t * g).sum();
+                        let bits = [k & 1, (k >> 1) & 1, (k >> 2) & 1];
+                        for d in 0..3 {
+                            let sign = if bits[d] == 1 { 1.0 } else { -1.0 };
+                            let others: f32 = (0..3).filter(|&e| e != d).map(|e| w[e][bits[e]]).product();
+                            acc[d] += s * sign * others;
+                        }
+                    }
+                    for d in 0..3 {
+                        if inside[d] {
+                            dx[d] += acc[d] * level.scale;
+                        }
+                    }
+                }
+            }
+        });
+        out
+    }
 }
 
 fn total_entries(levels: &[LevelLayout]) -> usize {

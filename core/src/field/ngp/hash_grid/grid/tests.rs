@@ -192,3 +192,41 @@ fn gradient_is_deterministic_across_threads_and_passes() {
     assert_eq!(run(2, 4), one, "4 consecutive passes");
     assert_eq!(run(2, 1), run(2, 1), "repeatable");
 }
+
+#[test]
+fn the_position_gradient_matches_finite_differences_of_the_reference() {
+    let mut grid = HashGrid::new(small_config(), 6).unwrap();
+    // Table values of order 1, so the gradient is far from rounding.
+    let mut rng = Rng::new(7);
+    grid.params_mut().iter_mut().for_each(|v| *v = rng.uniform() * 2.0 - 1.0);
+    let width = grid.output_dim();
+    let mut points = random_points(40, 8);
+    // A point outside the cube on one axis: that axis is clamped, its gradient 0.
+    points.push([1.3, 0.4, 0.6]);
+    let grad_out: Vec<f32> = (0..points.len() * width).map(|_| rng.uniform() * 2.0 - 1.0).collect();
+    let got = grid.position_gradient(&points, &grad_out);
+    let mut skipped = 0;
+    for (i, &x) in points.iter().enumerate() {
+        let g = &grad_out[i * width..(i + 1) * width];
+        let loss = |x: [f32; 3]| reference_forward(&grid, x).iter().zip(g).map(|(y, &g)| y * g as f64).sum::<f64>();
+        for d in 0..3 {
+            // A step small enough to stay inside the finest cell (1/17 of the cube), in f32.
+            let eps = 2e-4f32;
+            let (mut hi, mut lo) = (x, x);
+            hi[d] += eps;
+            lo[d] -= eps;
+            // The encoding is linear inside a cell only: a step across a cell face on any level
+            // is not a derivative.
+            let cell = |v: f32, l: &LevelLayout| (v.clamp(0.0, 1.0) * l.scale + 0.5) as u32;
+            if grid.levels.iter().any(|l| cell(hi[d], l) != cell(lo[d], l)) {
+                skipped += 1;
+                continue;
+            }
+            let numeric = (loss(hi) - loss(lo)) / (hi[d] - lo[d]) as f64;
+            assert!((got[i][d] as f64 - numeric).abs() < 2e-2 * (1.0 + numeric.abs()), "point {i} {x:?} axis {d}: {} vs {numeric}", got[i][d]);
+        }
+    }
+    assert!(skipped < 10, "{skipped} of 123 steps crossed a cell face");
+    assert_eq!(got[40][0], 0.0, "a clamped coordinate has no gradient");
+    assert!(got.iter().take(40).all(|g| g.iter().all(|v| v.abs() > 0.0)));
+}
