@@ -271,6 +271,8 @@ fn a_contracted_capture_renders_alike_everywhere() {
     assert!(ok, "{text}");
     let scene = nerf_bundle::read_scene(&bundle).unwrap();
     assert_eq!((scene.format.as_str(), scene.contraction), ("nerf-rs-scene-3", Some(nerf_core::sample::Contraction::Linf)));
+    // Rendered with the training march steps (the cube's runs render with more).
+    assert_eq!((config.render_march_steps, scene.march_steps), (Some(config.march_steps), config.march_steps));
     assert_eq!(&std::fs::read(bundle.join("occupancy.bin")).unwrap()[..8], b"NERFOCC2");
     let ort = dir.path().join("ort");
     let (ok, text) = nerf_render(&["--bundle", s(&bundle), "--split", "test", "--data", s(&data), "--out", s(&ort), "--npy"]);
