@@ -17,6 +17,7 @@
 //! (the pose each image's rays were last drawn from).
 
 use crate::error::{Error, Result};
+use crate::train::adam::DenseAdam;
 use glam::{Mat3, Vec3};
 use nerf_core::camera::Pose;
 use serde::{Deserialize, Serialize};
@@ -34,8 +35,7 @@ const LR_DECAY_STEPS: f64 = 5000.0;
 /// nerfstudio's `trans_l2_penalty` and `rot_l2_penalty`.
 const TRANSLATION_PENALTY: f32 = 1e-2;
 const ROTATION_PENALTY: f32 = 1e-3;
-const ADAM_BETAS: (f32, f32) = (0.9, 0.999);
-const ADAM_EPSILON: f32 = 1e-15;
+const ADAM: DenseAdam = DenseAdam { beta1: 0.9, beta2: 0.999, epsilon: 1e-15 };
 
 /// One correction per training image and the Adam state of the six numbers each.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -154,21 +154,13 @@ impl CameraCorrections {
     /// moments rather than drifting on its momentum).
     pub fn step(&mut self, grad: &CorrectionGradient, lr: f32) {
         let n = self.images.len().max(1) as f32;
-        let (beta1, beta2) = ADAM_BETAS;
         for (k, g) in grad.0.iter().enumerate().filter(|&(k, _)| grad.1[k]) {
             self.steps[k] += 1;
-            let t = self.steps[k].min(i32::MAX as u64) as i32;
-            let (c1, c2) = (1.0 - beta1.powi(t), 1.0 - beta2.powi(t));
             // ∂(λ·mean‖v‖)/∂v = λ·v/(n‖v‖), 0 at v = 0.
             let penalty = |v: Vec3, lambda: f32| if v.length() > 0.0 { v * (lambda / (n * v.length())) } else { Vec3::ZERO };
             let (p_omega, p_tau) = (penalty(self.omega(k), ROTATION_PENALTY), penalty(self.tau(k), TRANSLATION_PENALTY));
-            for a in 0..6 {
-                let g = g[a] + if a < 3 { p_omega[a] } else { p_tau[a - 3] };
-                let (m, v) = (&mut self.first[k][a], &mut self.second[k][a]);
-                *m = beta1 * *m + (1.0 - beta1) * g;
-                *v = beta2 * *v + (1.0 - beta2) * g * g;
-                self.corrections[k][a] -= lr * (*m / c1) / ((*v / c2).sqrt() + ADAM_EPSILON);
-            }
+            let g: [f32; 6] = std::array::from_fn(|a| g[a] + if a < 3 { p_omega[a] } else { p_tau[a - 3] });
+            ADAM.update(&mut self.corrections[k], &mut self.first[k], &mut self.second[k], &g, self.steps[k], lr);
         }
     }
 

@@ -3,6 +3,7 @@
 //! schedule, the occupancy grid's updates, the compositing gradient of packed samples and the
 //! training cameras' corrections.
 
+pub mod adam;
 pub mod cameras;
 pub mod occupancy;
 pub mod packed;

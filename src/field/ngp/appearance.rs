@@ -14,6 +14,7 @@
 //! [`APPEARANCE_FILE`], with the training images' names, so a fixed appearance can name one.
 
 use crate::error::{Error, Result};
+use crate::train::adam::DenseAdam;
 pub use nerf_bundle::scene::FixedAppearance;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -77,15 +78,8 @@ impl Appearance {
     /// One Adam step (burn's: bias-corrected moments, ε outside the root) on `grad`, laid out
     /// as the codes.
     pub fn step(&mut self, grad: &[f32], lr: f32, beta1: f32, beta2: f32, epsilon: f32) {
-        assert_eq!(grad.len(), self.codes.len(), "one gradient per code value");
         self.steps += 1;
-        let t = self.steps.min(i32::MAX as u64) as i32;
-        let (c1, c2) = (1.0 - beta1.powi(t), 1.0 - beta2.powi(t));
-        for (((x, m), v), &g) in self.codes.iter_mut().zip(&mut self.first).zip(&mut self.second).zip(grad) {
-            *m = beta1 * *m + (1.0 - beta1) * g;
-            *v = beta2 * *v + (1.0 - beta2) * g * g;
-            *x -= lr * (*m / c1) / ((*v / c2).sqrt() + epsilon);
-        }
+        DenseAdam { beta1, beta2, epsilon }.update(&mut self.codes, &mut self.first, &mut self.second, grad, self.steps, lr);
     }
 
     /// The file's bytes (JSON: floats round-trip exactly).
