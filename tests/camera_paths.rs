@@ -168,7 +168,7 @@ fn camera_path_poses_are_in_the_captures_coordinates() {
     let run = dir.path().join("run");
     let mut config = tiny_config();
     config.iters = 20;
-    train(&TrainOptions { format: None, data: capture.clone(), run: run.clone(), config, ndc: None, downscale: 1, time_budget_min: None, iters: None, progress: false }).unwrap();
+    train(&TrainOptions { format: None, data: capture.clone(), run: run.clone(), config, ndc: None, contract: None, downscale: 1, time_budget_min: None, iters: None, progress: false }).unwrap();
     let placement = nerf::run_dir::RunDir::open(&run).unwrap().read_source().unwrap().unwrap().placement.unwrap();
     assert!(placement.transform.scale < 0.5, "the capture's units were not rescaled: {:?}", placement.transform);
     let bundle = dir.path().join("bundle");

@@ -93,10 +93,11 @@ fn check_parity(run: &Path, bundle: &Path, data: &Path, name: &str, ort_npy: &Pa
     a.iter().zip(&b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max)
 }
 
-/// Train the tiny hash-grid field on `data` for `iters` steps, NDC as `ndc` says.
+/// Train the tiny hash-grid field on `data` for `iters` steps, NDC as `ndc` says, in the cube
+/// (the generated ring would contract by default: that has its own test).
 fn train_capture(data: &Path, run: &Path, iters: usize, ndc: Option<bool>) {
     let config = tiny_ngp();
-    let options = TrainOptions { format: None, data: data.to_path_buf(), run: run.to_path_buf(), config, ndc, downscale: 1, time_budget_min: None, iters: Some(iters), progress: false };
+    let options = TrainOptions { format: None, data: data.to_path_buf(), run: run.to_path_buf(), config, ndc, contract: Some(false), downscale: 1, time_budget_min: None, iters: Some(iters), progress: false };
     train(&options).unwrap();
 }
 
@@ -163,6 +164,43 @@ fn a_capture_trains_evaluates_and_renders_through_its_recorded_placement() {
     // burn, onnxruntime and the numpy consumer agree on the captured camera's rays.
     let diff = check_parity(&run, &bundle, &data, "train_0", &ort.join("train_0.npy"), &dir.path().join("burn"));
     assert!(diff < 1e-3, "burn vs onnxruntime on a captured scene: max |Δ| {diff}");
+}
+
+#[test]
+fn a_capture_without_a_small_scene_box_contracts_by_default() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = capture(dir.path());
+    let train_one = |run: &str, extra: &[&str]| -> (bool, String, PathBuf) {
+        let out = dir.path().join(run);
+        let mut args = vec!["train", "--data", s(&data), "--iters", "1", "--out", s(&out)];
+        args.extend_from_slice(extra);
+        let (ok, text) = nerf(&args);
+        (ok, text, out)
+    };
+    let contraction = |run: &str, extra: &[&str]| {
+        let (ok, text, out) = train_one(run, extra);
+        assert!(ok, "{text}");
+        (RunDir::open(&out).unwrap().read_config().unwrap().occupancy.contraction, text)
+    };
+    // A ring of cameras looking in, no scene box: contracted, and said so.
+    let (c, text) = contraction("ring", &[]);
+    assert_eq!(c, Some(nerf_core::sample::Contraction::Linf), "{text}");
+    assert!(text.contains("contracting the world around the capture") && text.contains("--contract false keeps the cube"), "{text}");
+    let (c, text) = contraction("cube", &["--contract", "false"]);
+    assert!(c.is_none() && !text.contains("contracting"), "{text}");
+    // An instant-ngp box under 8 bounds the scene (the cube); 16 says the background reaches far.
+    let file: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(data.join("transforms.json")).unwrap()).unwrap();
+    for (aabb, contracted) in [(4, false), (16, true)] {
+        let mut boxed = file.clone();
+        boxed["aabb_scale"] = aabb.into();
+        std::fs::write(data.join("transforms.json"), boxed.to_string()).unwrap();
+        let (c, text) = contraction(&format!("aabb{aabb}"), &[]);
+        assert_eq!(c.is_some(), contracted, "aabb_scale {aabb}: {text}");
+    }
+    // A configuration that contracts, told not to: refused, nothing trained.
+    let (ok, text, out) = train_one("refused", &["--config", s(&dir.path().join("ring/config.toml")), "--contract", "false"]);
+    assert!(!ok && text.contains("--contract false, but the configuration contracts"), "{text}");
+    assert!(!out.join("checkpoints").exists(), "{text}");
 }
 
 /// An LLFF capture of the generated scene seen from the front: of nine cameras on a 3×3 grid
@@ -254,7 +292,7 @@ fn a_contracted_capture_renders_alike_everywhere() {
     let data = capture(dir.path());
     let run = dir.path().join("run");
     let config = tiny_ngp().contracted(nerf_core::sample::Contraction::Linf).unwrap();
-    let options = TrainOptions { format: None, data: data.clone(), run: run.clone(), config, ndc: None, downscale: 1, time_budget_min: None, iters: Some(60), progress: false };
+    let options = TrainOptions { format: None, data: data.clone(), run: run.clone(), config, ndc: None, contract: None, downscale: 1, time_budget_min: None, iters: Some(60), progress: false };
     train(&options).unwrap();
 
     // The cameras (40 units from where they look) on the unit sphere; near 1/30, far 100; the
@@ -295,7 +333,7 @@ fn appearance_codes_learn_each_image_exposure_and_bundles_hold_the_fixed_one() {
     let data = capture_exposed(dir.path(), gain);
     let run = dir.path().join("run");
     let config = nerf::config::TrainConfig { appearance: true, ..tiny_ngp() };
-    let options = TrainOptions { format: None, data: data.clone(), run: run.clone(), config, ndc: None, downscale: 1, time_budget_min: None, iters: Some(120), progress: false };
+    let options = TrainOptions { format: None, data: data.clone(), run: run.clone(), config, ndc: None, contract: Some(false), downscale: 1, time_budget_min: None, iters: Some(120), progress: false };
     train(&options).unwrap();
 
     // Each image's code renders its exposure: the field through a dark image's code is darker
@@ -383,7 +421,7 @@ fn refined_cameras_are_saved_resumed_and_render_the_training_views() {
     let run = dir.path().join("run");
     let config = nerf::config::TrainConfig { refine_cameras: true, ..tiny_ngp() };
     let iters = nerf::train::cameras::WARM_UP_STEPS + 60;
-    let options = TrainOptions { format: None, data: data.clone(), run: run.clone(), config, ndc: None, downscale: 1, time_budget_min: None, iters: Some(iters), progress: false };
+    let options = TrainOptions { format: None, data: data.clone(), run: run.clone(), config, ndc: None, contract: Some(false), downscale: 1, time_budget_min: None, iters: Some(iters), progress: false };
     train(&options).unwrap();
 
     // cameras.json: a correction per training image, small, and the poses they refine to.

@@ -87,7 +87,7 @@ fn export_failures_leave_no_bundle() {
     config.shapes.network.width = 32;
     config.iters = 1;
     let scene = small_scene(&dir.path().join("s2"));
-    train(&TrainOptions { format: None, data: scene, run: other.clone(), config, ndc: None, downscale: 1, time_budget_min: None, iters: None, progress: false }).unwrap();
+    train(&TrainOptions { format: None, data: scene, run: other.clone(), config, ndc: None, contract: None, downscale: 1, time_budget_min: None, iters: None, progress: false }).unwrap();
     let latest = RunDir::open(&run).unwrap().latest_checkpoint().unwrap().unwrap().dir;
     let other_latest = RunDir::open(&other).unwrap().latest_checkpoint().unwrap().unwrap().dir;
     let model = latest.join("model.bpk");

@@ -193,7 +193,7 @@ fn nerf_view_exports_a_snapshot_from_the_checkpoint_of_a_run_trained_without_ser
     // Training goes on (another process): `nerf view` follows its next checkpoint.
     let mut config = tiny_config();
     config.iters = 20;
-    train(&TrainOptions { format: None, data: scene, run: run.clone(), config, ndc: None, downscale: 1, time_budget_min: None, iters: Some(30), progress: false }).unwrap();
+    train(&TrainOptions { format: None, data: scene, run: run.clone(), config, ndc: None, contract: None, downscale: 1, time_budget_min: None, iters: Some(30), progress: false }).unwrap();
     let st = wait_for(served.port, "newer snapshot", |st| st["snapshot"] == "30");
     assert_eq!(st["progress"]["step"], 30);
     assert_eq!(live_names(&run), ["30"]);

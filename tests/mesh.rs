@@ -62,7 +62,7 @@ fn a_trained_run_meshes_onto_the_true_surfaces_through_burn_and_onnxruntime() {
     let scene = dir.path().join("scene");
     generate_scene(&scene, &SyntheticSceneConfig { width: 64, height: 64, n_train: 40, n_val: 1, n_test: 1, seed: 1 }).unwrap();
     let run = dir.path().join("run");
-    let options = TrainOptions { format: None, data: scene.clone(), run: run.clone(), config: tiny_ngp(), ndc: None, downscale: 1, time_budget_min: None, iters: Some(STEPS), progress: false };
+    let options = TrainOptions { format: None, data: scene.clone(), run: run.clone(), config: tiny_ngp(), ndc: None, contract: None, downscale: 1, time_budget_min: None, iters: Some(STEPS), progress: false };
     train(&options).unwrap();
     let cell = 3.0 / RESOLUTION as f32;
     let resolution = RESOLUTION.to_string();
@@ -164,7 +164,7 @@ fn bad_input_is_refused_and_nothing_is_written() {
     // A trained run (a few steps: only the options matter here).
     let scene_dir = small_scene(dir.path());
     let run = dir.path().join("run");
-    let options = TrainOptions { format: None, data: scene_dir.clone(), run: run.clone(), config: tiny_ngp(), ndc: None, downscale: 1, time_budget_min: None, iters: Some(20), progress: false };
+    let options = TrainOptions { format: None, data: scene_dir.clone(), run: run.clone(), config: tiny_ngp(), ndc: None, contract: None, downscale: 1, time_budget_min: None, iters: Some(20), progress: false };
     train(&options).unwrap();
     refuse(&["--run", s(&run), "--resolution", "0"], "--resolution: must be at least 1");
     refuse(&["--run", s(&run), "--resolution", "1"], "at least 2 cells");

@@ -23,7 +23,7 @@ fn train_tiny(scene: &Path, run: &Path, iters: usize) -> nerf::train::TrainSumma
 }
 
 fn train_tiny_at(scene: &Path, run: &Path, iters: usize, downscale: u32) -> nerf::train::TrainSummary {
-    let options = TrainOptions { format: None, data: scene.to_path_buf(), run: run.to_path_buf(), config: tiny_ngp(), ndc: None, downscale, time_budget_min: None, iters: Some(iters), progress: false };
+    let options = TrainOptions { format: None, data: scene.to_path_buf(), run: run.to_path_buf(), config: tiny_ngp(), ndc: None, contract: None, downscale, time_budget_min: None, iters: Some(iters), progress: false };
     train(&options).unwrap()
 }
 
@@ -181,7 +181,7 @@ fn a_resumed_ngp_run_equals_an_uninterrupted_one() {
     // the corrections' warm-up, so that they move).
     let with_codes = |run: &Path, iters: usize| {
         let config = nerf::config::TrainConfig { appearance: true, refine_cameras: true, ..tiny_ngp() };
-        train(&TrainOptions { format: None, data: scene.clone(), run: run.to_path_buf(), config, ndc: None, downscale: 1, time_budget_min: None, iters: Some(iters), progress: false }).unwrap();
+        train(&TrainOptions { format: None, data: scene.clone(), run: run.to_path_buf(), config, ndc: None, contract: None, downscale: 1, time_budget_min: None, iters: Some(iters), progress: false }).unwrap();
     };
     let (straight, resumed) = (dir.path().join("straight-codes"), dir.path().join("resumed-codes"));
     let steps = nerf::train::cameras::WARM_UP_STEPS + 30;
@@ -197,7 +197,7 @@ fn a_resumed_ngp_run_equals_an_uninterrupted_one() {
     // The decision reaches the trainer: the same downscaled run through pixel centres differs.
     let centres = dir.path().join("centres2");
     let config = nerf::config::TrainConfig { jitter_pixels: Some(false), ..tiny_ngp() };
-    train(&TrainOptions { format: None, data: scene.clone(), run: centres.clone(), config, ndc: None, downscale: 2, time_budget_min: None, iters: Some(40), progress: false }).unwrap();
+    train(&TrainOptions { format: None, data: scene.clone(), run: centres.clone(), config, ndc: None, contract: None, downscale: 2, time_budget_min: None, iters: Some(40), progress: false }).unwrap();
     let grid = |run: &Path| std::fs::read(run.join("checkpoints/step-0000040").join(nerf::field::ngp::GRID_FILE)).unwrap();
     assert!(grid(&centres) != grid(&dir.path().join("straight2")), "jitter_pixels changed nothing");
 }
@@ -231,7 +231,7 @@ fn a_new_run_trains_rgba_scenes_on_random_backgrounds_and_opaque_ones_on_white()
     // An explicit choice is kept.
     let black = dir.path().join("black");
     let config = TrainConfig { train_background: Some(Background::Black), white_background: false, ..tiny_ngp() };
-    train(&TrainOptions { format: None, data: scene.clone(), run: black.clone(), config, ndc: None, downscale: 1, time_budget_min: None, iters: Some(2), progress: false }).unwrap();
+    train(&TrainOptions { format: None, data: scene.clone(), run: black.clone(), config, ndc: None, contract: None, downscale: 1, time_budget_min: None, iters: Some(2), progress: false }).unwrap();
     assert_eq!(background(&black), Some(Background::Black));
 }
 

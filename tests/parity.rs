@@ -97,7 +97,7 @@ fn burn_and_onnxruntime_render_the_same_lego_view() {
     let run = dir.path().join("run");
     let mut config = tiny_config();
     config.iters = 30;
-    train(&TrainOptions { format: None, data: lego.clone(), run: run.clone(), config, ndc: None, downscale: 8, time_budget_min: None, iters: None, progress: false })
+    train(&TrainOptions { format: None, data: lego.clone(), run: run.clone(), config, ndc: None, contract: None, downscale: 8, time_budget_min: None, iters: None, progress: false })
         .unwrap();
     let (db, off_white) = image_parity(&run, &lego, "val", 8, "r_0", dir.path());
     println!("lego: burn vs onnxruntime {db:.1} dB");

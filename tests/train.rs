@@ -124,6 +124,7 @@ fn resume_continues_exactly_and_runs_are_deterministic() {
         run: dir.path().join(run),
         config: config.clone(),
         ndc: None,
+        contract: None,
         downscale: 1,
         time_budget_min: None,
         iters: Some(iters),

@@ -3,11 +3,13 @@
 
 use crate::field::FieldTrainer;
 use crate::config::TrainConfig;
+use nerf_core::field::FieldKind;
 use crate::error::{Error, Result};
 use crate::live::{ProgressLog, SnapshotOptions, Snapshots};
 use crate::run_dir::{RunDir, RunSource};
 use indicatif::{ProgressBar, ProgressStyle};
-use nerf_core::dataset::{Background, CaptureFormat, CaptureSplit, LoadOptions, SceneFrame, SplitData, detect_format, load_dataset};
+use nerf_core::dataset::{Background, CaptureFormat, CaptureSplit, LoadOptions, SceneFrame, SplitData, default_contraction, detect_format, load_dataset};
+use nerf_core::sample::Contraction;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -27,6 +29,10 @@ pub struct TrainOptions {
     pub run: PathBuf,
     /// NDC rays for a new run: `None` decides from the data (LLFF, forward-facing).
     pub ndc: Option<bool>,
+    /// A contracted world for a new run (`--contract`): `None` decides from the data for the
+    /// ngp field ([`nerf_core::dataset::contraction_by_default`]); a configuration that
+    /// contracts already (`occupancy.contraction`) stays contracted.
+    pub contract: Option<bool>,
     /// The configuration for a new run (a resumed run keeps its saved one).
     pub config: TrainConfig,
     /// Image downscale factor.
@@ -149,13 +155,16 @@ fn start_or_resume(run: &RunDir, options: &TrainOptions) -> Result<(Box<dyn Fiel
         Some(_) => run.read_source()?.and_then(|s| s.placement),
         None => None,
     };
-    let frame = match &recorded {
-        Some(p) => SceneFrame::Recorded(p.transform),
-        None => SceneFrame::Fit { bound: config.occupancy.bound, ndc: options.ndc, contraction: config.occupancy.contraction },
-    };
     let format = match options.format {
         Some(f) => f,
         None => detect_format(&options.data)?,
+    };
+    if checkpoint.is_none() {
+        config = decide_contraction(config, options, format)?;
+    }
+    let frame = match &recorded {
+        Some(p) => SceneFrame::Recorded(p.transform),
+        None => SceneFrame::Fit { bound: config.occupancy.bound, ndc: options.ndc, contraction: config.occupancy.contraction },
     };
     let deciding_background = config.train_background.is_none();
     if deciding_background {
@@ -234,6 +243,25 @@ fn start_or_resume(run: &RunDir, options: &TrainOptions) -> Result<(Box<dyn Fiel
         eprintln!("resuming {} at step {}", run.root().display(), trainer.steps_done());
     }
     Ok((trainer, val_data, elapsed_before))
+}
+
+/// A new run's world: contracted as `--contract` asks, else as the data decides for the ngp
+/// field (printed, with how to keep the cube); a configuration that contracts stays so.
+fn decide_contraction(config: TrainConfig, options: &TrainOptions, format: CaptureFormat) -> Result<TrainConfig> {
+    let contract = |config: TrainConfig| config.contracted(Contraction::Linf).map_err(|e| Error::Config(format!("--contract: {e}")));
+    let contracted = config.occupancy.contraction.is_some();
+    match options.contract {
+        Some(true) if !contracted => contract(config),
+        Some(false) if contracted => Err(Error::Config("--contract false, but the configuration contracts (occupancy.contraction): drop one of them".into())),
+        None if !contracted && config.field == FieldKind::Ngp => match default_contraction(&options.data, format, options.ndc)? {
+            Some(why) => {
+                eprintln!("contracting the world around the capture ({why}); --contract false keeps the cube");
+                contract(config)
+            }
+            None => Ok(config),
+        },
+        _ => Ok(config),
+    }
 }
 
 /// PSNR of the first validation view, printed above the progress bar.

@@ -84,7 +84,7 @@ pub fn trained_run(dir: &Path) -> (PathBuf, PathBuf) {
     let run = dir.join("run");
     let mut config = tiny_config();
     config.iters = 20;
-    train(&TrainOptions { format: None, data: scene.clone(), run: run.clone(), config, ndc: None, downscale: 1, time_budget_min: None, iters: None, progress: false })
+    train(&TrainOptions { format: None, data: scene.clone(), run: run.clone(), config, ndc: None, contract: None, downscale: 1, time_budget_min: None, iters: None, progress: false })
         .unwrap();
     (scene, run)
 }

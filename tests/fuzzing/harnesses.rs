@@ -100,7 +100,7 @@ fn trained_run(work: &Path) -> Result<(PathBuf, PathBuf), String> {
     let data = small_scene(work)?;
     let run = work.join("run");
     let options =
-        TrainOptions { format: None, data: data.clone(), run: run.clone(), config: tiny_config(), ndc: None, downscale: 1, time_budget_min: None, iters: None, progress: false };
+        TrainOptions { format: None, data: data.clone(), run: run.clone(), config: tiny_config(), ndc: None, contract: None, downscale: 1, time_budget_min: None, iters: None, progress: false };
     train(&options).map_err(|e| e.to_string())?;
     Ok((data, run))
 }

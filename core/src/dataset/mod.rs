@@ -18,8 +18,8 @@ mod synthetic;
 
 pub use blender::{Frame, Transforms, image_path, load_blender, load_split, transforms_path};
 pub use images::{Background, check_divisible, load_image, prescaled_path, write_prescaled};
-pub use scene_fit::{CameraPath, OrbitPath, SpiralPath, field_near_far, fit_to_field};
-pub use source::{Dataset, LoadOptions, SceneFrame, ScenePlacement, load_dataset};
+pub use scene_fit::{CameraPath, FAR_AABB_SCALE, OrbitPath, SpiralPath, contraction_by_default, field_near_far, fit_to_field};
+pub use source::{Dataset, LoadOptions, SceneFrame, ScenePlacement, default_contraction, load_dataset};
 pub use capture::{
     Capture, CaptureFormat, CaptureSplit, CaptureView, ExplicitSplits, FORWARD_FACING_MAX_DEG,
     HOLDOUT_EVERY, centroid, detect_format, focus_point, holdout_split, is_forward_facing,

@@ -53,6 +53,28 @@ pub fn fit_to_field(capture: &Capture, bound: f32) -> Result<SceneTransform> {
     capture.camera_fit(RING_FRACTION * bound)
 }
 
+/// The smallest instant-ngp `aabb_scale` read as "the background reaches far": instant-ngp's
+/// advice for natural scenes seen past the unit cube, and what `nerf process-data --aabb-scale`
+/// suggests for a background that matters (docs/captures.md). Smaller boxes bound their scene.
+pub const FAR_AABB_SCALE: f32 = 8.0;
+
+/// Why a new run on `capture` contracts its world when not told either way (`nerf train`
+/// without `--contract`), or `None` for the cube. The rule: a capture that neither trains on
+/// NDC rays (`ndc`), nor faces one way, nor bounds itself with an `aabb_scale` under
+/// [`FAR_AABB_SCALE`], sees a world with no edge (a 360° ring in a room, a phone walked around
+/// a table), which the cube can only hold at a third of its resolution on the object. Blender
+/// scenes never reach here: their cube is their scene.
+pub fn contraction_by_default(capture: &Capture, ndc: bool) -> Option<String> {
+    if ndc || capture.forward_facing {
+        return None;
+    }
+    match capture.aabb_scale {
+        Some(a) if a < FAR_AABB_SCALE => None,
+        Some(a) => Some(format!("aabb_scale {a} (≥ {FAR_AABB_SCALE}): its background reaches far")),
+        None => Some("its cameras look inwards from all around, and it gives no scene box".to_string()),
+    }
+}
+
 /// How far from the centre the farthest camera of a contracted capture sits: on the unit
 /// sphere, inside the inner cube ‖x‖∞ ≤ 1 that contraction leaves as it is (nerfstudio scales
 /// poses into [−1, 1] too); the object inside the ring, the room in the contracted shell.
@@ -285,6 +307,21 @@ mod tests {
                 look_at(target + Vec3::new(4.0 * a.cos(), 3.0, 4.0 * a.sin()), target)
             })
             .collect()
+    }
+
+    #[test]
+    fn only_unbounded_captures_contract_by_default() {
+        let why = |c: &Capture, ndc: bool| contraction_by_default(c, ndc);
+        // A ring with no box: contracted, unless its rays are NDC.
+        assert!(why(&capture(&ring(), None, false, None), false).is_some_and(|w| w.contains("no scene box")));
+        assert_eq!(why(&capture(&ring(), None, false, None), true), None);
+        // Cameras facing one way keep the cube (and usually NDC).
+        assert_eq!(why(&capture(&ring(), Some((1.0, 5.0)), true, None), false), None);
+        // A box under 8 bounds the scene; from 8 on, the background reaches far.
+        assert_eq!(why(&capture(&ring(), None, false, Some(4.0)), false), None);
+        assert_eq!(why(&capture(&ring(), None, false, Some(7.9)), false), None);
+        assert!(why(&capture(&ring(), None, false, Some(FAR_AABB_SCALE)), false).is_some_and(|w| w.contains("aabb_scale 8")));
+        assert!(why(&capture(&ring(), None, false, Some(16.0)), false).is_some());
     }
 
     #[test]

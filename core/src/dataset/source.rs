@@ -13,7 +13,7 @@ use super::capture::{Capture, CaptureFormat, CaptureSplit, detect_format};
 use super::images::{Background, Decoded, check_divisible, load_image};
 use super::instant_ngp::load_instant_ngp;
 use super::llff::load_llff;
-use super::scene_fit::{CameraPath, OrbitPath, SpiralPath, contracted_near_far, field_near_far, fit_contracted, fit_to_field};
+use super::scene_fit::{CameraPath, OrbitPath, SpiralPath, contracted_near_far, contraction_by_default, field_near_far, fit_contracted, fit_to_field};
 use super::{Split, SplitData, View};
 use crate::error::{Error, Result};
 use crate::camera::ndc::Ndc;
@@ -105,6 +105,23 @@ pub fn load_dataset(dir: &Path, split: CaptureSplit, options: &LoadOptions) -> R
     }
 }
 
+/// Why a new run on the capture in `dir` (read as `format`, NDC as `ndc` asks) contracts its
+/// world when not told either way ([`contraction_by_default`]); `None` keeps the cube, always
+/// for Blender scenes. Reads the poses only.
+pub fn default_contraction(dir: &Path, format: CaptureFormat, ndc: Option<bool>) -> Result<Option<String>> {
+    let capture = match format {
+        CaptureFormat::Blender => return Ok(None),
+        CaptureFormat::InstantNgp => load_instant_ngp(dir)?,
+        CaptureFormat::Llff => load_llff(dir)?,
+    };
+    Ok(contraction_by_default(&capture, trains_on_ndc(&capture, ndc)))
+}
+
+/// NDC rays as asked, else nerf-pytorch's default: LLFF captures whose cameras all face one way.
+fn trains_on_ndc(capture: &Capture, ndc: Option<bool>) -> bool {
+    ndc.unwrap_or(capture.format == CaptureFormat::Llff && capture.forward_facing)
+}
+
 fn load_blender_dataset(dir: &Path, split: CaptureSplit, options: &LoadOptions) -> Result<Dataset> {
     let splits: &[Split] = match split {
         CaptureSplit::Train => &[Split::Train],
@@ -140,7 +157,7 @@ fn load_capture_dataset(mut capture: Capture, split: CaptureSplit, options: &Loa
             let orbit = OrbitPath::around(&capture.poses()).map(CameraPath::Circle);
             ScenePlacement { format: capture.format, transform: capture.transform, near_far: Some(contracted_near_far(&capture)), orbit, ndc: None }
         }
-        SceneFrame::Fit { ndc, .. } if ndc.unwrap_or(capture.format == CaptureFormat::Llff && capture.forward_facing) => {
+        SceneFrame::Fit { ndc, .. } if trains_on_ndc(&capture, ndc) => {
             ndc_placement(&capture)?
         }
         SceneFrame::Fit { bound, .. } => {

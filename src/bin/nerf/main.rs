@@ -43,9 +43,11 @@ enum Command {
         ndc: Option<bool>,
         /// Contract the unbounded world around a capture (mip-NeRF 360's scene contraction,
         /// L∞ norm): the cameras inside the cube ±1, everything beyond drawn into ±2, marching
-        /// steps that grow with distance (docs/captures.md). For the ngp field; not with NDC.
-        #[arg(long)]
-        contract: bool,
+        /// steps that grow with distance (docs/captures.md). `--contract` or `--contract true`
+        /// to contract, `--contract false` for the cube; default: contracted for ngp runs on
+        /// captures that neither face one way nor give an aabb_scale under 8. Not with NDC.
+        #[arg(long, num_args = 0..=1, default_missing_value = "true")]
+        contract: Option<bool>,
         /// Learn a code per training image for its exposure and white balance (nerfacto's
         /// appearance embedding); renders and bundles use the codes' mean (`nerf export
         /// --appearance` picks another). For the ngp field.
@@ -401,15 +403,12 @@ fn main() -> Result<()> {
                 Some(path) => TrainConfig::from_toml_file(path, preset)?,
                 None => preset.unwrap_or(Preset::DEFAULT).config(),
             };
-            if contract {
-                cfg = cfg.contracted(nerf_core::sample::Contraction::Linf).map_err(|e| anyhow::anyhow!("--contract: {e}"))?;
-            }
             cfg.appearance |= appearance;
             cfg.refine_cameras |= refine_cameras;
             if let Some(seed) = seed {
                 cfg.seed = seed;
             }
-            let opts = TrainOptions { format, data, run: out.clone(), config: cfg, ndc, downscale, time_budget_min, iters, progress };
+            let opts = TrainOptions { format, data, run: out.clone(), config: cfg, ndc, contract, downscale, time_budget_min, iters, progress };
             let live = if serve {
                 if !(snapshot_every.is_finite() && snapshot_every > 0.0) {
                     bail!("--snapshot-every {snapshot_every}: give seconds > 0");
@@ -579,7 +578,7 @@ fn demo(out: PathBuf, minutes: f64, progress: bool) -> Result<()> {
     config.eval_every_min = 0.0;
     config.lr_decay_ksteps = 2.0;
     println!("training for {minutes} min (preset cpu-fast) into {}", run.display());
-    let opts = TrainOptions { format: None, data: scene.clone(), run: run.clone(), config, ndc: None, downscale: 1, time_budget_min: Some(minutes), iters: None, progress };
+    let opts = TrainOptions { format: None, data: scene.clone(), run: run.clone(), config, ndc: None, contract: None, downscale: 1, time_budget_min: Some(minutes), iters: None, progress };
     let s = train(&opts)?;
     println!("trained {} steps, train PSNR {:.2} dB", s.steps, s.train_psnr);
     let eval_dir = out.join("eval");

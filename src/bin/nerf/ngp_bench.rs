@@ -87,7 +87,7 @@ pub fn bench_ngp_render(bundle: Option<&Path>, steps: usize, data: &Path, progre
             let run = temporary.path().join("run");
             let mut config = Preset::Ngp.config();
             config.eval_every_min = 0.0;
-            let options = nerf::train::TrainOptions { format: None, data: data.to_path_buf(), run: run.clone(), config, ndc: None, downscale: 1, time_budget_min: None, iters: Some(steps), progress };
+            let options = nerf::train::TrainOptions { format: None, data: data.to_path_buf(), run: run.clone(), config, ndc: None, contract: None, downscale: 1, time_budget_min: None, iters: Some(steps), progress };
             let summary = nerf::train::train(&options)?;
             let out = temporary.path().join("bundle");
             nerf::export::export_run(&run, &out, &CompileOptions::default(), None)?;
