@@ -3,12 +3,12 @@
 
 use crate::field::FieldTrainer;
 use crate::config::TrainConfig;
-use nerf_core::field::FieldKind;
 use crate::error::{Error, Result};
 use crate::live::{ProgressLog, SnapshotOptions, Snapshots};
 use crate::run_dir::{RunDir, RunSource};
 use indicatif::{ProgressBar, ProgressStyle};
 use nerf_core::dataset::{Background, CaptureFormat, CaptureSplit, LoadOptions, SceneFrame, SplitData, default_contraction, detect_format, load_dataset};
+use nerf_core::field::FieldKind;
 use nerf_core::sample::Contraction;
 use std::path::PathBuf;
 use std::time::Instant;
