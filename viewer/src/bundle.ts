@@ -4,6 +4,7 @@
 
 import { CONTRACTED_HALF_SIZE } from "./contraction";
 import type { Grid } from "./march";
+import { walkFields } from "./proto";
 
 /** The format of a contracted field's scene.json, and only of one. */
 export const SCENE_FORMAT_CONTRACTED = "nerf-rs-scene-3";
@@ -121,33 +122,8 @@ export function graphInfo(bytes: Uint8Array, name: string): GraphInfo {
   const info: GraphInfo = { ops: new Set(), float16: false, metadata: {} };
   const text = new TextDecoder();
   const bad = (why: string): never => { throw new Error(`${name}: not an ONNX model (${why})`); };
-  const varint = (at: { pos: number }, end: number): number => {
-    let v = 0, scale = 1;
-    for (let i = 0; i < 10; i++) {
-      if (at.pos >= end) bad("truncated");
-      const b = bytes[at.pos++];
-      v += (b & 0x7f) * scale; scale *= 128;
-      if (b < 0x80) return v;
-    }
-    return bad("a varint longer than 10 bytes");
-  };
-  /** Calls `field(number, start, end)` for length-delimited fields and `scalar(number, value)` for varints. */
-  const walk = (start: number, end: number, field: (n: number, s: number, e: number) => void, scalar: (n: number, v: number) => void = () => {}) => {
-    const at = { pos: start };
-    while (at.pos < end) {
-      const key = varint(at, end), n = Math.floor(key / 8), wire = key % 8;
-      if (wire === 0) scalar(n, varint(at, end));
-      else if (wire === 1) at.pos += 8;
-      else if (wire === 5) at.pos += 4;
-      else if (wire === 2) {
-        const len = varint(at, end), s = at.pos;
-        if (s + len > end) bad("a field runs past the end of the file");
-        at.pos += len;
-        field(n, s, s + len);
-      } else bad(`wire type ${wire}`);
-      if (at.pos > end) bad("truncated");
-    }
-  };
+  const walk = (start: number, end: number, field: (n: number, s: number, e: number) => void, scalar?: (n: number, v: number) => void) =>
+    walkFields(bytes, start, end, bad, field, scalar);
   const str = (s: number, e: number) => text.decode(bytes.subarray(s, e));
   walk(0, bytes.length, (n, s, e) => {
     if (n === 14) {

@@ -71,20 +71,22 @@ function draw(m: FrameMsg, depthView: boolean, near: number, far: number): void 
 }
 
 function statsOf(m: FrameMsg, loaded: Loaded) {
-  return { width: m.width, height: m.height, ms: m.ms, fieldMs: m.fieldMs, loopMs: m.ms - m.fieldMs,
+  return { width: m.width, height: m.height, ms: m.ms, fieldMs: m.fieldMs, encodeMs: m.encodeMs, loopMs: m.ms - m.fieldMs,
     raysMs: m.raysMs, marchMs: m.marchMs, compositeMs: m.compositeMs, points: m.points, pointsPerSecond: m.points / (m.ms / 1000),
-    threads: loaded.threads, backend: loaded.backend, reason: loaded.reason };
+    threads: loaded.threads, backend: loaded.backend, reason: loaded.reason, encoding: loaded.encoding };
 }
 
 const sec = (ms: number) => `${(ms / 1000).toFixed(2)} s`;
 
-/** "400×400 in 9.80 s: field 9.52 s · loop 0.28 s (march 0.20 s) · 2.82 M points · … · wasm, 2 threads (no GPU adapter)". */
+/** "400×400 in 4.80 s: field 4.52 s (hash grid 1.90 s) · loop 0.28 s (march 0.20 s) · 2.82 M points · … · wasm, 2 threads
+ *  (no GPU adapter) · hash grid here". */
 function statsLine(s: ReturnType<typeof statsOf>, loaded: Loaded): string {
   const threads = s.backend === "wasm" ? `, ${s.threads} thread${s.threads > 1 ? "s" : ""}` : "";
-  return `${s.width}×${s.height} in ${sec(s.ms)}: field ${sec(s.fieldMs)} · loop ${sec(s.loopMs)}` +
+  return `${s.width}×${s.height} in ${sec(s.ms)}: field ${sec(s.fieldMs)}` + (s.encodeMs > 0 ? ` (hash grid ${sec(s.encodeMs)})` : "") +
+    ` · loop ${sec(s.loopMs)}` +
     (loaded.marched ? ` (march ${sec(s.marchMs)})` : "") + ` · ${(s.points / 1e6).toFixed(2)} M points · ` +
     `${(s.pointsPerSecond / 1e6).toFixed(2)} M points/s · ${s.backend}${threads} (${s.reason})` +
-    (loaded.marched ? " · marched" : " · coarse+fine") +
+    (loaded.marched ? " · marched" : " · coarse+fine") + (s.encoding ? ` · ${s.encoding}` : "") +
     (s.backend === "wasm" && !loaded.isolated && singleThreadWhy ? ` · one thread: not isolated, ${singleThreadWhy}` : "");
 }
 
@@ -266,7 +268,8 @@ async function start(): Promise<void> {
   const ortUrl = new URL("ort/", document.baseURI).href;
   $("isolation").hidden = crossOriginIsolated;
   if (singleThreadWhy) $("isolation").textContent += ` (${singleThreadWhy})`;
-  const load = (url: string) => send({ type: "load", bundleUrl: url, ortUrl, dense: params.get("dense") === "1", ep: params.get("ep") ?? "auto" });
+  const load = (url: string) => send({ type: "load", bundleUrl: url, ortUrl, dense: params.get("dense") === "1", ep: params.get("ep") ?? "auto",
+    wholeGraph: params.get("encoding") === "graph" });
   let view: ReturnType<typeof interactive> | null = null;
   onLoaded = (loaded) => {
     live?.loaded();

@@ -11,14 +11,17 @@ import { type Field, MAX_POINTS, type MarchTiming, renderDense, renderMarch } fr
 import type { FromWorker, Intrinsics, Provider, ToWorker } from "./protocol";
 import { type Adapter, pickProvider } from "./provider";
 import { emptyReach } from "./march";
+import { FEATURES_TENSOR, SH4_DIM, SH_TENSOR, type SplitGraph, splitHashGrid } from "./hashgrid";
+import { ParallelEncoder } from "./encoder";
 
 type Ort = typeof OrtModule;
-interface Loaded { scene: any; coarse: Field; fine: Field | null; grid: Grid | null; sessions: OrtModule.InferenceSession[] }
+interface Loaded { scene: any; coarse: Field; fine: Field | null; grid: Grid | null; release: (() => void)[] }
 let bundle: Loaded | null = null;
 let latest = 0; // the newest render request: older ones are cancelled
 // Renders run one after another: a new request waits for the previous one to stop.
 let queue: Promise<void> = Promise.resolve();
-let fieldMs = 0; // time spent inside onnxruntime, for the stats
+let fieldMs = 0; // time spent evaluating the field (onnxruntime, and the hash grid where it runs here), for the stats
+let encodeMs = 0; // of fieldMs, the hash grid evaluated here
 
 const post = (m: FromWorker, transfer: Transferable[] = []) => (self as unknown as Worker).postMessage(m, transfer);
 
@@ -28,14 +31,20 @@ async function fetchOk(url: string): Promise<ArrayBuffer> {
   return res.arrayBuffer();
 }
 
-/** A field backed by one session, split into calls of at most MAX_POINTS points. */
-function sessionField(ort: Ort, session: OrtModule.InferenceSession): Field & { session: OrtModule.InferenceSession } {
+/** A field backed by one session, split into calls of at most MAX_POINTS points; with an
+ *  encoder, the session holds the graph's head and the hash grid is evaluated here first. */
+function sessionField(ort: Ort, session: OrtModule.InferenceSession, encoder: ParallelEncoder | null): Field & { release(): void } {
+  const feeds = async (points: Float32Array, viewdirs: Float32Array, m: number): Promise<Record<string, OrtModule.Tensor>> => {
+    if (!encoder) return { points: new ort.Tensor("float32", points, [m, 3]), viewdirs: new ort.Tensor("float32", viewdirs, [m, 3]) };
+    const t0 = performance.now();
+    const { features, sh } = await encoder.encode(points, viewdirs, m);
+    encodeMs += performance.now() - t0;
+    // onnxruntime-web copies its inputs into its own memory: the encoder's buffers can be reused.
+    return { [FEATURES_TENSOR]: new ort.Tensor("float32", features, [m, encoder.width]), [SH_TENSOR]: new ort.Tensor("float32", sh, [m, SH4_DIM]) };
+  };
   const run = async (points: Float32Array, viewdirs: Float32Array, m: number) => {
     const t0 = performance.now();
-    const out = await session.run({
-      points: new ort.Tensor("float32", points, [m, 3]),
-      viewdirs: new ort.Tensor("float32", viewdirs, [m, 3]),
-    });
+    const out = await session.run(await feeds(points, viewdirs, m));
     const rgb = out.rgb.data as Float32Array, sigma = out.sigma.data as Float32Array;
     fieldMs += performance.now() - t0;
     return { rgb, sigma };
@@ -51,7 +60,8 @@ function sessionField(ort: Ort, session: OrtModule.InferenceSession): Field & { 
     }
     return { rgb, sigma };
   };
-  return Object.assign(field, { session });
+  const release = () => { session.release().catch(() => {}); encoder?.release(); };
+  return Object.assign(field, { release });
 }
 
 /** The provider (see provider.ts); `want` = "wasm" (?ep=wasm) skips WebGPU. */
@@ -76,7 +86,7 @@ async function loadOrt(provider: Provider, ortUrl: string, isolated: boolean): P
   return ort;
 }
 
-async function load(bundleUrl: string, ortUrl: string, dense: boolean, ep: string): Promise<void> {
+async function load(bundleUrl: string, ortUrl: string, dense: boolean, ep: string, wholeGraph: boolean): Promise<void> {
   const isolated = (self as any).crossOriginIsolated === true;
   const sceneUrl = new URL("scene.json", bundleUrl).href;
   let scene: any;
@@ -91,9 +101,17 @@ async function load(bundleUrl: string, ortUrl: string, dense: boolean, ep: strin
     return { name, url, bytes, info: graphInfo(bytes, url) };
   }));
   let { provider, reason } = await chooseProvider(graphs, ep);
+  // On WASM a hash-grid graph's encoding runs here and onnxruntime-web runs the graph's head, as
+  // nerf-render does (?encoding=graph: the whole graph); WebGPU runs the whole graph.
+  let encoding = "";
   const open = async (ort: Ort, g: (typeof graphs)[number], p: Provider) => {
-    try { return sessionField(ort, await ort.InferenceSession.create(g.bytes, { executionProviders: [p] })); }
-    catch (e) { throw new Error(`${g.url}: ${(e as Error).message}`); }
+    const split = p === "wasm" && !wholeGraph ? splitHashGrid(g.bytes, g.url) : null;
+    // Helpers on the other cores where memory can be shared (onnxruntime's threads need the same).
+    const encoder = split && "encoder" in split ? new ParallelEncoder(split.encoder, isolated ? Math.max(0, (navigator.hardwareConcurrency || 1) - 1) : 0, MAX_POINTS) : null;
+    if (split) encoding = encoder ? `hash grid here, ${encoder.threads} thread${encoder.threads > 1 ? "s" : ""}` : `whole graph: ${(split as { reason: string }).reason}`;
+    else if (wholeGraph) encoding = "whole graph (asked for)";
+    try { return sessionField(ort, await ort.InferenceSession.create(encoder ? (split as SplitGraph).head : g.bytes, { executionProviders: [p] }), encoder); }
+    catch (e) { encoder?.release(); throw new Error(`${g.url}: ${(e as Error).message}`); }
   };
   let ort = await loadOrt(provider, ortUrl, isolated);
   let fields: ReturnType<typeof sessionField>[];
@@ -116,9 +134,9 @@ async function load(bundleUrl: string, ortUrl: string, dense: boolean, ep: strin
   // Another bundle replaces this one (a live snapshot): its sessions are freed once no render uses
   // them (loads wait in the render queue).
   const old = bundle;
-  bundle = { scene, coarse: fields[0], fine: fields[1] ?? null, grid, sessions: fields.map((f) => f.session) };
-  for (const s of old?.sessions ?? []) s.release().catch(() => {});
-  post({ type: "loaded", scene, threads: ort.env.wasm.numThreads as number, backend: provider, reason, isolated, marched: grid !== null });
+  bundle = { scene, coarse: fields[0], fine: fields[1] ?? null, grid, release: fields.map((f) => f.release) };
+  for (const release of old?.release ?? []) release();
+  post({ type: "loaded", scene, threads: ort.env.wasm.numThreads as number, backend: provider, reason, isolated, marched: grid !== null, encoding });
 }
 
 async function render(id: number, width: number, height: number, c2w: number[][], intrinsics?: Intrinsics): Promise<void> {
@@ -128,6 +146,7 @@ async function render(id: number, width: number, height: number, c2w: number[][]
   if (cancelled()) { post({ type: "cancelled", id }); return; }
   const start = performance.now();
   fieldMs = 0;
+  encodeMs = 0;
   const base = pinhole(scene.camera);
   const [w, h] = intrinsics ? [width, height] : outputSize(base, width, height);
   const cam = intrinsics ? { ...base, width, height, ...intrinsics, distortion: null } : resized(base, w, h);
@@ -142,7 +161,7 @@ async function render(id: number, width: number, height: number, c2w: number[][]
     : await renderDense(scene.sampling, !!scene.white_background, coarse, fine, o, d, view, cancelled);
   if (!frame) { post({ type: "cancelled", id }); return; }
   const ms = performance.now() - start;
-  post({ type: "frame", id, width: w, height: h, rgb: frame.rgb, depth: frame.depth, acc: frame.acc, points: frame.points, ms, fieldMs,
+  post({ type: "frame", id, width: w, height: h, rgb: frame.rgb, depth: frame.depth, acc: frame.acc, points: frame.points, ms, fieldMs, encodeMs,
     raysMs, marchMs: timing.marchMs, compositeMs: timing.compositeMs }, [frame.rgb.buffer, frame.depth.buffer, frame.acc.buffer]);
 }
 
@@ -151,7 +170,7 @@ self.onmessage = (ev: MessageEvent<ToWorker>) => {
   if (m.type === "load") {
     // After the render in progress, which stops early (cancelled): it holds the current sessions.
     latest = -1;
-    queue = queue.then(() => load(m.bundleUrl, m.ortUrl, m.dense, m.ep)).catch((e) => post({ type: "error", message: String((e as Error).message ?? e) }));
+    queue = queue.then(() => load(m.bundleUrl, m.ortUrl, m.dense, m.ep, m.wholeGraph)).catch((e) => post({ type: "error", message: String((e as Error).message ?? e) }));
   } else if (m.type === "render") {
     latest = m.id;
     queue = queue.then(() => render(m.id, m.width, m.height, m.c2w, m.intrinsics))

@@ -1,0 +1,283 @@
+// The hash-grid encoding of an `ngp` field graph, evaluated here so that onnxruntime-web runs
+// only the graph's head (the MLPs): what nerf-render does with the core's Rust encoding
+// (runtime/src/network.rs), for the same reason (onnxruntime's gathers are the slow part of
+// the whole graph). The encoding is core/src/field/ngp/hash_grid's and spherical_harmonics.rs's,
+// float32 operations in their order (Math.fround after each), so the features are the Rust
+// encoding's bit for bit; the head is cut from the bundle's own graph (bundle/src/ngp.rs
+// head_graph), node for node. Pure.
+
+import { contractionFactor } from "./contraction";
+import { type Bad, concatBytes, lengthDelimited, packedVarints, stringField, varintField, walkFields } from "./proto";
+
+const f = Math.fround;
+
+/** The graph's tensors the head starts from (bundle/src/ngp.rs FEATURES_TENSOR, SH_TENSOR). */
+export const FEATURES_TENSOR = "grid.features";
+export const SH_TENSOR = "sh.output";
+/** Degree-4 spherical harmonics per direction. */
+export const SH4_DIM = 16;
+
+/** tiny-cuda-nn's hash primes y, z as int32 for Math.imul (x's is 1). */
+const PRIME_Y = 2654435761 | 0, PRIME_Z = 805459861;
+
+/** SH4_CONSTANTS of spherical_harmonics.rs, as float32. */
+const SH = [0.2820948, 0.4886025, 1.0925484, 0.9461747, 0.31539157, 0.5462742, 0.5900436, 2.8906114, 0.4570458, 0.3731763, 1.4453057].map(f);
+
+/** HashGridConfig (the `grid` of the graph's nerf.ngp metadata). */
+export interface HashGridConfig {
+  levels: number; features_per_level: number; log2_table_size: number; base_resolution: number; max_resolution: number;
+}
+
+/** One level as LevelLayout (config.rs), with its first row in the graph's table. */
+export interface Level { scale: number; resolution: number; entries: number; dense: boolean; row: number }
+
+/** The levels of `c` (LevelLayout::layout: scale N_min·bˡ − 1 in float64 rounded to float32,
+ *  resolution ⌈scale⌉ + 1, entries min(res³ rounded up to 8, T), dense where res³ fits), each
+ *  level's scale taken from `scales` where the graph gives them (its `grid.level_scales`, the
+ *  float32 values it computes with). `graphLayout`: the rows as the compiler arranges them
+ *  (ngp.rs, layout 2: hashed levels first, then dense levels padded to res³ + res² + res + 1
+ *  rows); otherwise the trained order, level after level. */
+export function levelLayout(c: HashGridConfig, graphLayout: boolean, scales?: ArrayLike<number>): Level[] {
+  const growth = c.levels <= 1 ? 1 : Math.pow(Math.exp(Math.log(c.max_resolution) - Math.log(c.base_resolution)), 1 / (c.levels - 1));
+  const log2b = Math.log2(growth), t = 2 ** c.log2_table_size;
+  const levels: Level[] = [];
+  for (let l = 0; l < c.levels; l++) {
+    const scale = scales ? f(scales[l]) : f(2 ** (l * log2b) * c.base_resolution - 1);
+    const resolution = Math.ceil(scale) + 1, size = resolution ** 3;
+    const entries = Math.min(Math.ceil(size / 8) * 8, t);
+    levels.push({ scale, resolution, entries, dense: size <= entries, row: 0 });
+  }
+  let row = 0;
+  if (!graphLayout) for (const level of levels) { level.row = row; row += level.entries; }
+  else for (const dense of [false, true]) for (const level of levels.filter((v) => v.dense === dense)) {
+    level.row = row;
+    const r = level.resolution;
+    row += dense ? r * r * r + r * r + r + 1 : level.entries;
+  }
+  return levels;
+}
+
+/** The rows a table of `levels` holds. */
+function tableRows(levels: Level[], graphLayout: boolean): number {
+  return Math.max(0, ...levels.map((l) => l.row + (graphLayout && l.dense ? l.resolution ** 3 + l.resolution ** 2 + l.resolution + 1 : l.entries)));
+}
+
+/** The degree-4 harmonics of unit `d` (sh4), into out[at..at + 16]. */
+export function sh4(x: number, y: number, z: number, out: Float32Array, at: number): void {
+  const c = SH, xy = f(x * y), yz = f(y * z), xz = f(x * z), x2 = f(x * x), y2 = f(y * y), z2 = f(z * z);
+  out[at] = c[0];
+  out[at + 1] = f(-c[1] * y);
+  out[at + 2] = f(c[1] * z);
+  out[at + 3] = f(-c[1] * x);
+  out[at + 4] = f(c[2] * xy);
+  out[at + 5] = f(-c[2] * yz);
+  out[at + 6] = f(f(c[3] * z2) - c[4]);
+  out[at + 7] = f(-c[2] * xz);
+  out[at + 8] = f(f(c[5] * x2) - f(c[5] * y2));
+  out[at + 9] = f(f(c[6] * y) * f(f(-3 * x2) + y2));
+  out[at + 10] = f(f(c[7] * xy) * z);
+  out[at + 11] = f(f(c[8] * y) * f(1 - f(5 * z2)));
+  out[at + 12] = f(f(c[9] * z) * f(f(5 * z2) - 3));
+  out[at + 13] = f(f(c[8] * x) * f(1 - f(5 * z2)));
+  out[at + 14] = f(f(c[10] * z) * f(x2 - y2));
+  out[at + 15] = f(f(c[6] * x) * f(-x2 + f(3 * y2)));
+}
+
+/** A graph's hash grid and the box it covers (GridBound), evaluated as the Rust encoding. */
+export class HashEncoder {
+  /** Features per point, L·F. */
+  readonly width: number;
+  private unit = new Float32Array(0);
+
+  constructor(readonly levels: Level[], readonly features: number, readonly table: Float32Array,
+    readonly min: number[], readonly scale: number[], readonly contracted: boolean) {
+    this.width = levels.length * features;
+  }
+
+  /** features [n, L·F] (row-major, level-major within a row) and the harmonics [n, 16] of
+   *  world `points` [n, 3] and unit `viewdirs` [n, 3]. */
+  encode(points: Float32Array, viewdirs: Float32Array, n: number, features: Float32Array, sh: Float32Array): void {
+    if (this.unit.length < 3 * n) this.unit = new Float32Array(3 * n);
+    const unit = this.unit, [m0, m1, m2] = this.min, [s0, s1, s2] = this.scale;
+    // GridBound::to_unit: contracted first where the field is, then (p − min)·scale.
+    for (let i = 0; i < n; i++) {
+      let x = points[3 * i], y = points[3 * i + 1], z = points[3 * i + 2];
+      if (this.contracted) { const k = contractionFactor(x, y, z); x = f(x * k); y = f(y * k); z = f(z * k); }
+      unit[3 * i] = f(f(x - m0) * s0); unit[3 * i + 1] = f(f(y - m1) * s1); unit[3 * i + 2] = f(f(z - m2) * s2);
+    }
+    // Level by level, so a level's part of the table is reused from cache across the points.
+    for (let l = 0; l < this.levels.length; l++) this.encodeLevel(l, n, features);
+    for (let i = 0; i < n; i++) sh4(viewdirs[3 * i], viewdirs[3 * i + 1], viewdirs[3 * i + 2], sh, SH4_DIM * i);
+  }
+
+  /** One level of every point (grid.rs corners and forward_level), the 8 corners unrolled. */
+  private encodeLevel(l: number, n: number, out: Float32Array): void {
+    const { scale, resolution: r, entries, dense, row } = this.levels[l];
+    const F = this.features, W = this.width, unit = this.unit, t = this.table;
+    const mask = entries - 1, base = row * F;
+    // Per axis, the corner terms: x·1, y·res, z·res² (dense) or the hash's x·1, y·P1, z·P2.
+    const sy = dense ? r : PRIME_Y, sz = dense ? r * r : PRIME_Z;
+    for (let i = 0; i < n; i++) {
+      // Clamped to [0, 1] (NaN to 0, as f32::max); pos ≥ 0.5, so truncation is the floor.
+      let u = unit[3 * i], v = unit[3 * i + 1], w = unit[3 * i + 2];
+      u = f(f((u > 0 ? (u < 1 ? u : 1) : 0) * scale) + 0.5);
+      v = f(f((v > 0 ? (v < 1 ? v : 1) : 0) * scale) + 0.5);
+      w = f(f((w > 0 ? (w < 1 ? w : 1) : 0) * scale) + 0.5);
+      const cx = u | 0, cy = v | 0, cz = w | 0;
+      const fx = f(u - cx), fy = f(v - cy), fz = f(w - cz), gx = f(1 - fx), gy = f(1 - fy), gz = f(1 - fz);
+      const x0 = cx, x1 = cx + 1, y0 = Math.imul(cy, sy), y1 = Math.imul(cy + 1, sy), z0 = Math.imul(cz, sz), z1 = Math.imul(cz + 1, sz);
+      // Corner k = (bx, by, bz) = bits 0, 1, 2; weight (1 · wx) · wy · wz, tiny-cuda-nn's order.
+      const w00 = f(gx * gy), w10 = f(fx * gy), w01 = f(gx * fy), w11 = f(fx * fy);
+      const k0 = f(w00 * gz), k1 = f(w10 * gz), k2 = f(w01 * gz), k3 = f(w11 * gz), k4 = f(w00 * fz), k5 = f(w10 * fz), k6 = f(w01 * fz), k7 = f(w11 * fz);
+      let e0, e1, e2, e3, e4, e5, e6, e7;
+      if (dense) {
+        // Below 2·entries: one subtraction is the modulo (the graph's padded rows hold the
+        // same value there too).
+        const wrap = (e: number) => (e >= entries ? e - entries : e);
+        e0 = wrap(x0 + y0 + z0); e1 = wrap(x1 + y0 + z0); e2 = wrap(x0 + y1 + z0); e3 = wrap(x1 + y1 + z0);
+        e4 = wrap(x0 + y0 + z1); e5 = wrap(x1 + y0 + z1); e6 = wrap(x0 + y1 + z1); e7 = wrap(x1 + y1 + z1);
+      } else {
+        e0 = (x0 ^ y0 ^ z0) & mask; e1 = (x1 ^ y0 ^ z0) & mask; e2 = (x0 ^ y1 ^ z0) & mask; e3 = (x1 ^ y1 ^ z0) & mask;
+        e4 = (x0 ^ y0 ^ z1) & mask; e5 = (x1 ^ y0 ^ z1) & mask; e6 = (x0 ^ y1 ^ z1) & mask; e7 = (x1 ^ y1 ^ z1) & mask;
+      }
+      e0 = base + e0 * F; e1 = base + e1 * F; e2 = base + e2 * F; e3 = base + e3 * F;
+      e4 = base + e4 * F; e5 = base + e5 * F; e6 = base + e6 * F; e7 = base + e7 * F;
+      const o = i * W + l * F;
+      for (let q = 0; q < F; q++) {
+        // Summed corner by corner from 0, as forward_level.
+        let acc = f(k0 * t[e0 + q]);
+        acc = f(acc + f(k1 * t[e1 + q])); acc = f(acc + f(k2 * t[e2 + q])); acc = f(acc + f(k3 * t[e3 + q]));
+        acc = f(acc + f(k4 * t[e4 + q])); acc = f(acc + f(k5 * t[e5 + q])); acc = f(acc + f(k6 * t[e6 + q]));
+        out[o + q] = f(acc + f(k7 * t[e7 + q]));
+      }
+    }
+  }
+}
+
+/** float16 bits → float32 values. */
+function halfToFloat(bits: Uint16Array): Float32Array {
+  const out = new Float32Array(bits.length);
+  for (let i = 0; i < bits.length; i++) {
+    const h = bits[i], sign = h & 0x8000 ? -1 : 1, exp = (h >> 10) & 0x1f, frac = h & 0x3ff;
+    out[i] = exp === 0 ? sign * frac * 2 ** -24 : exp === 31 ? (frac ? NaN : sign * Infinity) : sign * (1024 + frac) * 2 ** (exp - 25);
+  }
+  return out;
+}
+
+/** What the split path needs of a hash-grid graph: the encoder and the head's ONNX bytes. */
+export interface SplitGraph { encoder: HashEncoder; head: Uint8Array }
+
+/** A node's inputs and outputs, and its bytes (NodeProto: input 1, output 2). */
+interface NodeInfo { inputs: string[]; outputs: string[]; start: number; end: number }
+
+/** Split a hash-grid field graph written by nerf export into the encoder and the head, or say
+ *  why it cannot be (not a hash grid, written before its encodings' outputs were named, a table
+ *  this reader does not know): the caller then runs the whole graph. `name` goes into the error
+ *  of a malformed file. */
+export function splitHashGrid(bytes: Uint8Array, name: string): SplitGraph | { reason: string } {
+  const bad: Bad = (why) => { throw new Error(`${name}: not an ONNX model (${why})`); };
+  const text = new TextDecoder(), str = (s: number, e: number) => text.decode(bytes.subarray(s, e));
+  const walk = (s: number, e: number, field: (n: number, s: number, e: number) => void, scalar?: (n: number, v: number) => void) =>
+    walkFields(bytes, s, e, bad, field, scalar);
+  const metadata: Record<string, string> = {};
+  const model: Uint8Array[] = []; // the fields the head keeps, as they are
+  let graph: [number, number] | null = null;
+  walk(0, bytes.length, (n, s, e) => {
+    if (n === 14) {
+      let key = "", value = "";
+      walk(s, e, (m, a, b) => { if (m === 1) key = str(a, b); else if (m === 2) value = str(a, b); });
+      metadata[key] = value;
+    } else if (n === 7) graph = [s, e];
+    else if (n !== 6) model.push(lengthDelimited(n, bytes.subarray(s, e)));
+  }, (n, v) => model.push(varintField(n, v)));
+  if (metadata["nerf.field"] !== "ngp") return { reason: "not a hash-grid graph" };
+  if (!graph) return bad("no graph");
+  const [gs, ge] = graph as [number, number];
+  let spec: any, format: any = null;
+  try {
+    spec = JSON.parse(metadata["nerf.ngp"]);
+    if (metadata["nerf.grid_table"] !== undefined) format = JSON.parse(metadata["nerf.grid_table"]);
+  } catch (e) { throw new Error(`${name}: nerf.ngp / nerf.grid_table metadata: ${(e as Error).message}`); }
+  if (format && format.layout !== 2) return { reason: `table layout ${format.layout} is not known here (layout 2 is)` };
+  const b = spec.bound;
+  if (b.contraction !== undefined && b.contraction !== null && b.contraction !== "linf") return { reason: `contraction ${JSON.stringify(b.contraction)} is not known here` };
+
+  const nodes: NodeInfo[] = [], initializers = new Map<string, [number, number]>(), outputs: [string, number, number][] = [], inputs: string[] = [];
+  let graphName = "";
+  walk(gs, ge, (n, s, e) => {
+    if (n === 1) {
+      const node: NodeInfo = { inputs: [], outputs: [], start: s, end: e };
+      walk(s, e, (k, a, b) => { if (k === 1) node.inputs.push(str(a, b)); else if (k === 2) node.outputs.push(str(a, b)); });
+      nodes.push(node);
+    } else if (n === 5) {
+      let tensor = "";
+      walk(s, e, (k, a, b) => { if (k === 8) tensor = str(a, b); });
+      initializers.set(tensor, [s, e]);
+    } else if (n === 11 || n === 12) {
+      let value = "";
+      walk(s, e, (k, a, b) => { if (k === 1) value = str(a, b); });
+      if (n === 11) inputs.push(value); else outputs.push([value, s, e]);
+    } else if (n === 2) graphName = str(s, e);
+  });
+
+  // The table and the level scales the graph computes with.
+  const tensor = (tensorName: string) => {
+    const at = initializers.get(tensorName);
+    if (!at) return null;
+    const t = { dims: [] as number[], type: 0, raw: null as Uint8Array | null };
+    walk(at[0], at[1], (k, a, b) => {
+      if (k === 1) t.dims.push(...packedVarints(bytes, a, b, bad));
+      else if (k === 9) t.raw = bytes.subarray(a, b);
+    }, (k, v) => { if (k === 1) t.dims.push(v); else if (k === 2) t.type = v; });
+    return t;
+  };
+  const floats = (raw: Uint8Array, type: number): Float32Array | null => {
+    // Copied: the model's bytes are not aligned for a typed view.
+    const copy = raw.slice();
+    if (type === 1) return new Float32Array(copy.buffer, 0, copy.length / 4);
+    if (type === 10) return halfToFloat(new Uint16Array(copy.buffer, 0, copy.length / 2));
+    return null;
+  };
+  const grid: HashGridConfig = spec.grid, F = grid.features_per_level;
+  const scalesTensor = tensor("grid.level_scales");
+  const scales = scalesTensor?.raw && scalesTensor.type === 1 && scalesTensor.raw.length === 4 * grid.levels ? floats(scalesTensor.raw, 1)! : undefined;
+  const graphLayout = format !== null;
+  const levels = levelLayout(grid, graphLayout, scales);
+  const t = tensor("grid.table");
+  if (!t || !t.raw) return { reason: "its table is not stored as raw data" };
+  const rows = tableRows(levels, graphLayout);
+  if (t.dims.length !== 2 || t.dims[0] !== rows || t.dims[1] !== F)
+    throw new Error(`${name}: grid.table is [${t.dims.join(", ")}], the grid's layout needs [${rows}, ${F}]`);
+  const table = floats(t.raw, t.type);
+  if (!table || table.length !== rows * F) throw new Error(`${name}: grid.table holds ${t.raw.length} bytes of type ${t.type}, expected ${rows * F} float32 or float16 values`);
+
+  // The head: walk back from the outputs, stopping at the two cuts (ngp.rs head_graph).
+  const cuts = [FEATURES_TENSOR, SH_TENSOR];
+  for (const cut of cuts) if (!nodes.some((nd) => nd.outputs.includes(cut))) return { reason: `no node computes ${cut}` };
+  const needed = new Set(outputs.map(([o]) => o)), keep = new Array(nodes.length).fill(false);
+  for (let k = nodes.length - 1; k >= 0; k--) {
+    if (nodes[k].outputs.some((o) => needed.has(o))) {
+      keep[k] = true;
+      for (const i of nodes[k].inputs) if (i !== "" && !cuts.includes(i)) needed.add(i);
+    }
+  }
+  const leak = inputs.find((i) => needed.has(i));
+  if (leak) return { reason: `the outputs depend on ${leak} other than through ${FEATURES_TENSOR} and ${SH_TENSOR}` };
+  const width = levels.length * F;
+  const input = (tensorName: string, w: number) => {
+    // ValueInfoProto { name, type: TypeProto { tensor_type { elem_type FLOAT, shape [N, w] } } }
+    const dims = concatBytes([lengthDelimited(1, stringField(2, "N")), lengthDelimited(1, varintField(1, w))]);
+    const type = lengthDelimited(1, concatBytes([varintField(1, 1), lengthDelimited(2, dims)]));
+    return lengthDelimited(11, concatBytes([stringField(1, tensorName), lengthDelimited(2, type)]));
+  };
+  const head = concatBytes([
+    ...nodes.filter((_, k) => keep[k]).map((nd) => lengthDelimited(1, bytes.subarray(nd.start, nd.end))),
+    stringField(2, `${graphName}.head`),
+    ...[...initializers].filter(([n]) => needed.has(n)).map(([, [s, e]]) => lengthDelimited(5, bytes.subarray(s, e))),
+    input(FEATURES_TENSOR, width), input(SH_TENSOR, SH4_DIM),
+    ...outputs.map(([, s, e]) => lengthDelimited(12, bytes.subarray(s, e))),
+  ]);
+  const boxScale = [0, 1, 2].map((d) => f(1 / f(b.max[d] - b.min[d])));
+  const encoder = new HashEncoder(levels, F, table, b.min.map(f), boxScale, b.contraction === "linf");
+  return { encoder, head: concatBytes([...model, lengthDelimited(7, head)]) };
+}
