@@ -68,16 +68,19 @@ export function cameraRays(cam: Pinhole, c2w: number[][], pixels?: Int32Array): 
   const o = new Float32Array(3 * n), d = new Float32Array(3 * n);
   const off = cam.pixelCenter === "half_pixel" ? 0.5 : 0;
   const m = c2w.map((row) => row.map((v) => f(v)));
-  for (let r = 0; r < n; r++) {
-    const i = pixels ? pixels[2 * r] : r % cam.width, j = pixels ? pixels[2 * r + 1] : Math.floor(r / cam.width);
-    let x = (i + off - cam.cx) / cam.fx, y = (j + off - cam.cy) / cam.fy;
-    if (cam.distortion) [x, y] = undistort(x, y, cam.distortion);
+  const [m00, m01, m02, ox] = m[0], [m10, m11, m12, oy] = m[1], [m20, m21, m22, oz] = m[2];
+  const { width, cx: px, cy: py, fx, fy, distortion } = cam;
+  for (let r = 0, i = 0, j = 0; r < n; r++) {
+    if (pixels) { i = pixels[2 * r]; j = pixels[2 * r + 1]; }
+    else if (r > 0 && ++i === width) { i = 0; j++; }
+    let x = (i + off - px) / fx, y = (j + off - py) / fy;
+    if (distortion) [x, y] = undistort(x, y, distortion);
     const cx = f(x), cy = f(-y);
-    for (let a = 0; a < 3; a++) {
-      // dirs @ c2w[:3,:3].T, z = -1, summed left to right in f32.
-      d[3 * r + a] = f(f(f(cx * m[a][0]) + f(cy * m[a][1])) + f(-m[a][2]));
-      o[3 * r + a] = m[a][3];
-    }
+    // dirs @ c2w[:3,:3].T, z = -1, summed left to right in f32.
+    d[3 * r] = f(f(f(cx * m00) + f(cy * m01)) + f(-m02));
+    d[3 * r + 1] = f(f(f(cx * m10) + f(cy * m11)) + f(-m12));
+    d[3 * r + 2] = f(f(f(cx * m20) + f(cy * m21)) + f(-m22));
+    o[3 * r] = ox; o[3 * r + 1] = oy; o[3 * r + 2] = oz;
   }
   return { o, d, n };
 }

@@ -154,13 +154,18 @@ export class HashEncoder {
   }
 }
 
-/** float16 bits → float32 values. */
+/** float16 bits → float32 values, through a table of all 65,536 (made once). */
+let halves: Float32Array | null = null;
 function halfToFloat(bits: Uint16Array): Float32Array {
-  const out = new Float32Array(bits.length);
-  for (let i = 0; i < bits.length; i++) {
-    const h = bits[i], sign = h & 0x8000 ? -1 : 1, exp = (h >> 10) & 0x1f, frac = h & 0x3ff;
-    out[i] = exp === 0 ? sign * frac * 2 ** -24 : exp === 31 ? (frac ? NaN : sign * Infinity) : sign * (1024 + frac) * 2 ** (exp - 25);
+  if (!halves) {
+    halves = new Float32Array(65536);
+    for (let h = 0; h < 65536; h++) {
+      const sign = h & 0x8000 ? -1 : 1, exp = (h >> 10) & 0x1f, frac = h & 0x3ff;
+      halves[h] = exp === 0 ? sign * frac * 2 ** -24 : exp === 31 ? (frac ? NaN : sign * Infinity) : sign * (1024 + frac) * 2 ** (exp - 25);
+    }
   }
+  const out = new Float32Array(bits.length), lut = halves;
+  for (let i = 0; i < bits.length; i++) out[i] = lut[bits[i]];
   return out;
 }
 

@@ -11,7 +11,7 @@ import { pathPanel } from "./pathpanel";
 import { LIVE_POINTS, LIVE_WIDTH, probeLive, startLive } from "./live";
 
 declare global {
-  interface Window { nerfStats?: Record<string, unknown>; nerfFrame?: Float32Array; nerfTimeline?: { width: number; height: number; at: number }[];
+  interface Window { nerfStats?: Record<string, unknown>; nerfStatsRuns?: Record<string, unknown>[]; nerfFrame?: Float32Array; nerfTimeline?: { width: number; height: number; at: number }[];
     /** The interactive view's navigation and the c2w of its latest render request (for tests). */
     nerfCamera?: { nav: "fly" | "orbit"; c2w: number[][] } }
 }
@@ -90,20 +90,26 @@ function statsLine(s: ReturnType<typeof statsOf>, loaded: Loaded): string {
     (s.backend === "wasm" && !loaded.isolated && singleThreadWhy ? ` · one thread: not isolated, ${singleThreadWhy}` : "");
 }
 
-/** ?pose=test:K: one full-quality frame, then data-state="done" for a test to read window.nerfFrame. */
+/** ?pose=test:K: one full-quality frame (&repeat=N: N of them, one after the other, e.g. to time
+ *  a frame once the code is warm), then data-state="done" for a test to read window.nerfFrame;
+ *  window.nerfStatsRuns holds every frame's stats. */
 function testHook(loaded: Loaded, spec: string): void {
   const k = Number(spec.slice("test:".length));
   const poses = loaded.scene.poses?.test ?? [];
   if (!Number.isInteger(k) || k < 0 || k >= poses.length) { fail(`pose ${spec}: the bundle has ${poses.length} test poses`); return; }
   const width = Number(params.get("width") ?? 0), height = Number(params.get("height") ?? 0);
+  const repeat = Math.max(1, Math.floor(Number(params.get("repeat") ?? 1)) || 1);
+  const render = (id: number) => send({ type: "render", id, width, height, c2w: poses[k].transform_matrix });
   onFrame = (m) => {
     draw(m, false, 0, 1);
     window.nerfFrame = m.rgb;
     window.nerfStats = statsOf(m, loaded);
+    (window.nerfStatsRuns ??= []).push(window.nerfStats);
     $("stats").textContent = statsLine(window.nerfStats as any, loaded);
-    document.body.dataset.state = "done";
+    if (m.id < repeat) render(m.id + 1);
+    else document.body.dataset.state = "done";
   };
-  send({ type: "render", id: 1, width, height, c2w: poses[k].transform_matrix });
+  render(1);
 }
 
 /** The interactive viewer (orbit, or for a forward-facing NDC capture a fly camera bounded to

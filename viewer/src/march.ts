@@ -150,6 +150,11 @@ export class RayMarch implements Marcher {
     // Reciprocals: the slab's t differ from grid.rs's quotients by an ulp of f64, far inside the margin.
     const ix = 1 / dx, iy = 1 / dy, iz = 1 / dz;
     const margin = this.margin[r], skip = !Number.isNaN(margin);
+    // The box faces' constant parts: the grid's low corner, moved in by the margin.
+    const lo0 = -b + margin, hi0 = -b - margin, perInterval = 1 / this.interval;
+    // Cells per unit, and how near a cell face the float64 u may not decide the cell (2⁻²⁰·R:
+    // 16 times the float32 error of u < R).
+    const perCell = R / two, faceGap = R * 2 ** -20;
     const reach = this.reach, side = this.cellSide, near = this.near, interval = this.interval, steps = this.steps;
     let k = this.cursor[r], n = 0, tested = 0, occupiedUntil = this.occupiedUntil[r];
     const end = this.end[r];
@@ -163,9 +168,18 @@ export class RayMarch implements Marcher {
         continue;
       }
       tested++;
-      const u = f(f(f(x + b) / two) * R), v = f(f(f(y + b) / two) * R), w = f(f(f(z + b) / two) * R);
-      if (!(u >= 0 && u < R && v >= 0 && v < R && w >= 0 && w < R)) { k++; continue; }
-      const i = u | 0, j = v | 0, l = w | 0; // floor: 0 ≤ u < R ≤ 512
+      // The cell is that of the float32 u = (x + b)/2b·R. In float64 with a multiplication u is
+      // off by at most a few float32 ulps (3·2⁻²⁴ relative), so where it lies farther than `near`
+      // from every cell face its floor is the float32 u's; only the rare step that close to a
+      // face (or NaN, or outside) takes the float32 operations themselves.
+      const su = (x + b) * perCell, sv = (y + b) * perCell, sw = (z + b) * perCell;
+      let i = Math.floor(su), j = Math.floor(sv), l = Math.floor(sw);
+      if (!(su - i > faceGap && i + 1 - su > faceGap && sv - j > faceGap && j + 1 - sv > faceGap && sw - l > faceGap && l + 1 - sw > faceGap
+        && i >= 0 && i < R && j >= 0 && j < R && l >= 0 && l < R)) {
+        const u = f(f(f(x + b) / two) * R), v = f(f(f(y + b) / two) * R), w = f(f(f(z + b) / two) * R);
+        if (!(u >= 0 && u < R && v >= 0 && v < R && w >= 0 && w < R)) { k++; continue; }
+        i = u | 0; j = v | 0; l = w | 0; // floor: 0 ≤ u < R ≤ 512
+      }
       const c = (i * R + j) * R + l;
       const occupied = occ[c] !== 0;
       if (occupied) {
@@ -178,9 +192,9 @@ export class RayMarch implements Marcher {
       // or the empty cube of cells around it (skipped), shrunk by the margin (a slab test
       // written out per axis: this is the hot loop).
       const h = occupied ? 0 : reach[c] - 1;
-      const lx = -b + (i - h) * side + margin, hx = -b + (i + h + 1) * side - margin;
-      const ly = -b + (j - h) * side + margin, hy = -b + (j + h + 1) * side - margin;
-      const lz = -b + (l - h) * side + margin, hz = -b + (l + h + 1) * side - margin;
+      const lx = lo0 + (i - h) * side, hx = hi0 + (i + h + 1) * side;
+      const ly = lo0 + (j - h) * side, hy = hi0 + (j + h + 1) * side;
+      const lz = lo0 + (l - h) * side, hz = hi0 + (l + h + 1) * side;
       let enter = -Infinity, leave = Infinity;
       if (dx === 0) { if (ox < lx || ox > hx) leave = -Infinity; }
       else { const p = (lx - ox) * ix, q = (hx - ox) * ix; enter = Math.min(p, q); leave = Math.max(p, q); }
@@ -193,7 +207,8 @@ export class RayMarch implements Marcher {
       // short; not needed here: a step's f32 t and position are off the exact ones by far less
       // than the margin, and the tests compare the samples with testing every interval.)
       const inside = enter <= tk && tk <= leave;
-      const kl = inside ? Math.ceil((leave - near) / interval - 0.5) : 0;
+      // (A reciprocal: an ulp of f64 off the quotient, far inside the margin.)
+      const kl = inside ? Math.ceil((leave - near) * perInterval - 0.5) : 0;
       if (occupied) {
         occupiedUntil = kl < steps ? kl : steps;
         k++;

@@ -217,6 +217,8 @@ export async function renderMarch(s: Sampling, steps: number, white: boolean, gr
     for (let q = 0; q < batch; q++) {
       const r = rays[q], p0 = p, len = stepLen[r], dn = dNorm[r];
       let T = trans[r], stopped = false, cr = rgb[3 * r], cg = rgb[3 * r + 1], cb = rgb[3 * r + 2], z = depth[r], a = acc[r], nd = done[r];
+      // Samples to the end of the ray's current segment (a countdown, not a modulo per sample).
+      let toSegmentEnd = segment - (nd % segment);
       for (let c = 0; c < counts[q]; c++, p++) {
         const delta = stepInterval === null ? len : f(stepInterval[ks[p]] * dn);
         const alpha = f(1 - f(Math.exp(f(-Math.max(sig[p], 0) * delta))));
@@ -226,7 +228,10 @@ export async function renderMarch(s: Sampling, steps: number, white: boolean, gr
         a = f(a + w);
         T = f(T * f(f(1 - alpha) + f(1e-10)));
         nd++;
-        if (nd % segment === 0 && T < minTransmittance) { stopped = true; break; }
+        if (--toSegmentEnd === 0) {
+          toSegmentEnd = segment;
+          if (T < minTransmittance) { stopped = true; break; }
+        }
       }
       rgb[3 * r] = cr; rgb[3 * r + 1] = cg; rgb[3 * r + 2] = cb; depth[r] = z; acc[r] = a; done[r] = nd;
       p = p0 + counts[q];
