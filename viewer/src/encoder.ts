@@ -42,10 +42,16 @@ export class ParallelEncoder {
     const init: EncoderInit = { type: "init", levels: encoder.levels, features: encoder.features, table, min: encoder.min, scale: encoder.scale, contracted: encoder.contracted };
     for (let k = 0; k < helpers; k++) {
       const worker = new Worker(new URL("./encoder-worker.ts", import.meta.url), { type: "module" });
+      // A helper that cannot start (its script missing, say) is noticed at the next call.
+      worker.onerror = (ev) => { ev.preventDefault(); this.failed = `hash-grid helper: ${ev.message || "did not start"}`; this.abort?.(); };
       worker.postMessage(init);
       this.workers.push(worker);
     }
   }
+
+  /** Why a helper failed (the calls then run on this thread alone), and how to stop waiting for one. */
+  private failed: string | null = null;
+  private abort: (() => void) | null = null;
 
   get width(): number { return this.encoder.width; }
 
@@ -58,17 +64,28 @@ export class ParallelEncoder {
     const b = this.buffers;
     b.points.set(points.subarray(0, 3 * n));
     b.viewdirs.set(viewdirs.subarray(0, 3 * n));
+    if (this.failed && this.workers.length) {
+      console.warn(`${this.failed}: the hash grid is encoded on one thread`);
+      this.release();
+      this.workers.length = 0;
+    }
     // Equal shares; the calling thread takes the first.
     const shares = this.workers.length + 1, size = Math.ceil(n / shares);
-    const done = this.workers.map((worker, k) => new Promise<void>((ok, no) => {
+    const stopped = new Promise<boolean>((ok) => { this.abort = () => ok(false); });
+    const done = this.workers.map((worker, k) => new Promise<boolean>((ok) => {
       const from = Math.min(n, (k + 1) * size), to = Math.min(n, (k + 2) * size);
-      worker.onmessage = (ev) => (ev.data === "done" ? ok() : no(new Error(`hash-grid helper: ${ev.data}`)));
-      worker.onerror = (ev) => no(new Error(`hash-grid helper: ${ev.message}`));
+      worker.onmessage = (ev) => {
+        if (ev.data !== "done") this.failed = `hash-grid helper: ${ev.data}`;
+        ok(ev.data === "done");
+      };
       const job: EncodeJob = { type: "encode", buffers: b, from, to };
       worker.postMessage(job);
     }));
     encodeRows(this.encoder, b, 0, Math.min(n, size));
-    await Promise.all(done);
+    const helped = await Promise.race([Promise.all(done).then((all) => all.every(Boolean)), stopped]);
+    this.abort = null;
+    // A helper that failed: its share (and the others', to be sure) on this thread.
+    if (!helped) encodeRows(this.encoder, b, Math.min(n, size), n);
     return { features: b.features.subarray(0, this.encoder.width * n), sh: b.sh.subarray(0, SH4_DIM * n) };
   }
 

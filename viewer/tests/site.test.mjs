@@ -8,7 +8,7 @@
 import { after, before, test } from "node:test";
 import assert from "node:assert/strict";
 import { spawn } from "node:child_process";
-import { existsSync, mkdtempSync, readdirSync, rmSync } from "node:fs";
+import { existsSync, mkdtempSync, readdirSync, rmSync, unlinkSync } from "node:fs";
 import { homedir, tmpdir } from "node:os";
 import { join, resolve } from "node:path";
 import { chromium } from "playwright-core";
@@ -82,6 +82,8 @@ test("python -m http.server: the service worker isolates the page, which renders
     assert.equal(first.note, null, "no single-thread note");
     assert.ok(first.stats.threads > 1, `threads ${first.stats.threads}`);
     assert.match(first.line, /wasm, \d+ threads/);
+    // The hash grid is encoded in the page, by the worker and its helpers.
+    assert.match(first.line, /hash grid here, [2-9]\d* threads/);
     const { maxDiff, psnr } = frameError(first.frame, native);
     t.diagnostic(`lego-ngp ${w}×${h} from http.server: max |Δrgb| ${maxDiff.toExponential(2)}, PSNR ${psnr.toFixed(1)} dB, ` +
       `${first.stats.ms.toFixed(0)} ms on ${first.stats.threads} threads`);
@@ -102,4 +104,24 @@ test("python -m http.server: the service worker isolates the page, which renders
   assert.match(single.note, /one thread/);
   assert.ok(frameError(single.frame, native).psnr >= 40);
   t.diagnostic(`lego-ngp ${w}×${h} on one thread (?sw=0): ${single.stats.ms.toFixed(0)} ms`);
+});
+
+test("a hash-grid helper that cannot start: the worker encodes alone, the same frame", { timeout: 600_000 }, async (t) => {
+  // Last in this file: it removes the helper's script from the exported site.
+  const helper = readdirSync(join(site, "assets")).filter((f) => /^encoder-worker.*\.js$/.test(f));
+  assert.equal(helper.length, 1, `one helper script in ${readdirSync(join(site, "assets"))}`);
+  unlinkSync(join(site, "assets", helper[0]));
+  const native = nativeFrame(BUNDLE, 100);
+  const [h, w] = native.shape;
+  const context = await browser.newContext();
+  try {
+    const page = await context.newPage();
+    const warnings = [];
+    page.on("console", (m) => { if (m.type() === "warning") warnings.push(m.text()); });
+    const r = await open(page, `?pose=test:0&width=${w}&height=${h}`);
+    const { maxDiff, psnr } = frameError(r.frame, native);
+    t.diagnostic(`without the helper: max |Δrgb| ${maxDiff.toExponential(2)}, PSNR ${psnr.toFixed(1)} dB; ${warnings.join(" | ")}`);
+    assert.ok(maxDiff <= 1e-3 && psnr >= 40, `max |Δrgb| ${maxDiff}, PSNR ${psnr}`);
+    assert.ok(warnings.some((w) => /hash-grid helper.*one thread/.test(w)), `warnings: ${warnings}`);
+  } finally { await context.close(); }
 });
