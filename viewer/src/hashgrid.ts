@@ -176,10 +176,10 @@ export interface SplitGraph { encoder: HashEncoder; head: Uint8Array }
 interface NodeInfo { inputs: string[]; outputs: string[]; start: number; end: number }
 
 /** Split a hash-grid field graph written by nerf export into the encoder and the head, or say
- *  why it cannot be (not a hash grid, written before its encodings' outputs were named, a table
- *  this reader does not know): the caller then runs the whole graph. `name` goes into the error
- *  of a malformed file. */
-export function splitHashGrid(bytes: Uint8Array, name: string): SplitGraph | { reason: string } {
+ *  why it cannot be (written before its encodings' outputs were named, a table this reader does
+ *  not know); null for a graph that is not a hash grid. The caller then runs the whole graph.
+ *  `name` goes into the error of a malformed file. */
+export function splitHashGrid(bytes: Uint8Array, name: string): SplitGraph | { reason: string } | null {
   const bad: Bad = (why) => { throw new Error(`${name}: not an ONNX model (${why})`); };
   const text = new TextDecoder(), str = (s: number, e: number) => text.decode(bytes.subarray(s, e));
   const walk = (s: number, e: number, field: (n: number, s: number, e: number) => void, scalar?: (n: number, v: number) => void) =>
@@ -195,7 +195,7 @@ export function splitHashGrid(bytes: Uint8Array, name: string): SplitGraph | { r
     } else if (n === 7) graph = [s, e];
     else if (n !== 6) model.push(lengthDelimited(n, bytes.subarray(s, e)));
   }, (n, v) => model.push(varintField(n, v)));
-  if (metadata["nerf.field"] !== "ngp") return { reason: "not a hash-grid graph" };
+  if (metadata["nerf.field"] !== "ngp") return null;
   if (!graph) return bad("no graph");
   const [gs, ge] = graph as [number, number];
   let spec: any, format: any = null;

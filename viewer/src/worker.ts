@@ -109,7 +109,7 @@ async function load(bundleUrl: string, ortUrl: string, dense: boolean, ep: strin
     // Helpers on the other cores where memory can be shared (onnxruntime's threads need the same).
     const encoder = split && "encoder" in split ? new ParallelEncoder(split.encoder, isolated ? Math.max(0, (navigator.hardwareConcurrency || 1) - 1) : 0, MAX_POINTS) : null;
     if (split) encoding = encoder ? `hash grid here, ${encoder.threads} thread${encoder.threads > 1 ? "s" : ""}` : `whole graph: ${(split as { reason: string }).reason}`;
-    else if (wholeGraph) encoding = "whole graph (asked for)";
+    else if (wholeGraph && p === "wasm") encoding = "whole graph (asked for)";
     try { return sessionField(ort, await ort.InferenceSession.create(encoder ? (split as SplitGraph).head : g.bytes, { executionProviders: [p] }), encoder); }
     catch (e) { encoder?.release(); throw new Error(`${g.url}: ${(e as Error).message}`); }
   };
