@@ -169,7 +169,7 @@ export class RayMarch implements Marcher {
       }
       tested++;
       // The cell is that of the float32 u = (x + b)/2b·R. In float64 with a multiplication u is
-      // off by at most a few float32 ulps (3·2⁻²⁴ relative), so where it lies farther than `near`
+      // off by at most a few float32 ulps (3·2⁻²⁴ relative), so where it lies farther than `faceGap`
       // from every cell face its floor is the float32 u's; only the rare step that close to a
       // face (or NaN, or outside) takes the float32 operations themselves.
       const su = (x + b) * perCell, sv = (y + b) * perCell, sw = (z + b) * perCell;

@@ -117,6 +117,21 @@ compare("lego", join(REPO, "models/lego"), 50, true);
 compare("lego-ngp", join(REPO, "models/lego-ngp"), 400);
 compare("ngp-portable", PORTABLE, 100);
 
+test("the hash grid in the page and the whole graph in onnxruntime-web (?encoding=graph) both give nerf-render's frame", { timeout: 600_000 }, async (t) => {
+  const native = nativeFrame(PORTABLE, 100);
+  const [h, w] = native.shape;
+  const split = await pageFrame(PORTABLE, w, h), whole = await pageFrame(PORTABLE, w, h, "&encoding=graph");
+  for (const [what, r] of [["split", split], ["whole", whole]]) {
+    const { maxDiff } = frameError(r.frame, native);
+    t.diagnostic(`${what}: max |Δrgb| ${maxDiff.toExponential(2)}; ${r.line}`);
+    assert.ok(maxDiff <= 1e-5, `${what}: max |Δrgb| ${maxDiff} > 1e-5`);
+  }
+  assert.match(split.line, /field [\d.]+ s \(hash grid [\d.]+ s\).* · hash grid here, \d+ threads/);
+  assert.ok(split.stats.encodeMs > 0);
+  assert.match(whole.line, /whole graph \(asked for\)/);
+  assert.equal(whole.stats.encodeMs, 0);
+});
+
 /** The contracted fixture's test poses in the page (`on`'s browser) against nerf-render's at
  * `width` (default: full size): max |Δrgb| <= 1e-5 each; returns the pages' results. */
 async function compareContracted(t, on, width, poses = Infinity) {
