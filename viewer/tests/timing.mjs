@@ -10,7 +10,7 @@
 // of the page load. The full pass is split into the time inside onnxruntime-web ("field") and
 // the rest ("loop": rays, marching, packing, compositing). Native: `nerf-render --split test
 // --limit 1` of the same pose and size, default and --whole-graph, its own per-frame time. Then
-// the same pose alone, three times on one page (?pose=test:0&repeat=3): the frame once warm.
+// the same pose alone, six times on one page (?pose=test:0&repeat=6): the frame once warm.
 import { execFileSync, spawn } from "node:child_process";
 import { mkdtempSync, readFileSync, rmSync } from "node:fs";
 import { tmpdir } from "node:os";
@@ -62,10 +62,10 @@ for (const bundle of bundles) {
     // SCREENSHOTS=DIR: the viewer as it looks, for the docs.
     if (process.env.SCREENSHOTS) await page.screenshot({ path: join(process.env.SCREENSHOTS, `viewer-${bundle.split("/").pop()}.png`) });
     await page.close();
-    // The same frame three times on its own page (?pose=test:0&repeat=3): once the code is warm,
+    // The same frame six times on its own page (?pose=test:0&repeat=6): once the code is warm,
     // as the Rust loop (replayed) and the Python package (first frame left out) are timed.
     const again = await browser.newPage();
-    await again.goto(`${url}?pose=test:0&width=${width}&repeat=3`);
+    await again.goto(`${url}?pose=test:0&width=${width}&repeat=6`);
     await again.waitForFunction(() => document.body.dataset.state === "done" || document.body.dataset.state === "error", null, { timeout: 600_000 });
     const runs = await again.evaluate(() => window.nerfStatsRuns ?? []);
     await again.close();
@@ -74,7 +74,7 @@ for (const bundle of bundles) {
     console.log(`${bundle} [${viewer}]: first preview ${first.width}×${first.height} at ${s(first.at)} s, full ${full.width}×${full.height} at ${s(full.at)} s; ` +
       `that pass ${s(stats.ms)} s = field ${s(stats.fieldMs)} s + loop ${s(stats.ms - stats.fieldMs)} s` +
       (stats.marchMs !== undefined ? ` (rays ${s(stats.raysMs)}, march ${s(stats.marchMs)}, compositing ${s(stats.compositeMs)})` : "") +
-      ` (${stats.threads} threads, ${stats.backend})\n  stats line: ${line}\n  test pose 0 three times: ` +
+      ` (${stats.threads} threads, ${stats.backend})\n  stats line: ${line}\n  test pose 0 six times: ` +
       runs.map((r) => `${s(r.ms)} s = field ${s(r.fieldMs)} s (hash grid ${s(r.encodeMs ?? 0)} s) + loop ${s(r.ms - r.fieldMs)} s (rays ${s(r.raysMs)}, march ${s(r.marchMs)}, compositing ${s(r.compositeMs)})`).join("; "));
   }
   if (!nativeToo) continue;
