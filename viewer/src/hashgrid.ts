@@ -1,10 +1,12 @@
 // The hash-grid encoding of an `ngp` field graph, evaluated here so that onnxruntime-web runs
 // only the graph's head (the MLPs): what nerf-render does with the core's Rust encoding
-// (runtime/src/network.rs), for the same reason (onnxruntime's gathers are the slow part of
-// the whole graph). The encoding is core/src/field/ngp/hash_grid's and spherical_harmonics.rs's,
-// float32 operations in their order (Math.fround after each), so the features are the Rust
-// encoding's bit for bit; the head is cut from the bundle's own graph (bundle/src/ngp.rs
-// head_graph), node for node. Pure.
+// (runtime/src/network.rs), for the same reason (onnxruntime's gathers of the table's rows are
+// the slow part of the whole graph). The encoding is core/src/field/ngp/hash_grid's and
+// spherical_harmonics.rs's: the unit point and each level's corner positions in float32 as Rust
+// computes them (Math.fround after each operation), so the same corners are read; the trilinear
+// weights and their sum in float64, rounded to float32 once (1.6× faster than rounding after
+// each operation; the features differ from Rust's by float32 rounding). The head is cut from
+// the bundle's own graph (bundle/src/ngp.rs head_graph), node for node. Pure.
 
 import { contractionFactor } from "./contraction";
 import { type Bad, concatBytes, lengthDelimited, packedVarints, stringField, varintField, walkFields } from "./proto";
@@ -124,11 +126,11 @@ export class HashEncoder {
       v = f(f((v > 0 ? (v < 1 ? v : 1) : 0) * scale) + 0.5);
       w = f(f((w > 0 ? (w < 1 ? w : 1) : 0) * scale) + 0.5);
       const cx = u | 0, cy = v | 0, cz = w | 0;
-      const fx = f(u - cx), fy = f(v - cy), fz = f(w - cz), gx = f(1 - fx), gy = f(1 - fy), gz = f(1 - fz);
+      const fx = u - cx, fy = v - cy, fz = w - cz, gx = 1 - fx, gy = 1 - fy, gz = 1 - fz;
       const x0 = cx, x1 = cx + 1, y0 = Math.imul(cy, sy), y1 = Math.imul(cy + 1, sy), z0 = Math.imul(cz, sz), z1 = Math.imul(cz + 1, sz);
-      // Corner k = (bx, by, bz) = bits 0, 1, 2; weight (1 · wx) · wy · wz, tiny-cuda-nn's order.
-      const w00 = f(gx * gy), w10 = f(fx * gy), w01 = f(gx * fy), w11 = f(fx * fy);
-      const k0 = f(w00 * gz), k1 = f(w10 * gz), k2 = f(w01 * gz), k3 = f(w11 * gz), k4 = f(w00 * fz), k5 = f(w10 * fz), k6 = f(w01 * fz), k7 = f(w11 * fz);
+      // Corner k = (bx, by, bz) = bits 0, 1, 2; weight wx · wy · wz (float64 from here on).
+      const w00 = gx * gy, w10 = fx * gy, w01 = gx * fy, w11 = fx * fy;
+      const k0 = w00 * gz, k1 = w10 * gz, k2 = w01 * gz, k3 = w11 * gz, k4 = w00 * fz, k5 = w10 * fz, k6 = w01 * fz, k7 = w11 * fz;
       let e0, e1, e2, e3, e4, e5, e6, e7;
       if (dense) {
         // Below 2·entries: one subtraction is the modulo (the graph's padded rows hold the
@@ -144,11 +146,7 @@ export class HashEncoder {
       e4 = base + e4 * F; e5 = base + e5 * F; e6 = base + e6 * F; e7 = base + e7 * F;
       const o = i * W + l * F;
       for (let q = 0; q < F; q++) {
-        // Summed corner by corner from 0, as forward_level.
-        let acc = f(k0 * t[e0 + q]);
-        acc = f(acc + f(k1 * t[e1 + q])); acc = f(acc + f(k2 * t[e2 + q])); acc = f(acc + f(k3 * t[e3 + q]));
-        acc = f(acc + f(k4 * t[e4 + q])); acc = f(acc + f(k5 * t[e5 + q])); acc = f(acc + f(k6 * t[e6 + q]));
-        out[o + q] = f(acc + f(k7 * t[e7 + q]));
+        out[o + q] = k0 * t[e0 + q] + k1 * t[e1 + q] + k2 * t[e2 + q] + k3 * t[e3 + q] + k4 * t[e4 + q] + k5 * t[e5 + q] + k6 * t[e6 + q] + k7 * t[e7 + q];
       }
     }
   }
