@@ -31,6 +31,9 @@ export class ParallelEncoder {
   private readonly encoder: HashEncoder;
   private readonly buffers: Buffers;
   private readonly workers: Worker[] = [];
+  /** Why a helper failed (the calls then run on this thread alone), and how to stop waiting for one. */
+  private failed: string | null = null;
+  private abort: (() => void) | null = null;
 
   constructor(encoder: HashEncoder, helpers: number, readonly rows: number) {
     const shared = helpers > 0;
@@ -48,10 +51,6 @@ export class ParallelEncoder {
       this.workers.push(worker);
     }
   }
-
-  /** Why a helper failed (the calls then run on this thread alone), and how to stop waiting for one. */
-  private failed: string | null = null;
-  private abort: (() => void) | null = null;
 
   get width(): number { return this.encoder.width; }
 
