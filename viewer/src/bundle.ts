@@ -4,7 +4,7 @@
 
 import { CONTRACTED_HALF_SIZE } from "./contraction";
 import type { Grid } from "./march";
-import { walkFields } from "./proto";
+import { ModelReader } from "./proto";
 
 /** The format of a contracted field's scene.json, and only of one. */
 export const SCENE_FORMAT_CONTRACTED = "nerf-rs-scene-3";
@@ -120,15 +120,10 @@ export interface GraphInfo {
  *  length, so the weights are never decoded. `name` goes into the error of a malformed file. */
 export function graphInfo(bytes: Uint8Array, name: string): GraphInfo {
   const info: GraphInfo = { ops: new Set(), float16: false, metadata: {} };
-  const text = new TextDecoder();
-  const bad = (why: string): never => { throw new Error(`${name}: not an ONNX model (${why})`); };
-  const walk = (start: number, end: number, field: (n: number, s: number, e: number) => void, scalar?: (n: number, v: number) => void) =>
-    walkFields(bytes, start, end, bad, field, scalar);
-  const str = (s: number, e: number) => text.decode(bytes.subarray(s, e));
+  const reader = new ModelReader(bytes, name), { walk, str, bad } = reader;
   walk(0, bytes.length, (n, s, e) => {
     if (n === 14) {
-      let key = "", value = "";
-      walk(s, e, (m, a, b) => { if (m === 1) key = str(a, b); else if (m === 2) value = str(a, b); });
+      const [key, value] = reader.entry(s, e);
       info.metadata[key] = value;
     } else if (n === 7) {
       walk(s, e, (m, a, b) => {

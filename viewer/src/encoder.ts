@@ -41,7 +41,9 @@ export class ParallelEncoder {
     let table = encoder.table;
     if (shared) { table = floats(table.length, true); table.set(encoder.table); }
     this.encoder = new HashEncoder(encoder.levels, encoder.features, table, encoder.min, encoder.scale, encoder.contracted);
-    this.buffers = { points: floats(3 * rows, shared), viewdirs: floats(3 * rows, shared), features: floats(encoder.width * rows, shared), sh: floats(SH4_DIM * rows, shared) };
+    // The inputs are copied into shared memory only for helpers to read.
+    const inputs = shared ? 3 * rows : 0;
+    this.buffers = { points: floats(inputs, shared), viewdirs: floats(inputs, shared), features: floats(encoder.width * rows, shared), sh: floats(SH4_DIM * rows, shared) };
     const init: EncoderInit = { type: "init", levels: encoder.levels, features: encoder.features, table, min: encoder.min, scale: encoder.scale, contracted: encoder.contracted };
     for (let k = 0; k < helpers; k++) {
       const worker = new Worker(new URL("./encoder-worker.ts", import.meta.url), { type: "module" });
@@ -61,13 +63,19 @@ export class ParallelEncoder {
    *  of shared memory, valid until the next call. */
   async encode(points: Float32Array, viewdirs: Float32Array, n: number): Promise<{ features: Float32Array; sh: Float32Array }> {
     const b = this.buffers;
-    b.points.set(points.subarray(0, 3 * n));
-    b.viewdirs.set(viewdirs.subarray(0, 3 * n));
     if (this.failed && this.workers.length) {
       console.warn(`${this.failed}: the hash grid is encoded on one thread`);
       this.release();
       this.workers.length = 0;
     }
+    const out = { features: b.features.subarray(0, this.encoder.width * n), sh: b.sh.subarray(0, SH4_DIM * n) };
+    if (!this.workers.length) {
+      // Alone: straight from the caller's arrays.
+      this.encoder.encode(points, viewdirs, n, out.features, out.sh);
+      return out;
+    }
+    b.points.set(points.subarray(0, 3 * n));
+    b.viewdirs.set(viewdirs.subarray(0, 3 * n));
     // Equal shares; the calling thread takes the first.
     const shares = this.workers.length + 1, size = Math.ceil(n / shares);
     const stopped = new Promise<boolean>((ok) => { this.abort = () => ok(false); });
@@ -85,7 +93,7 @@ export class ParallelEncoder {
     this.abort = null;
     // A helper that failed: its share (and the others', to be sure) on this thread.
     if (!helped) encodeRows(this.encoder, b, Math.min(n, size), n);
-    return { features: b.features.subarray(0, this.encoder.width * n), sh: b.sh.subarray(0, SH4_DIM * n) };
+    return out;
   }
 
   /** Stop the helpers (a new bundle replaces this one). */

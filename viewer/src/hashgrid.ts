@@ -9,7 +9,7 @@
 // the bundle's own graph (bundle/src/ngp.rs head_graph), node for node. Pure.
 
 import { contractionFactor } from "./contraction";
-import { type Bad, concatBytes, lengthDelimited, packedVarints, stringField, varintField, walkFields } from "./proto";
+import { ModelReader, concatBytes, lengthDelimited, packedVarints, stringField, varintField } from "./proto";
 
 const f = Math.fround;
 
@@ -30,8 +30,8 @@ export interface HashGridConfig {
   levels: number; features_per_level: number; log2_table_size: number; base_resolution: number; max_resolution: number;
 }
 
-/** One level as LevelLayout (config.rs), with its first row in the graph's table. */
-export interface Level { scale: number; resolution: number; entries: number; dense: boolean; row: number }
+/** One level as LevelLayout (config.rs), with its first row and its rows in the table. */
+export interface Level { scale: number; resolution: number; entries: number; dense: boolean; row: number; rows: number }
 
 /** The levels of `c` (LevelLayout::layout: scale N_min·bˡ − 1 in float64 rounded to float32,
  *  resolution ⌈scale⌉ + 1, entries min(res³ rounded up to 8, T), dense where res³ fits), each
@@ -47,21 +47,15 @@ export function levelLayout(c: HashGridConfig, graphLayout: boolean, scales?: Ar
     const scale = scales ? f(scales[l]) : f(2 ** (l * log2b) * c.base_resolution - 1);
     const resolution = Math.ceil(scale) + 1, size = resolution ** 3;
     const entries = Math.min(Math.ceil(size / 8) * 8, t);
-    levels.push({ scale, resolution, entries, dense: size <= entries, row: 0 });
+    const dense = size <= entries;
+    // ngp.rs padded_dense_rows: every x + y·res + z·res² for coordinates ≤ res.
+    const rows = graphLayout && dense ? size + resolution ** 2 + resolution + 1 : entries;
+    levels.push({ scale, resolution, entries, dense, row: 0, rows });
   }
   let row = 0;
-  if (!graphLayout) for (const level of levels) { level.row = row; row += level.entries; }
-  else for (const dense of [false, true]) for (const level of levels.filter((v) => v.dense === dense)) {
-    level.row = row;
-    const r = level.resolution;
-    row += dense ? r * r * r + r * r + r + 1 : level.entries;
-  }
+  const order = graphLayout ? [...levels.filter((v) => !v.dense), ...levels.filter((v) => v.dense)] : levels;
+  for (const level of order) { level.row = row; row += level.rows; }
   return levels;
-}
-
-/** The rows a table of `levels` holds. */
-function tableRows(levels: Level[], graphLayout: boolean): number {
-  return Math.max(0, ...levels.map((l) => l.row + (graphLayout && l.dense ? l.resolution ** 3 + l.resolution ** 2 + l.resolution + 1 : l.entries)));
 }
 
 /** The degree-4 harmonics of unit `d` (sh4), into out[at..at + 16]. */
@@ -167,6 +161,20 @@ function halfToFloat(bits: Uint16Array): Float32Array {
   return out;
 }
 
+/** The nerf.ngp metadata's grid and bound within the ranges HashGridConfig::validate and
+ *  GridBound::validate allow, or an error naming the file and the field. */
+function checkSpec(spec: any, name: string): void {
+  const g = spec?.grid, b = spec?.bound;
+  const int = (v: unknown, lo: number, hi: number) => Number.isInteger(v) && (v as number) >= lo && (v as number) <= hi;
+  if (!(g && int(g.levels, 1, 32) && [1, 2, 4, 8].includes(g.features_per_level) && int(g.log2_table_size, 3, 30)
+    && int(g.base_resolution, 1, 65536) && int(g.max_resolution, g.base_resolution, 65536)))
+    throw new Error(`${name}: nerf.ngp: grid ${JSON.stringify(g)} is outside what a hash grid can be (levels 1–32, ` +
+      "features_per_level 1, 2, 4 or 8, log2_table_size 3–30, 1 ≤ base_resolution ≤ max_resolution ≤ 65536)");
+  const axes = (a: unknown) => Array.isArray(a) && a.length === 3 && a.every((v) => Number.isFinite(v));
+  if (!(b && axes(b.min) && axes(b.max) && [0, 1, 2].every((d) => b.max[d] > b.min[d])))
+    throw new Error(`${name}: nerf.ngp: bound ${JSON.stringify(b)} needs finite min < max on each of 3 axes`);
+}
+
 /** What the split path needs of a hash-grid graph: the encoder and the head's ONNX bytes. */
 export interface SplitGraph { encoder: HashEncoder; head: Uint8Array }
 
@@ -178,17 +186,13 @@ interface NodeInfo { inputs: string[]; outputs: string[]; start: number; end: nu
  *  not know); null for a graph that is not a hash grid. The caller then runs the whole graph.
  *  `name` goes into the error of a malformed file. */
 export function splitHashGrid(bytes: Uint8Array, name: string): SplitGraph | { reason: string } | null {
-  const bad: Bad = (why) => { throw new Error(`${name}: not an ONNX model (${why})`); };
-  const text = new TextDecoder(), str = (s: number, e: number) => text.decode(bytes.subarray(s, e));
-  const walk = (s: number, e: number, field: (n: number, s: number, e: number) => void, scalar?: (n: number, v: number) => void) =>
-    walkFields(bytes, s, e, bad, field, scalar);
+  const reader = new ModelReader(bytes, name), { walk, str, bad } = reader;
   const metadata: Record<string, string> = {};
   const model: Uint8Array[] = []; // the fields the head keeps, as they are
   let graph: [number, number] | null = null;
   walk(0, bytes.length, (n, s, e) => {
     if (n === 14) {
-      let key = "", value = "";
-      walk(s, e, (m, a, b) => { if (m === 1) key = str(a, b); else if (m === 2) value = str(a, b); });
+      const [key, value] = reader.entry(s, e);
       metadata[key] = value;
     } else if (n === 7) graph = [s, e];
     else if (n !== 6) model.push(lengthDelimited(n, bytes.subarray(s, e)));
@@ -201,6 +205,7 @@ export function splitHashGrid(bytes: Uint8Array, name: string): SplitGraph | { r
     spec = JSON.parse(metadata["nerf.ngp"]);
     if (metadata["nerf.grid_table"] !== undefined) format = JSON.parse(metadata["nerf.grid_table"]);
   } catch (e) { throw new Error(`${name}: nerf.ngp / nerf.grid_table metadata: ${(e as Error).message}`); }
+  checkSpec(spec, name);
   if (format && format.layout !== 2) return { reason: `table layout ${format.layout} is not known here (layout 2 is)` };
   const b = spec.bound;
   if (b.contraction !== undefined && b.contraction !== null && b.contraction !== "linf") return { reason: `contraction ${JSON.stringify(b.contraction)} is not known here` };
@@ -248,7 +253,7 @@ export function splitHashGrid(bytes: Uint8Array, name: string): SplitGraph | { r
   const levels = levelLayout(grid, graphLayout, scales);
   const t = tensor("grid.table");
   if (!t || !t.raw) return { reason: "its table is not stored as raw data" };
-  const rows = tableRows(levels, graphLayout);
+  const rows = levels.reduce((sum, l) => sum + l.rows, 0);
   if (t.dims.length !== 2 || t.dims[0] !== rows || t.dims[1] !== F)
     throw new Error(`${name}: grid.table is [${t.dims.join(", ")}], the grid's layout needs [${rows}, ${F}]`);
   const table = floats(t.raw, t.type);

@@ -5,21 +5,24 @@
 /** Throws the error of a malformed message. */
 export type Bad = (why: string) => never;
 
+/** The varint at `at.pos` of bytes[.., end), moving `at` past it. */
+function readVarint(bytes: Uint8Array, at: { pos: number }, end: number, bad: Bad): number {
+  let v = 0, scale = 1;
+  for (let i = 0; i < 10; i++) {
+    if (at.pos >= end) bad("truncated");
+    const b = bytes[at.pos++];
+    v += (b & 0x7f) * scale; scale *= 128;
+    if (b < 0x80) return v;
+  }
+  return bad("a varint longer than 10 bytes");
+}
+
 /** Calls `field(number, start, end)` for each length-delimited field of bytes[start, end) and
  *  `scalar(number, value)` for each varint; fixed-width fields are skipped. */
 export function walkFields(bytes: Uint8Array, start: number, end: number, bad: Bad,
   field: (n: number, s: number, e: number) => void, scalar: (n: number, v: number) => void = () => {}): void {
   const at = { pos: start };
-  const varint = (): number => {
-    let v = 0, scale = 1;
-    for (let i = 0; i < 10; i++) {
-      if (at.pos >= end) bad("truncated");
-      const b = bytes[at.pos++];
-      v += (b & 0x7f) * scale; scale *= 128;
-      if (b < 0x80) return v;
-    }
-    return bad("a varint longer than 10 bytes");
-  };
+  const varint = () => readVarint(bytes, at, end, bad);
   while (at.pos < end) {
     const key = varint(), n = Math.floor(key / 8), wire = key % 8;
     if (wire === 0) scalar(n, varint());
@@ -37,21 +40,35 @@ export function walkFields(bytes: Uint8Array, start: number, end: number, bad: B
 
 /** The varints of a packed repeated field (e.g. a TensorProto's dims) in bytes[start, end). */
 export function packedVarints(bytes: Uint8Array, start: number, end: number, bad: Bad): number[] {
-  const out: number[] = [];
-  // A packed field's body is varints back to back: walk it as fields of key 0 would not work,
-  // so decode them one by one.
-  let pos = start;
-  while (pos < end) {
-    let v = 0, scale = 1, i = 0;
-    for (;; i++) {
-      if (pos >= end || i === 10) bad("a malformed packed field");
-      const b = bytes[pos++];
-      v += (b & 0x7f) * scale; scale *= 128;
-      if (b < 0x80) break;
-    }
-    out.push(v);
-  }
+  const out: number[] = [], at = { pos: start };
+  while (at.pos < end) out.push(readVarint(bytes, at, end, bad));
   return out;
+}
+
+const decoder = new TextDecoder();
+
+/** An ONNX model's bytes and what every reader of them needs: its fields by range, its strings,
+ *  and errors that name the file (`name`). */
+export class ModelReader {
+  constructor(readonly bytes: Uint8Array, readonly name: string) {}
+
+  /** Throws "<name>: not an ONNX model (<why>)". */
+  readonly bad: Bad = (why) => { throw new Error(`${this.name}: not an ONNX model (${why})`); };
+
+  /** walkFields over bytes[start, end). */
+  readonly walk = (start: number, end: number, field: (n: number, s: number, e: number) => void, scalar?: (n: number, v: number) => void): void =>
+    walkFields(this.bytes, start, end, this.bad, field, scalar);
+
+  /** The UTF-8 string in bytes[start, end). */
+  readonly str = (start: number, end: number): string => decoder.decode(this.bytes.subarray(start, end));
+
+  /** A metadata entry (ModelProto.metadata_props, StringStringEntryProto: key 1, value 2) in
+   *  bytes[start, end). */
+  entry(start: number, end: number): [string, string] {
+    let key = "", value = "";
+    this.walk(start, end, (m, a, b) => { if (m === 1) key = this.str(a, b); else if (m === 2) value = this.str(a, b); });
+    return [key, value];
+  }
 }
 
 /** A varint's bytes (non-negative integers below 2⁵³). */

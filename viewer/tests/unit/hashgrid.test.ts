@@ -5,6 +5,7 @@ import { describe, expect, it } from "vitest";
 import { readFileSync } from "node:fs";
 import { resolve } from "node:path";
 import { graphInfo } from "../../src/bundle";
+import { concatBytes, lengthDelimited, stringField } from "../../src/proto";
 import { FEATURES_TENSOR, HashEncoder, type HashGridConfig, SH4_DIM, SH_TENSOR, levelLayout, sh4, splitHashGrid } from "../../src/hashgrid";
 
 const REPO = resolve(import.meta.dirname, "../../..");
@@ -27,7 +28,7 @@ describe("levelLayout", () => {
     const c: HashGridConfig = { levels: 16, features_per_level: 2, log2_table_size: 19, base_resolution: 16, max_resolution: 2048 };
     const levels = levelLayout(c, false);
     // b = 2048/16 ^ (1/15) = 2^(7/15); level 0: 16 − 1 = 15, res 16, 4096 entries, dense.
-    expect(levels[0]).toEqual({ scale: 15, resolution: 16, entries: 4096, dense: true, row: 0 });
+    expect(levels[0]).toEqual({ scale: 15, resolution: 16, entries: 4096, dense: true, row: 0, rows: 4096 });
     expect(levels[15].scale).toBe(2047);
     expect(levels.filter((l) => l.dense).length).toBe(5); // res³ ≤ 2¹⁹ up to res 80
     expect(levels[5]).toMatchObject({ dense: false, entries: 1 << 19 });
@@ -37,6 +38,8 @@ describe("levelLayout", () => {
     expect(graph[15].row).toBe(10 * (1 << 19));
     expect(graph[0].row).toBe(11 * (1 << 19));
     expect(graph[1].row).toBe(11 * (1 << 19) + 16 ** 3 + 16 ** 2 + 16 + 1);
+    expect(graph[0].rows).toBe(16 ** 3 + 16 ** 2 + 16 + 1);
+    expect(graph[5].rows).toBe(1 << 19);
   });
 });
 
@@ -57,7 +60,8 @@ describe("HashEncoder", () => {
     // base 2: scale 1, res 2, 8 entries, dense. Unit (1, 1, 1): pos 1.5, corners 1..2 per axis,
     // indices 7, 8, 9, 10, 11, 12, 13, 14 → wrapped 7, 0, 1, …, 6: the mean of rows 0..7 = 3.5.
     const c = one({ base_resolution: 2, max_resolution: 2 });
-    expect(levelLayout(c, false)[0]).toEqual({ scale: 1, resolution: 2, entries: 8, dense: true, row: 0 });
+    expect(levelLayout(c, false)[0]).toEqual({ scale: 1, resolution: 2, entries: 8, dense: true, row: 0, rows: 8 });
+    expect(levelLayout(c, true)[0].rows).toBe(15);
     expect(encodeOne(c, false, 8, (i) => i, [1, 1, 1])).toBe(3.5);
     // The graph's padded rows (15, row r holding r mod 8) give the same.
     expect(encodeOne(c, true, 15, (i) => i % 8, [1, 1, 1])).toBe(3.5);
@@ -104,6 +108,23 @@ describe("splitHashGrid", () => {
     expect(splitHashGrid(bytesOf("models/lego/fine.onnx"), "fine.onnx")).toBeNull();
     const bytes = bytesOf("viewer/tests/fixtures/ngp-portable/field.onnx");
     expect(() => splitHashGrid(bytes.subarray(0, 5000), "field.onnx")).toThrow(/field\.onnx: not an ONNX model/);
+  });
+
+  it("names the file and the field of a hash-grid graph whose metadata is out of range", () => {
+    // A model of one node whose nerf.ngp metadata is the given JSON.
+    const model = (ngp: string) => concatBytes([
+      lengthDelimited(14, concatBytes([stringField(1, "nerf.field"), stringField(2, "ngp")])),
+      lengthDelimited(14, concatBytes([stringField(1, "nerf.ngp"), stringField(2, ngp)])),
+      lengthDelimited(7, lengthDelimited(1, concatBytes([stringField(1, "x"), stringField(2, "y"), stringField(4, "Relu")]))),
+    ]);
+    const grid = { levels: 16, features_per_level: 2, log2_table_size: 19, base_resolution: 16, max_resolution: 2048 };
+    const bound = { min: [-1, -1, -1], max: [1, 1, 1] };
+    const split = (spec: object) => () => splitHashGrid(model(JSON.stringify(spec)), "field.onnx");
+    expect(split({ grid: { ...grid, levels: 40 }, bound })).toThrow(/field\.onnx: nerf\.ngp: grid .*"levels":40.*\(levels 1–32/);
+    expect(split({ grid: { ...grid, features_per_level: 3 }, bound })).toThrow(/field\.onnx: nerf\.ngp: grid/);
+    expect(split({ bound })).toThrow(/field\.onnx: nerf\.ngp: grid undefined/);
+    expect(split({ grid, bound: { min: [1, 1, 1], max: [1, 2, 2] } })).toThrow(/field\.onnx: nerf\.ngp: bound .* finite min < max/);
+    expect(() => splitHashGrid(model("{"), "field.onnx")).toThrow(/field\.onnx: nerf\.ngp \/ nerf\.grid_table metadata/);
   });
 
   it("the encoder and the head give the whole graph's outputs in onnxruntime-web (plain and contracted)", async () => {
