@@ -3,6 +3,7 @@ packed.rs, compositing.rs, dense.rs, sample/stratified.rs), over packed samples 
 of distances with per-ray offsets) instead of per-ray loops."""
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass
 from typing import Callable, List, Optional, Sequence, Tuple
@@ -107,6 +108,8 @@ def unit(v: np.ndarray) -> np.ndarray:
 CORNER_SIDES = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32)
 #: A corner table's levels from here on are occupied cells (:meth:`Grid.corner_table`).
 OCCUPIED = 128
+#: Guards the grids' cached tables: loops side by side march one grid.
+_GRID_CACHE_LOCK = threading.RLock()
 
 
 def octant_signs(octant: int) -> Tuple[int, int, int]:
@@ -157,13 +160,14 @@ class Grid:
     def padded(self) -> np.ndarray:
         """[R + 2]³ bool, cached: the grid with one empty cell on every side (outside the cube
         nothing is occupied)."""
-        cached = self.__dict__.get("_padded")
-        if cached is None:
-            r = self.resolution
-            cached = np.zeros((r + 2,) * 3, bool)
-            cached[1:-1, 1:-1, 1:-1] = self.occupied.reshape(r, r, r)
-            self.__dict__["_padded"] = cached
-        return cached
+        with _GRID_CACHE_LOCK:
+            cached = self.__dict__.get("_padded")
+            if cached is None:
+                r = self.resolution
+                cached = np.zeros((r + 2,) * 3, bool)
+                cached[1:-1, 1:-1, 1:-1] = self.occupied.reshape(r, r, r)
+                self.__dict__["_padded"] = cached
+            return cached
 
     def corner_table(self, octant: int) -> np.ndarray:
         """[(R + 2)³] uint8, cached per octant, over the :meth:`padded` grid: for each cell, the
@@ -183,20 +187,21 @@ class Grid:
         """[8·(R + 2)³] uint8, cached: the :meth:`corner_table` of octant q at q·(R + 2)³, made
         for ``octants`` (and any asked before); the others unset (their memory is not touched)."""
         cells = (self.resolution + 2) ** 3
-        tables = self.__dict__.get("_corner_tables")
-        if tables is None:
-            tables = self.__dict__["_corner_tables"] = np.empty(8 * cells, np.uint8)
-            self.__dict__["_octants"] = set()
-        made = self.__dict__["_octants"]
-        for q in octants:
-            if q not in made:
-                occupied = self.padded()
-                empty = _corner_sides(~occupied, q)
-                full = _corner_sides(occupied, q)
-                full += OCCUPIED - 1
-                tables[q * cells:(q + 1) * cells] = np.where(occupied, full, empty).reshape(-1)
-                made.add(q)
-        return tables
+        occupied = self.padded()
+        with _GRID_CACHE_LOCK:
+            tables = self.__dict__.get("_corner_tables")
+            if tables is None:
+                tables = self.__dict__["_corner_tables"] = np.empty(8 * cells, np.uint8)
+                self.__dict__["_octants"] = set()
+            made = self.__dict__["_octants"]
+            for q in octants:
+                if q not in made:
+                    empty = _corner_sides(~occupied, q)
+                    full = _corner_sides(occupied, q)
+                    full += OCCUPIED - 1
+                    tables[q * cells:(q + 1) * cells] = np.where(occupied, full, empty).reshape(-1)
+                    made.add(q)
+            return tables
 
     def occupied_along(self, o: np.ndarray, d: np.ndarray, t: np.ndarray) -> np.ndarray:
         """Whether the points o + t·d (float32, as ``point_at``) lie in occupied cells, for
@@ -643,13 +648,21 @@ class Marched:
 class Stages:
     """Wall seconds per stage of rendering, summed over calls: ``rays`` (camera rays, NDC),
     ``march`` (finding samples), ``gather`` (the field's inputs), ``field`` (the field calls),
-    ``composite`` (α, compositing, bookkeeping)."""
+    ``composite`` (α, compositing, bookkeeping). Where ``loops`` loops ran side by side, each
+    stage is their mean."""
 
     rays: float = 0.0
     march: float = 0.0
     gather: float = 0.0
     field: float = 0.0
     composite: float = 0.0
+    loops: int = 1
+
+    def add_mean(self, parts: Sequence["Stages"]) -> None:
+        """Add the mean of the stages of ``parts``, loops that ran side by side."""
+        for name in ("rays", "march", "gather", "field", "composite"):
+            setattr(self, name, getattr(self, name) + sum(getattr(p, name) for p in parts) / len(parts))
+        self.loops = max(self.loops, len(parts))
 
     def lap(self, stage: str, since: float) -> float:
         """Add the time from ``since`` to now to ``stage``; returns now."""
@@ -708,12 +721,14 @@ def march_grid(field: FieldFn, grid: Grid, o: np.ndarray, d: np.ndarray, viewdir
                stages: Optional[Stages] = None) -> Marched:
     """``grid::render_rays`` for ``o``, ``d``, unit ``viewdirs`` [n, 3]: the rays' occupied
     samples (:class:`Marcher`), evaluated front to back ``MARCH_SEGMENT`` per active ray per
-    field call and composited (:func:`composite`); a ray stops once T < ``min_transmittance``
+    round and composited (:func:`composite_lanes`); a ray stops once T < ``min_transmittance``
     (``None``: never) or when it has no more samples.
 
-    The rays are marched together, a round at a time, while the field sees the batches
-    nerf-render gives it: each run of ``batch`` rays (a chunk) gets its own call per round,
-    with its active rays' next samples in ray order."""
+    The rays are marched together, a round at a time; a round's samples go to the field in
+    blocks of at most ``batch`` × ``MARCH_SEGMENT`` points (the points ``batch`` rays send
+    nerf-render's field in a round) and about ``ROUND_BLOCK`` (so a block's arrays stay in
+    cache). A point's output does not depend on the others in its call, so the pixels are those
+    of nerf-render's calls, chunk by chunk."""
     stages = stages if stages is not None else Stages()
     n = len(o)
     trans = np.ones(n, F32)
@@ -724,6 +739,7 @@ def march_grid(field: FieldFn, grid: Grid, o: np.ndarray, d: np.ndarray, viewdir
     now = time.perf_counter()
     marcher = Marcher(grid, o, d, near, far, steps)
     state = (trans, rgb, depth, acc)
+    most = max(1, min(batch * MARCH_SEGMENT, ROUND_BLOCK))
     active = np.arange(n)
     while active.size:
         k, live, cnt = marcher.advance(active)
@@ -731,18 +747,18 @@ def march_grid(field: FieldFn, grid: Grid, o: np.ndarray, d: np.ndarray, viewdir
         now = stages.lap("march", now)
         if not active.size:
             break
-        # Blocks of whole chunks of about ROUND_BLOCK samples, so a block's arrays stay in cache.
-        ends = np.zeros(len(active) + 1, np.int64)
-        np.cumsum(cnt, out=ends[1:])
-        chunk = active // batch
-        first = np.flatnonzero(np.r_[True, chunk[1:] != chunk[:-1]])
-        block = ends[first] // ROUND_BLOCK
-        bounds = np.r_[first[np.r_[True, block[1:] != block[:-1]]], len(active)]
-        keep = np.empty(len(active), bool)
+        # Blocks of consecutive rays with at most `most` samples.
+        ends = np.cumsum(cnt)
+        bounds = [0]
+        while bounds[-1] < len(active):
+            first = bounds[-1]
+            limit = (ends[first - 1] if first else 0) + most
+            bounds.append(max(first + 1, int(np.searchsorted(ends, limit, side="right"))))
+        going = []
         for a, b in zip(bounds[:-1], bounds[1:]):
-            keep[a:b], now = _round_block(field, marcher, viewdirs, k[:, a:b], cnt[a:b], active[a:b], chunk[a:b], state, min_t,
-                                          stages, now)
-        active = active[keep]
+            rays, now = _round_block(field, marcher, viewdirs, k[:, a:b], cnt[a:b], active[a:b], state, min_t, stages, now)
+            going.append(rays)
+        active = np.concatenate(going)
     out = np.ascontiguousarray(rgb.T)
     if white_background:
         out += (F32(1) - acc)[:, None]
@@ -750,52 +766,75 @@ def march_grid(field: FieldFn, grid: Grid, o: np.ndarray, d: np.ndarray, viewdir
 
 
 def _round_block(field: FieldFn, marcher: Marcher, viewdirs: np.ndarray, k: np.ndarray, cnt: np.ndarray, active: np.ndarray,
-                 chunk: np.ndarray, state: Tuple[np.ndarray, ...], min_t: np.float32, stages: Stages,
-                 now: float) -> Tuple[np.ndarray, float]:
-    """One round of :func:`march_grid` for a block of whole chunks: the field's inputs for the
-    ``active`` rays' next samples (steps ``k`` [S, m], ``cnt`` [m]), one field call per chunk,
-    and the compositing into ``state`` (trans, rgb, depth, acc); returns which rays go on
-    (T ≥ ``min_t`` and a full segment) and the time of the last lap."""
-    s, m = len(k), len(active)
-    valid = np.arange(s)[:, None] < cnt  # [S, m]
+                 state: Tuple[np.ndarray, ...], min_t: np.float32, stages: Stages, now: float) -> Tuple[np.ndarray, float]:
+    """One round of :func:`march_grid` for a block of rays: the field's inputs for the
+    ``active`` rays' next samples (steps ``k`` [S, m], ``cnt`` [m] ≥ 1), one field call, and
+    the compositing into ``state`` (trans, rgb, depth, acc); returns the rays that go on (T ≥
+    ``min_t`` and a full segment) and the time of the last lap.
+
+    The rays are ordered by their count, most first (stable), so that sample j of every ray
+    that has one is a prefix of the rays: lane j's samples are the first ``lanes[j]`` rays'
+    and every per-lane operation works on contiguous slices. The field sees the samples lane
+    after lane."""
+    s = len(k)
+    order = np.argsort((s - cnt).astype(np.uint8), kind="stable")  # a radix sort
+    rays, cnt = active.take(order), cnt.take(order)
+    k = k.take(order, axis=1)
+    # lanes[j]: the rays with more than j samples (cnt is descending); their samples from at[j].
+    lanes = np.searchsorted(-cnt, -np.arange(s), side="left")
+    at = np.zeros(s + 1, np.intp)
+    np.cumsum(lanes, out=at[1:])
     t_lanes = marcher.t.take(k)
-    np.copyto(t_lanes, F32(0), where=~valid)
-    # The samples ray by ray (the field's order), each with its place in the [S, m] lanes.
-    ray = np.repeat(np.arange(m), cnt)
-    at = np.flatnonzero(valid.T)  # ray·S + lane
-    at -= ray * s
-    at *= m
-    at += ray  # lane·m + ray
-    t = t_lanes.take(at)
-    ray = active.take(ray)
-    points = np.empty((3, len(t)), F32)
-    for axis in range(3):
-        np.multiply(t, marcher.d[axis].take(ray), out=points[axis])
-        points[axis] += marcher.o[axis].take(ray)
-    points = np.ascontiguousarray(points.T)
-    dirs = viewdirs.take(ray, axis=0)
-    # The samples of each chunk's rays, a slice each (rays in order).
-    ends = np.zeros(m + 1, np.int64)
-    np.cumsum(cnt, out=ends[1:])
-    cuts = ends[np.r_[np.flatnonzero(np.r_[True, chunk[1:] != chunk[:-1]]), m]]
+    d, o, v = marcher.d.take(rays, axis=1), marcher.o.take(rays, axis=1), viewdirs.take(rays, axis=0)
+    if marcher.intervals is None:
+        interval = marcher.delta.take(rays)
+    else:
+        interval = marcher.intervals.take(k)
+        interval *= marcher.norm.take(rays)
+    total = int(at[-1])
+    points = np.empty((total, 3), F32)
+    dirs = np.empty((total, 3), F32)
+    t = np.empty(total, F32)
+    delta = np.empty(total, F32)
+    for j in range(s):
+        m = int(lanes[j])
+        if not m:
+            break
+        a, b = at[j], at[j + 1]
+        t[a:b] = t_lanes[j, :m]
+        delta[a:b] = interval[:m] if interval.ndim == 1 else interval[j, :m]
+        p = points[a:b].T
+        np.multiply(t[a:b], d[:, :m], out=p)
+        p += o[:, :m]
+        dirs[a:b] = v[:m]
     now = stages.lap("gather", now)
-    colour = np.empty((len(t), 3), F32)
-    sigma = np.empty(len(t), F32)
-    for a, b in zip(cuts[:-1], cuts[1:]):
-        colour[a:b], sigma[a:b] = field(points[a:b], dirs[a:b])
+    colour, sigma = field(points, dirs)
     now = stages.lap("field", now)
-    alpha = np.zeros((s, m), F32)
-    # Each sample's step only where δ depends on it (contracted segments).
-    delta = marcher.delta.take(ray) if marcher.intervals is None else marcher.deltas(k.take(at), ray)
-    alpha.reshape(-1)[at] = alpha_of(sigma, delta)
-    lane_colour = np.zeros((3, s, m), F32)
-    for c in range(3):
-        lane_colour[c].reshape(-1)[at] = colour[:, c]
+    alpha = alpha_of(sigma, delta)
     trans, rgb, depth, acc = state
-    tr, rg, de, ac = trans[active], rgb[:, active], depth[active], acc[active]
-    composite(alpha, lane_colour.transpose(1, 0, 2), t_lanes, tr, rg, de, ac)
-    trans[active], rgb[:, active], depth[active], acc[active] = tr, rg, de, ac
-    return (tr >= min_t) & (cnt == s), stages.lap("composite", now)
+    tr, rg, de, ac = trans.take(rays), rgb.take(rays, axis=1), depth.take(rays), acc.take(rays)
+    composite_lanes(alpha, colour, t, at, tr, rg, de, ac)
+    trans[rays], rgb[:, rays], depth[rays], acc[rays] = tr, rg, de, ac
+    return rays[(tr >= min_t) & (cnt == s)], stages.lap("composite", now)
+
+
+def composite_lanes(alpha: np.ndarray, colour: np.ndarray, t: np.ndarray, at: np.ndarray, trans: np.ndarray, rgb: np.ndarray,
+                    depth: np.ndarray, acc: np.ndarray) -> None:
+    """:func:`composite` over samples packed lane after lane: lane j's samples ``at[j]:at[j + 1]``
+    of ``alpha``, ``t`` [N] and ``colour`` [N, 3] belong to the first ``at[j + 1] − at[j]`` rays of
+    the state (each ray's samples in order, one lane after the other)."""
+    factor = (F32(1) - alpha) + TRANSMITTANCE_EPS
+    for j in range(len(at) - 1):
+        a, b = at[j], at[j + 1]
+        m = b - a
+        if not m:
+            break
+        w = alpha[a:b] * trans[:m]
+        for c in range(3):
+            rgb[c, :m] += w * colour[a:b, c]
+        depth[:m] += w * t[a:b]
+        acc[:m] += w
+        trans[:m] *= factor[a:b]
 
 
 def dense_packed(t: np.ndarray, d: np.ndarray) -> Packed:

@@ -267,9 +267,37 @@ class Bundle:
                 return _joined([self._gpu_loop.march_grid(self._graph(stage), o[s:s + chunk], d[s:s + chunk], viewdirs[s:s + chunk],
                                                           self.near, self.far, max(self.march_steps, 1), min_t,
                                                           self.white_background, stages) for s in range(0, len(o), chunk)])
-            return R.march_grid(self._graph(stage), self.grid, o, d, viewdirs, self.near, self.far, max(self.march_steps, 1),
-                                min_t, self.white_background, chunk, stages)
+            return self._march_side_by_side(self._graph(stage), o, d, viewdirs, chunk, min_t, stages)
         return _joined([self._render_dense(o[s:s + chunk], d[s:s + chunk], viewdirs[s:s + chunk], min_t) for s in range(0, len(o), chunk)])
+
+    def _march_side_by_side(self, graph: Graph, o: np.ndarray, d: np.ndarray, viewdirs: np.ndarray, chunk: int,
+                            min_t: Optional[float], stages: R.Stages) -> R.Marched:
+        """:func:`_render.march_grid` on the CPU as one loop per session of ``graph``, side by
+        side: the rays' chunks dealt out in turn (so each loop gets rays from all over the
+        frame), each loop marching, evaluating on its own session and compositing while the
+        others' sessions evaluate (numpy and onnxruntime let go of the GIL). A point's output does
+        not depend on the others in its call, so the pixels are those of one loop. ``stages``
+        gets the loops' mean."""
+        assert self.grid is not None
+        n = len(o)
+        loops = min(len(graph.sessions), -(-n // chunk)) if graph.gpu is None else 1
+        steps = max(self.march_steps, 1)
+        if loops <= 1:
+            return R.march_grid(graph, self.grid, o, d, viewdirs, self.near, self.far, steps, min_t, self.white_background, chunk,
+                                stages)
+        assert graph.pool is not None
+        deal = (np.arange(n) // chunk) % loops
+        shares = [np.flatnonzero(deal == k) for k in range(loops)]
+        parts = [R.Stages() for _ in shares]
+        futures = [graph.pool.submit(R.march_grid, graph.on_session(k), self.grid, o[rays], d[rays], viewdirs[rays], self.near,
+                                     self.far, steps, min_t, self.white_background, chunk, part)
+                   for k, (rays, part) in enumerate(zip(shares, parts))]
+        rgb, depth, acc = np.empty((n, 3), F32), np.empty(n, F32), np.empty(n, F32)
+        for rays, future in zip(shares, futures):
+            out = future.result()
+            rgb[rays], depth[rays], acc[rays] = out.rgb, out.depth, out.acc
+        stages.add_mean(parts)
+        return R.Marched(rgb, depth, acc, None)
 
     def _render_dense(self, o: np.ndarray, d: np.ndarray, viewdirs: np.ndarray, min_t: Optional[float]) -> R.Marched:
         """Coarse (and fine) samples of one chunk of rays, without a grid."""
@@ -320,8 +348,9 @@ class Bundle:
         stages.lap("rays", start)
         out = self._render_world(o, d, chunk, stages)
         shape = (cam.height, cam.width)
+        # Loops side by side each wait for their own calls: onnxruntime's time per loop.
         return Frame(out.rgb.reshape(shape + (3,)), out.depth.reshape(shape), out.acc.reshape(shape),
-                     time.perf_counter() - start, self.field_seconds - field_start, stages)
+                     time.perf_counter() - start, (self.field_seconds - field_start) / stages.loops, stages)
 
     def __repr__(self) -> str:
         return (f"Bundle({self.path!r}, field_kind={self.field_kind!r}, camera={self.camera.width}×{self.camera.height}, "

@@ -50,6 +50,16 @@ def nerf_render(tmp_path_factory) -> Callable[..., np.ndarray]:
     return run
 
 
+def assert_same_points(calls: list, reference: list, per_call: int) -> None:
+    """The field calls ``calls`` evaluated the points of ``reference``'s, each as often (in
+    other calls: march_grid sends a round's samples lane after lane), none more than
+    ``per_call`` points."""
+    got = np.unique(np.concatenate(calls), axis=0, return_counts=True)
+    want = np.unique(np.concatenate(reference), axis=0, return_counts=True)
+    assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1]), "the same points"
+    assert max(len(c) for c in calls) <= per_call
+
+
 def copy_bundle(src: Path, to: Path) -> Path:
     to.mkdir(parents=True, exist_ok=True)
     for f in src.iterdir():

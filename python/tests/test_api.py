@@ -90,3 +90,20 @@ def test_bad_options(spheres):
         nerf_bundle.Bundle.open(MODELS / "spheres", threads=0)
     with pytest.raises(ValueError, match="width"):
         spheres.render(spheres.poses("test")[0], 100_000_000)
+
+
+def test_loops_side_by_side_render_the_frame_of_one_loop():
+    """threads=3 marches the chunks dealt out to three loops, each on its own session: the same
+    frame as one loop, bit for bit (onnxruntime's output for a point does not depend on the
+    other points of its call), with the three loops' stages averaged."""
+    one = nerf_bundle.Bundle.open(MODELS / "lego-ngp", threads=1)
+    three = nerf_bundle.Bundle.open(MODELS / "lego-ngp", threads=3)
+    pose = one.poses("test")[0]
+    want = one.render(pose, 60, chunk=500)
+    got = three.render(pose, 60, chunk=500)
+    assert np.array_equal(got.raw, want.raw)
+    assert got.acc.max() > 0.5, "the view sees the scene"
+    assert (got.stages.loops, want.stages.loops) == (3, 1)
+    assert 0 < got.field_seconds < got.seconds
+    # Fewer chunks than sessions: one loop per chunk.
+    assert three.render(pose, 20, chunk=300).stages.loops == 2
