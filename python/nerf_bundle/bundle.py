@@ -39,6 +39,8 @@ class Frame:
     rgb: np.ndarray
     depth: np.ndarray
     acc: np.ndarray
+    #: Wall seconds of the frame, and of its onnxruntime calls (with loops side by side, each
+    #: loop's on average).
     seconds: float = 0.0
     field_seconds: float = 0.0
     stages: Optional[R.Stages] = None
@@ -120,7 +122,8 @@ class Bundle:
         the CPU path (default CPU); with ``device`` a ValueError (say one or the other).
         ``threads``: onnxruntime sessions per graph run side by side (default
         ``os.cpu_count()``; on a GPU one), each with one intra-op thread on pieces of
-        ``points_per_run`` points (default 2,048). ``skip_empty_space=False`` ignores
+        ``points_per_run`` points (default 2,048); marching on the CPU runs one loop per session
+        (:meth:`_march_side_by_side`). ``skip_empty_space=False`` ignores
         occupancy.bin (nerf-render ``--dense``)."""
         path = os.fspath(path)
         gpu = parse_device(device) if device is not None else None

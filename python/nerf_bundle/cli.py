@@ -9,8 +9,8 @@ A line per frame (``k/N``) reports progress. ``--device cuda[:N]`` renders on a 
 
 ``python -m nerf_bundle bench BUNDLE [--device cpu|cuda[:N]] [--view N] [--repeat K] [--width W]
 [--threads N] [--parity] [--json]`` renders test view N K times and prints, per frame, the
-total seconds, the seconds inside onnxruntime (the wall time of the field calls), the rest
-(outside) and its stages; ``--parity`` also renders the view with onnxruntime's CPU provider
+total seconds, the seconds inside onnxruntime (the wall time of the field calls; with marching
+loops side by side, each loop's on average), the rest (outside) and its stages; ``--parity`` also renders the view with onnxruntime's CPU provider
 and prints the largest |Δ| of r, g, b, depth, acc; ``--json`` prints one JSON object instead."""
 from __future__ import annotations
 
