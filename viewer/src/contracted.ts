@@ -1,20 +1,23 @@
 // Marching a contracted grid (nerf-rs-scene-3), as core/src/render/grid.rs's RayMarch over
 // march_segments: every segment's steps one after the other (a ray's steps numbered across its
 // segments), a sample at each middle, kept where its contracted point lies in an occupied cell:
-// exactly the samples of testing every step. Empty cubes of cells are jumped through only inside
-// the inner cube |x|∞ ≤ 1, where the contraction leaves points as they are, so a cube of cells
-// is a box of the world there; beyond it every step is tested, as in Rust. Pure.
+// exactly the samples of testing every step. Cubes of cells (cornerReach) are jumped through only
+// inside the inner cube |x|∞ ≤ 1, where the contraction leaves points as they are, so a cube of
+// cells is a box of the world there (a cube is cut at the inner cube's faces); beyond it every
+// step is tested, as in Rust. Pure.
 
 import { type Segment, contractionFactor } from "./contraction";
-import { type Grid, type Marcher, emptyReach } from "./march";
+import { type Grid, type Marcher, OCCUPIED_CUBE, cornerReach, octantOf } from "./march";
 
 const f = Math.fround;
 
-/** One axis of a cube of cells [c − h, c + h] (a contracted grid over ±b): where o + t·d leaves it
- *  shrunk by `margin` (∞ for d = 0), or NaN when the cube reaches past the inner cube or the
- *  exact point at `tt` lies outside the shrunk cube (no jump). In f64. */
-function axisExit(b: number, side: number, margin: number, c: number, h: number, o: number, d: number, tt: number): number {
-  const lo = -b + (c - h) * side, hi = -b + (c + h + 1) * side;
+/** One axis of the cube of `s` cells from cell c reaching up (or down) that axis, cut to the inner
+ *  cube's cells [first, end) (a contracted grid over ±b): where o + t·d leaves it shrunk by
+ *  `margin` (∞ for d = 0), or NaN when the exact point at `tt` lies outside the shrunk cube or
+ *  the cube outside the inner cube (no jump). In f64. */
+function axisExit(b: number, side: number, margin: number, c: number, s: number, up: number, first: number, end: number,
+  o: number, d: number, tt: number): number {
+  const lo = -b + Math.max(up ? c : c + 1 - s, first) * side, hi = -b + Math.min(up ? c + s : c + 1, end) * side;
   if (lo < -1 || hi > 1) return NaN;
   const x = o + tt * d;
   if (!(lo + margin <= x && x <= hi - margin)) return NaN;
@@ -31,12 +34,18 @@ export class ContractedMarch implements Marcher {
   /** All the steps, for every ray: a contracted grid's box is the whole world. */
   readonly end: Int32Array;
   tested = 0;
-  /** Per ray: steps before this one lie in the occupied cell of the last step tested. */
+  /** Per ray: steps before this one lie in the occupied cube of the last step tested. */
   private readonly occupiedUntil: Int32Array;
   /** The first step of each segment, then the number of steps: [segments + 1]. */
   private readonly first: Int32Array;
-  private readonly reach: Uint8Array;
   private readonly cellSide: number;
+  /** The cells [innerFirst, innerEnd) per axis inside the inner cube: cell i spans −2 + 4i/R ..
+   *  −2 + 4(i + 1)/R, inside ±1 from ⌈R/4⌉ to ⌊3R/4⌋. */
+  private readonly innerFirst: number;
+  private readonly innerEnd: number;
+  /** Per ray: the octant it heads into (octantOf), whose cubes (cornerReach) it jumps through. */
+  private readonly octant: Uint8Array;
+  private readonly cubes: Uint8Array[] = [];
 
   constructor(private readonly grid: Grid, private readonly o: Float32Array, private readonly d: Float32Array,
     private readonly segments: Segment[]) {
@@ -55,8 +64,14 @@ export class ContractedMarch implements Marcher {
     this.cursor = new Int32Array(n);
     this.end = new Int32Array(n).fill(steps);
     this.occupiedUntil = new Int32Array(n);
-    this.reach = emptyReach(grid);
     this.cellSide = (2 * f(grid.bound)) / grid.res;
+    this.innerFirst = Math.ceil(grid.res / 4);
+    this.innerEnd = Math.floor((3 * grid.res) / 4);
+    this.octant = new Uint8Array(n);
+    for (let r = 0; r < n; r++) {
+      const q = (this.octant[r] = octantOf(d[3 * r], d[3 * r + 1], d[3 * r + 2]));
+      this.cubes[q] ??= cornerReach(grid, q);
+    }
   }
 
   /** The segment holding step k. */
@@ -88,10 +103,11 @@ export class ContractedMarch implements Marcher {
   /** Ray r's next (at most `max`) occupied samples, crossing into later segments: positions into
    *  pts[3·at…], step indices into ks[at…]; returns how many (fewer than `max`: none left). */
   next(r: number, max: number, pts: Float32Array, ks: Int32Array, at: number): number {
-    const g = this.grid, R = g.res, occ = g.occupied, reach = this.reach, b = f(g.bound), two = f(2 * b), t = this.t;
-    const side = this.cellSide, end = this.end[r];
+    const g = this.grid, R = g.res, occ = g.occupied, b = f(g.bound), two = f(2 * b), t = this.t;
+    const side = this.cellSide, end = this.end[r], first = this.innerFirst, last = this.innerEnd;
     const ox = this.o[3 * r], oy = this.o[3 * r + 1], oz = this.o[3 * r + 2];
     const dx = this.d[3 * r], dy = this.d[3 * r + 1], dz = this.d[3 * r + 2];
+    const q = this.octant[r], cubes = this.cubes[q];
     let k = this.cursor[r], n = 0, tested = 0, occupiedUntil = this.occupiedUntil[r];
     let s = this.segmentOf(k), segmentEnd = this.first[s + 1], margin = this.margin(r, s);
     while (k < end && n < max) {
@@ -116,11 +132,12 @@ export class ContractedMarch implements Marcher {
         pts[3 * p] = x; pts[3 * p + 1] = y; pts[3 * p + 2] = z;
         ks[p] = k; n++;
       }
-      // The steps up to where the exact line leaves the cell (occupied) or the empty cube around
-      // it (shrunk by the margin) share its state: emitted untested, or skipped. NaN: no jump.
-      const h = occupied ? 0 : reach[c] - 1;
-      const exit = Number.isNaN(margin) ? NaN : Math.min(axisExit(b, side, margin, i, h, ox, dx, tk),
-        axisExit(b, side, margin, j, h, oy, dy, tk), axisExit(b, side, margin, l, h, oz, dz, tk));
+      // The steps up to where the exact line leaves the cube of cells in this cell's state from
+      // the cell on, reaching along the ray (shrunk by the margin), share its state: emitted
+      // untested, or skipped. NaN: no jump.
+      const s3 = cubes[c] & ~OCCUPIED_CUBE;
+      const exit = Number.isNaN(margin) ? NaN : Math.min(axisExit(b, side, margin, i, s3, q & 4, first, last, ox, dx, tk),
+        axisExit(b, side, margin, j, s3, q & 2, first, last, oy, dy, tk), axisExit(b, side, margin, l, s3, q & 1, first, last, oz, dz, tk));
       const run = Number.isNaN(exit) ? k + 1 : this.stepAt(s, exit);
       if (occupied) { occupiedUntil = run; k++; }
       else k = run > k + 1 ? run : k + 1;

@@ -1,12 +1,12 @@
 // The samples marching takes, as core/src/render/grid.rs's occupied_samples: `steps` equal
 // intervals over [near, far], a sample at each middle, kept where it lies in an occupied cell.
-// Empty space is skipped by slab tests as grid.rs does it (boxes grown or shrunk by a margin far
-// above f32 rounding), so the samples are those of testing every interval; the box jumped
-// through is the largest empty cube of cells around the cell (up to MAX_REACH cells each way)
-// rather than grid.rs's empty 8³ block or the cell alone: fewer tests, the same samples. Inside an
-// occupied cell the steps up to where the ray leaves it (the cell shrunk by the margin) are
-// emitted untested, as grid.rs does. Rays march lazily: `next` hands out a ray's next few samples
-// and remembers where it stopped, so a ray that terminates early never marches the rest.
+// Space is crossed by slab tests as grid.rs does it (boxes grown or shrunk by a margin far above
+// f32 rounding), so the samples are those of testing every interval: at a tested step, the box
+// is the largest cube of cells in the cell's state with the cell at its corner, reaching along
+// the ray (cornerReach, grid.rs's OccupancyGrid::corner_reach); the steps up to where the ray
+// leaves it (shrunk by the margin) are skipped (empty) or emitted untested (occupied). Rays
+// march lazily: `next` hands out a ray's next few samples and remembers where it stopped, so a
+// ray that terminates early never marches the rest.
 // A contracted grid (nerf-rs-scene-3) is marched in segments by contracted.ts.
 
 
@@ -30,35 +30,57 @@ export function isOccupied(g: Grid, x: number, y: number, z: number): boolean {
   return g.occupied[(Math.floor(u) * R + Math.floor(v)) * R + Math.floor(w)] !== 0;
 }
 
-/** The widest empty cube around a cell the skipping jumps through, in cells from the cell. */
-export const MAX_REACH = 8;
+/** The sides (in cells) of the cubes cornerReach records, as grid.rs's CORNER_SIDES (and the
+ *  Python package's): each at most doubles the one before. */
+export const CORNER_SIDES = [1, 2, 3, 4, 6, 8, 12, 16, 24, 32];
+/** The bit of a cornerReach value that marks an occupied cell (the rest is the cube's side). */
+export const OCCUPIED_CUBE = 0x80;
 
-const reaches = new WeakMap<Grid, Uint8Array>();
+const corners = new WeakMap<Grid, (Uint8Array | undefined)[]>();
 
-/** Per cell, its Chebyshev distance in cells to the nearest occupied cell, capped at
- *  MAX_REACH + 1 (0: occupied): the cube of cells within reach − 1 of an empty cell is empty.
- *  By repeated 3×3×3 dilation of the occupied cells, one axis at a time. Shape: [R³]. */
-export function emptyReach(g: Grid): Uint8Array {
-  let reach = reaches.get(g);
-  if (reach) return reach;
-  const R = g.res, n = R ** 3;
-  reach = new Uint8Array(n).fill(MAX_REACH + 1);
-  let cur = Uint8Array.from(g.occupied, (v) => (v ? 1 : 0)), tmp = new Uint8Array(n);
-  for (let c = 0; c < n; c++) if (cur[c]) reach[c] = 0;
-  const strides = [R * R, R, 1];
-  for (let dist = 1; dist <= MAX_REACH; dist++) {
-    // One 3-wide max filter per axis: cells within `dist` of an occupied cell, from within dist − 1.
-    for (const stride of strides) {
-      for (let c = 0; c < n; c++) {
-        const at = ((c / stride) | 0) % R;
-        tmp[c] = cur[c] | (at > 0 ? cur[c - stride] : 0) | (at < R - 1 ? cur[c + stride] : 0);
+/** The octant direction (dx, dy, dz) heads into: bit 2 set where x grows, bit 1 y, bit 0 z. */
+export function octantOf(dx: number, dy: number, dz: number): number {
+  return (dx > 0 ? 4 : 0) | (dy > 0 ? 2 : 0) | (dz > 0 ? 1 : 0);
+}
+
+/** grid.rs's OccupancyGrid::corner_reach: for rays heading into `octant`, per cell, the largest
+ *  side s of CORNER_SIDES such that the cube of s cells a side with this cell at its corner,
+ *  reaching along the octant's directions, is all in the cell's state (all empty, cells past the
+ *  grid counting as empty, or all occupied): s, with OCCUPIED_CUBE set for an occupied cell.
+ *  Made once per grid and octant (R³ bytes). By ANDs with the cube `shift` cells on, one axis at
+ *  a time (the cube of side + shift is the 8 cubes of side at c + shift·{0, 1}³), both states at
+ *  once: bit 0 of a cell stays set while its cube is all empty, bit 1 while all occupied. */
+export function cornerReach(g: Grid, octant: number): Uint8Array {
+  let tables = corners.get(g);
+  if (!tables) corners.set(g, (tables = []));
+  const made = tables[octant];
+  if (made) return made;
+  const R = g.res, n = R ** 3, past = 1;
+  const cube = Uint8Array.from(g.occupied, (v) => (v ? 2 : 1)), sides = new Uint8Array(n).fill(1);
+  let side = 1;
+  for (const target of CORNER_SIDES.slice(1)) {
+    const shift = target - side;
+    for (let axis = 0; axis < 3; axis++) {
+      const up = (octant >> (2 - axis)) & 1, stride = [R * R, R, 1][axis];
+      // In place: heading up the cell `shift` on has a larger index, so ascending order reads it
+      // before it is written (descending when heading down).
+      for (let ii = 0; ii < R; ii++) {
+        const i = up ? ii : R - 1 - ii;
+        for (let jj = 0; jj < R; jj++) {
+          const j = up ? jj : R - 1 - jj;
+          for (let kk = 0; kk < R; kk++) {
+            const k = up ? kk : R - 1 - kk, c = (i * R + j) * R + k, at = axis === 0 ? i : axis === 1 ? j : k;
+            cube[c] &= up ? (at + shift < R ? cube[c + shift * stride] : past) : (at >= shift ? cube[c - shift * stride] : past);
+          }
+        }
       }
-      [cur, tmp] = [tmp, cur];
     }
-    for (let c = 0; c < n; c++) if (cur[c] && reach[c] > dist) reach[c] = dist;
+    side = target;
+    for (let c = 0; c < n; c++) if (cube[c]) sides[c] = side;
   }
-  reaches.set(g, reach);
-  return reach;
+  for (let c = 0; c < n; c++) if (g.occupied[c]) sides[c] |= OCCUPIED_CUBE;
+  tables[octant] = sides;
+  return sides;
 }
 
 // The slab test's result, kept here so the hot loop allocates nothing.
@@ -96,13 +118,15 @@ export class RayMarch implements Marcher {
   readonly t: Float32Array;
   readonly cursor: Int32Array;
   readonly end: Int32Array;
-  /** Per ray: steps before this one lie in the occupied cell of the last step tested. */
+  /** Per ray: steps before this one lie in the occupied cube of the last step tested. */
   private readonly occupiedUntil: Int32Array;
   /** Steps tested so far, all rays together (the work skipping saves). */
   tested = 0;
   /** Per ray: the margin of its slab tests; NaN where the ray tests every step (non-finite input). */
   private readonly margin: Float64Array;
-  private readonly reach: Uint8Array;
+  /** Per ray: the octant it heads into (octantOf), whose cubes (cornerReach) it jumps through. */
+  private readonly octant: Uint8Array;
+  private readonly cubes: Uint8Array[] = [];
   private readonly cellSide: number;
 
   constructor(private readonly grid: Grid, private readonly o: Float32Array, private readonly d: Float32Array,
@@ -112,7 +136,7 @@ export class RayMarch implements Marcher {
     for (let k = 0; k < steps; k++) this.t[k] = f(near + f(f(k + 0.5) * interval));
     this.cursor = new Int32Array(n); this.end = new Int32Array(n); this.margin = new Float64Array(n);
     this.occupiedUntil = new Int32Array(n);
-    this.reach = emptyReach(grid);
+    this.octant = new Uint8Array(n);
     const b = f(grid.bound), R = grid.res;
     this.cellSide = (2 * b) / R;
     // The largest coordinate magnitude a sample reaches bounds its rounding error.
@@ -127,6 +151,8 @@ export class RayMarch implements Marcher {
       const scale = Math.max(b, Math.abs(ox) + tMax * Math.abs(dx), Math.abs(oy) + tMax * Math.abs(dy), Math.abs(oz) + tMax * Math.abs(dz));
       const margin = 1e-3 * this.cellSide + 64 * 2 ** -23 * scale;
       this.margin[r] = margin;
+      const q = (this.octant[r] = octantOf(dx, dy, dz));
+      this.cubes[q] ??= cornerReach(grid, q);
       const lo = -b - margin, hi = -b + R * this.cellSide + margin;
       slab(ox, oy, oz, dx, dy, dz, lo, lo, lo, hi, hi, hi);
       if (slabEnter > slabLeave) continue; // misses the grid: cursor = end = 0
@@ -155,7 +181,8 @@ export class RayMarch implements Marcher {
     // Cells per unit, and how near a cell face the float64 u may not decide the cell (2⁻²⁰·R:
     // 16 times the float32 error of u < R).
     const perCell = R / two, faceGap = R * 2 ** -20;
-    const reach = this.reach, side = this.cellSide, near = this.near, interval = this.interval, steps = this.steps;
+    const q = this.octant[r], cubes = this.cubes[q], side = this.cellSide, near = this.near, interval = this.interval, steps = this.steps;
+    const upX = q & 4, upY = q & 2, upZ = q & 1;
     let k = this.cursor[r], n = 0, tested = 0, occupiedUntil = this.occupiedUntil[r];
     const end = this.end[r];
     while (k < end && n < max) {
@@ -188,13 +215,13 @@ export class RayMarch implements Marcher {
         ks[p] = k; n++;
       }
       if (!skip) { k++; continue; }
-      // Jump to where the ray leaves the cell (occupied: the steps before are emitted untested)
-      // or the empty cube of cells around it (skipped), shrunk by the margin (a slab test
-      // written out per axis: this is the hot loop).
-      const h = occupied ? 0 : reach[c] - 1;
-      const lx = lo0 + (i - h) * side, hx = hi0 + (i + h + 1) * side;
-      const ly = lo0 + (j - h) * side, hy = hi0 + (j + h + 1) * side;
-      const lz = lo0 + (l - h) * side, hz = hi0 + (l + h + 1) * side;
+      // Jump to where the ray leaves the cube of cells in this cell's state from the cell on,
+      // reaching along the ray (occupied: the steps before are emitted untested; empty: skipped),
+      // shrunk by the margin (a slab test written out per axis: this is the hot loop).
+      const e = (cubes[c] & ~OCCUPIED_CUBE) - 1;
+      const lx = lo0 + (upX ? i : i - e) * side, hx = hi0 + (upX ? i + e + 1 : i + 1) * side;
+      const ly = lo0 + (upY ? j : j - e) * side, hy = hi0 + (upY ? j + e + 1 : j + 1) * side;
+      const lz = lo0 + (upZ ? l : l - e) * side, hz = hi0 + (upZ ? l + e + 1 : l + 1) * side;
       let enter = -Infinity, leave = Infinity;
       if (dx === 0) { if (ox < lx || ox > hx) leave = -Infinity; }
       else { const p = (lx - ox) * ix, q = (hx - ox) * ix; enter = Math.min(p, q); leave = Math.max(p, q); }
@@ -202,8 +229,7 @@ export class RayMarch implements Marcher {
       else { const p = (ly - oy) * iy, q = (hy - oy) * iy; enter = Math.max(enter, Math.min(p, q)); leave = Math.min(leave, Math.max(p, q)); }
       if (dz === 0) { if (oz < lz || oz > hz) leave = -Infinity; }
       else { const p = (lz - oz) * iz, q = (hz - oz) * iz; enter = Math.max(enter, Math.min(p, q)); leave = Math.min(leave, Math.max(p, q)); }
-      // Every step whose exact t is before the exit lies inside the shrunk cube, so in the empty
-      // one; the jump lands on the first step at or after the exit. (grid.rs lands one step
+      // Every step whose exact t is before the exit lies inside the shrunk cube, so in the cube; the jump lands on the first step at or after the exit. (grid.rs lands one step
       // short; not needed here: a step's f32 t and position are off the exact ones by far less
       // than the margin, and the tests compare the samples with testing every interval.)
       const inside = enter <= tk && tk <= leave;

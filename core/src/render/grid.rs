@@ -8,7 +8,7 @@ use crate::field::{Field, FieldOutput, Stage};
 use crate::camera::{Rays, length, point_at};
 use super::compositing::{RayAccumulator, RayOutput, alpha_from_density};
 use crate::sample::contraction::Contraction;
-use crate::sample::occupancy::OccupancyGrid;
+use crate::sample::occupancy::{OCCUPIED_CUBE, OccupancyGrid};
 use crate::rng::Rng;
 use rayon::prelude::*;
 
@@ -17,8 +17,8 @@ use rayon::prelude::*;
 /// interval's middle, kept only where it lies in an occupied cell; δ = its interval · ‖d‖.
 /// With `jitter` (training), each ray's samples move together by one uniform draw within their
 /// interval instead of sitting at the middles (drawn ray by ray in order: deterministic).
-/// Rays are marched in parallel, [`MARCH_RAYS_PER_TASK`] per task. Empty space is skipped an
-/// empty cube of cells at a time ([`march_ray`]); the samples are exactly those of testing
+/// Rays are marched in parallel, [`MARCH_RAYS_PER_TASK`] per task. Space is crossed a cube of
+/// empty or occupied cells at a time ([`march_ray`]); the samples are exactly those of testing
 /// every interval ([`march_ray_every_interval`]).
 pub fn occupied_samples(grid: &OccupancyGrid, rays: &Rays, near: f32, far: f32, steps: usize, jitter: Option<&mut Rng>) -> PackedSamples {
     let segments = march_segments(near, far, steps, grid.contraction());
@@ -142,24 +142,40 @@ fn march_ray_every_interval(segments: &[Segment], origin: [f32; 3], direction: [
     }
 }
 
-/// The grid's geometry and, per cell, how far empty space reaches around it
-/// ([`OccupancyGrid::empty_reach`]): marching at an empty cell jumps through the whole empty cube
-/// of cells around it. Shared by every batch of rays.
+/// The grid's geometry and its cubes ([`OccupancyGrid::corner_reach`]): marching at a cell
+/// jumps through the largest cube of cells in the cell's state that has the cell at its corner
+/// and reaches along the ray. Shared by every batch of rays.
 pub struct Skipper<'a> {
     grid: &'a OccupancyGrid,
-    reach: &'a [u8],
     /// A cell's side in world units.
     cell_side: f64,
     /// Half the side of the centred cube where world and grid coordinates agree (the grid's
-    /// bound; 1 on a contracted grid): empty cubes are jumped through only inside it.
+    /// bound; 1 on a contracted grid): cubes are jumped through only inside it.
     identity_half: f64,
+    /// The cells lo..hi per axis inside that cube (a cube is cut at its faces).
+    identity_cells: (usize, usize),
 }
 
 impl<'a> Skipper<'a> {
-    /// Marching through `grid` (its empty reach made on first use, then kept with the grid).
+    /// Marching through `grid` (its cubes made on first use per octant, then kept with the grid).
     pub fn new(grid: &'a OccupancyGrid) -> Self {
-        let identity_half = if grid.contraction().is_some() { 1.0 } else { grid.bound() as f64 };
-        Skipper { grid, reach: grid.empty_reach(), cell_side: 2.0 * grid.bound() as f64 / grid.resolution() as f64, identity_half }
+        let r = grid.resolution();
+        // Contracted: cell i spans −2 + 4i/R .. −2 + 4(i + 1)/R, inside ±1 from ⌈R/4⌉ to ⌊3R/4⌋.
+        let (identity_half, identity_cells) = if grid.contraction().is_some() { (1.0, (r.div_ceil(4), 3 * r / 4)) } else { (grid.bound() as f64, (0, r)) };
+        Skipper { grid, cell_side: 2.0 * grid.bound() as f64 / r as f64, identity_half, identity_cells }
+    }
+
+    /// The cells of the cube of `side` cells from `cell` reaching into `octant` ([`OccupancyGrid::corner_reach`]),
+    /// cut to [`Self::identity_cells`]: [lo, hi) per axis (empty on an axis where the cell lies outside).
+    fn corner_cells(&self, cell: [usize; 3], side: usize, octant: u8) -> ([usize; 3], [usize; 3]) {
+        let (first, end) = self.identity_cells;
+        let mut lo = [0; 3];
+        let mut hi = [0; 3];
+        for a in 0..3 {
+            let (l, h) = if octant >> (2 - a) & 1 == 1 { (cell[a], cell[a] + side) } else { ((cell[a] + 1).saturating_sub(side), cell[a] + 1) };
+            (lo[a], hi[a]) = (l.max(first), h.min(end));
+        }
+        (lo, hi)
     }
 
     /// The world box of cells [lo, hi) per axis, grown by `margin` (shrunk where negative).
@@ -190,9 +206,9 @@ fn slab(o: [f64; 3], d: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> (f64, f64) {
 /// One ray's marching, resumable: [`RayMarch::advance`] emits its next occupied samples, in
 /// order, exactly those of [`march_ray_every_interval`], testing far fewer steps, one
 /// [`Segment`] after the other. Steps before the grid's box and after it are not tested (a
-/// contracted grid's box is the whole world); at a step in an empty cell, the steps up to where
-/// the ray leaves the empty cube of cells around it ([`Skipper`]) are skipped; at a step in an
-/// occupied cell, the steps up to where it leaves that cell are emitted untested. Rounding
+/// contracted grid's box is the whole world); at a tested step, the steps up to where the ray
+/// leaves the cube of cells in the cell's state with the cell at its corner, reaching along the
+/// ray ([`Skipper`]), are skipped (empty) or emitted untested (occupied). Rounding
 /// cannot misplace a step: the boxes are grown (the grid's) or shrunk (a cube's, a cell's) by a
 /// margin far above the f32 error of a sample's position and of a step's t, and a run ends
 /// before the first step at or after the shrunk box's exit. On a contracted grid, cubes are
@@ -210,8 +226,10 @@ struct RayMarch {
     /// The next step to test, and the step after the last that can be occupied.
     k: usize,
     end: usize,
-    /// Steps before this one lie in the occupied cell of the last step tested (emitted untested).
+    /// Steps before this one lie in the occupied cube of the last step tested (emitted untested).
     occupied_until: usize,
+    /// The octant the ray heads into (bit 2: x grows, bit 1: y, bit 0: z), whose cubes it jumps.
+    octant: u8,
     /// Test every step (rays the skipping does not handle: non-finite inputs, or a
     /// non-positive interval).
     every: bool,
@@ -246,7 +264,7 @@ impl RayMarch {
         let (o, d) = (ray.origin.map(f64::from), ray.direction.map(f64::from));
         // A NaN interval fails `> 0` too.
         if !finite || ray.interval.is_infinite() || ray.interval <= 0.0 || ray.interval.is_nan() {
-            return RayMarch { end: ray.steps, ray, segment, o, d, inv_d: [0.0; 3], margin: 0.0, k: 0, occupied_until: 0, every: true, tested: 0 };
+            return RayMarch { end: ray.steps, ray, segment, o, d, inv_d: [0.0; 3], margin: 0.0, k: 0, occupied_until: 0, octant: 0, every: true, tested: 0 };
         }
         let grid = skipper.grid;
         let r = grid.resolution();
@@ -262,7 +280,8 @@ impl RayMarch {
             // Finite inputs: the slab's ends are numbers (±∞ at most), never NaN.
             if enter > leave { (0, 0) } else { (ray.step_at(enter, -1.0), ray.step_at(leave, 1.0)) }
         };
-        RayMarch { ray, segment, o, d, inv_d: d.map(|v| 1.0 / v), margin, k, end, occupied_until: 0, every: false, tested: 0 }
+        let octant = (d[0] > 0.0) as u8 * 4 + (d[1] > 0.0) as u8 * 2 + (d[2] > 0.0) as u8;
+        RayMarch { ray, segment, o, d, inv_d: d.map(|v| 1.0 / v), margin, k, end, occupied_until: 0, octant, every: false, tested: 0 }
     }
 
     /// Whether every step of every segment has been marched.
@@ -286,6 +305,7 @@ impl RayMarch {
     /// [`Self::advance`] within the current segment.
     fn advance_in_segment(&mut self, skipper: &Skipper, max: usize, emit: &mut impl FnMut(f32, [f32; 3], f32)) -> usize {
         let (ray, grid, r) = (&self.ray, skipper.grid, skipper.grid.resolution());
+        let cubes = grid.corner_reach(self.octant as usize);
         let interval = ray.interval;
         let mut emitted = 0;
         while self.k < self.end && emitted < max {
@@ -300,16 +320,16 @@ impl RayMarch {
             }
             let cell = grid.cell_coordinates(p).map(|[i, j, k]| ([i, j, k], (i * r + j) * r + k));
             self.tested += 1;
-            // `OccupancyGrid::is_occupied` (a reach of 0 is an occupied cell).
-            let occupied = cell.is_some_and(|(_, c)| skipper.reach[c] == 0);
+            // `OccupancyGrid::is_occupied`, from the cubes' table.
+            let occupied = cell.is_some_and(|(_, c)| cubes[c] & OCCUPIED_CUBE != 0);
             // The steps from this one up to the first at or after `run_end` share its state.
             let run_end = match cell {
                 Some((cell, c)) if !self.every => {
-                    // The cell (occupied) or the empty cube around it, shrunk by the margin:
-                    // where the exact line at t lies inside it, every step up to its exit does
-                    // too, so lies in cells of the same state.
-                    let reach = (skipper.reach[c] as usize).max(1);
-                    let (lo, hi) = skipper.cell_box(cell.map(|i| i.saturating_sub(reach - 1)), cell.map(|i| (i + reach).min(r)), -self.margin);
+                    // The cube of cells in this cell's state from the cell on, shrunk by the
+                    // margin: where the exact line at t lies inside it, every step up to its
+                    // exit does too, so lies in cells of the same state.
+                    let (lo, hi) = skipper.corner_cells(cell, (cubes[c] & !OCCUPIED_CUBE) as usize, self.octant);
+                    let (lo, hi) = skipper.cell_box(lo, hi, -self.margin);
                     let tt = t as f64;
                     let mut exit = f64::INFINITY;
                     // Only where the grid's cells are world boxes (not in a contracted shell).

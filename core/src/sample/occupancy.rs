@@ -77,24 +77,29 @@ pub struct OccupancyGrid {
     density: Vec<f32>,
     /// Points are contracted before their cell is found.
     contraction: Option<Contraction>,
-    /// [`Self::empty_reach`], made on first use and dropped by any change.
-    reach: std::sync::OnceLock<Vec<u8>>,
+    /// [`Self::corner_reach`] per octant, each made on first use and dropped by any change.
+    corners: [std::sync::OnceLock<Vec<u8>>; 8],
 }
 
-/// Grids are equal when their cells and settings are (the cached reach is derived from them).
+/// Grids are equal when their cells and settings are (the cached tables are derived from them).
 impl PartialEq for OccupancyGrid {
     fn eq(&self, other: &Self) -> bool {
         (self.resolution, self.bound, self.threshold, self.contraction) == (other.resolution, other.bound, other.threshold, other.contraction) && self.density == other.density
     }
 }
 
-/// The farthest [`OccupancyGrid::empty_reach`] records: 8 cells.
-pub const MAX_REACH: usize = 8;
+/// The sides (in cells) of the cubes [`OccupancyGrid::corner_reach`] records, as the Python
+/// package's `CORNER_SIDES`: each side at most doubles the one before, so a table is three
+/// shifted ANDs of the grid per side.
+pub const CORNER_SIDES: [usize; 10] = [1, 2, 3, 4, 6, 8, 12, 16, 24, 32];
+/// The bit of a [`OccupancyGrid::corner_reach`] value that marks an occupied cell (the rest is
+/// the side of the cube).
+pub const OCCUPIED_CUBE: u8 = 0x80;
 
 impl OccupancyGrid {
     /// A grid with every cell occupied (no information yet).
     pub fn new(resolution: usize, bound: f32, threshold: f32) -> Self {
-        OccupancyGrid { resolution, bound, threshold, density: vec![f32::INFINITY; resolution.pow(3)], contraction: None, reach: Default::default() }
+        OccupancyGrid { resolution, bound, threshold, density: vec![f32::INFINITY; resolution.pow(3)], contraction: None, corners: Default::default() }
     }
 
     /// A fresh grid as `config` describes.
@@ -105,7 +110,7 @@ impl OccupancyGrid {
     /// The same grid over a contracted world (or not).
     pub fn with_contraction(mut self, contraction: Option<Contraction>) -> Self {
         self.contraction = contraction;
-        self.reach.take();
+        self.corners = Default::default();
         self
     }
 
@@ -138,7 +143,7 @@ impl OccupancyGrid {
     /// Change the occupancy threshold in place.
     pub fn set_threshold(&mut self, threshold: f32) {
         self.threshold = threshold;
-        self.reach.take();
+        self.corners = Default::default();
     }
 
     /// One occupied cell covering [−bound, bound]³: marching through it evaluates every
@@ -198,36 +203,23 @@ impl OccupancyGrid {
         self.density[cell] > self.threshold
     }
 
-    /// Per cell, how far empty space reaches around it: its Chebyshev distance in cells to the
-    /// nearest occupied cell, capped at [`MAX_REACH`] + 1 (0: the cell is occupied), so every cell
-    /// within `reach − 1` of a cell is empty. Made on first use (growing the occupied cells a
-    /// cell at a time, a 3-wide dilation per axis, [`MAX_REACH`] times) and kept until the grid
-    /// changes. Marching jumps through these empty cubes. Shape `[R³]`, cell order.
-    pub fn empty_reach(&self) -> &[u8] {
-        self.reach.get_or_init(|| {
-            use rayon::prelude::*;
-            let r = self.resolution;
-            let n = self.len();
-            let mut near: Vec<bool> = (0..n).map(|c| self.is_cell_occupied(c)).collect();
-            let mut reach: Vec<u8> = near.iter().map(|&o| if o { 0 } else { MAX_REACH as u8 + 1 }).collect();
-            let mut grown = vec![false; n];
-            for distance in 1..=MAX_REACH as u8 {
-                for (axis, stride) in [r * r, r, 1].into_iter().enumerate() {
-                    // One (i, ·, ·) slab of cells per task: coordinates by counting, not dividing.
-                    grown.par_chunks_mut((r * r).max(1)).enumerate().for_each(|(i, slab)| {
-                        for (j, row) in slab.chunks_mut(r).enumerate() {
-                            for (k, g) in row.iter_mut().enumerate() {
-                                let c = (i * r + j) * r + k;
-                                let at = [i, j, k][axis];
-                                *g = near[c] || (at > 0 && near[c - stride]) || (at + 1 < r && near[c + stride]);
-                            }
-                        }
-                    });
-                    std::mem::swap(&mut near, &mut grown);
-                }
-                reach.iter_mut().zip(&near).filter(|(d, n)| **n && **d > distance).for_each(|(d, _)| *d = distance);
-            }
-            reach
+    /// For rays heading into `octant` (bit 2: x grows, bit 1: y, bit 0: z), per cell: the largest
+    /// side s of [`CORNER_SIDES`] such that the cube of s cells a side with this cell at its
+    /// corner, reaching along the octant's directions, is all in the cell's state: all empty
+    /// (cells past the grid count as empty) or all occupied (and inside the grid). An empty
+    /// cell's value is s, an occupied cell's s | [`OCCUPIED_CUBE`]. A ray in the cell heading into
+    /// the octant crosses that cube from the cell on, so marching jumps through it. Made on first
+    /// use per octant and kept until the grid changes. Shape `[R³]`, cell order.
+    ///
+    /// Example: one occupied cell, (2, 3, 4). For octant +x+y+z, cell (1, 1, 1)'s cube of side 3
+    /// (cells 1..=3 per axis) is empty, that of side 4 holds (2, 3, 4): 3; for −x−y−z every cube
+    /// from (1, 1, 1) is empty: 32; (2, 3, 4) itself: 1 | [`OCCUPIED_CUBE`].
+    pub fn corner_reach(&self, octant: usize) -> &[u8] {
+        self.corners[octant & 7].get_or_init(|| {
+            let state: Vec<u8> = (0..self.len()).map(|c| if self.is_cell_occupied(c) { 0b10 } else { 0b01 }).collect();
+            let mut sides = corner_sides(self.resolution, state, octant);
+            sides.iter_mut().zip(0..).filter(|(_, c)| self.is_cell_occupied(*c)).for_each(|(s, _)| *s |= OCCUPIED_CUBE);
+            sides
         })
     }
 
@@ -270,7 +262,7 @@ impl OccupancyGrid {
     /// [`random_cell_points`](Self::random_cell_points)).
     pub fn update(&mut self, sigma: &[f32], decay: f32) {
         assert_eq!(sigma.len(), self.len(), "one density per cell");
-        self.reach.take();
+        self.corners = Default::default();
         for (d, &s) in self.density.iter_mut().zip(sigma) {
             let s = s.max(0.0);
             *d = if d.is_finite() { (*d * decay).max(s) } else { s };
@@ -301,7 +293,7 @@ impl OccupancyGrid {
             return Err(Error::invalid(path, format!("{} bytes, expected {want} for a {resolution}³ grid (truncated?)", bytes.len())));
         }
         let density = bytes[header..].chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
-        Ok(OccupancyGrid { resolution, bound, threshold, density, contraction, reach: Default::default() })
+        Ok(OccupancyGrid { resolution, bound, threshold, density, contraction, corners: Default::default() })
     }
 
     /// The header from the first bytes (at most [`HEADER_BYTES_CONTRACTED`]), checked (the
@@ -393,6 +385,59 @@ pub fn marching_grid(occupancy: Option<OccupancyGrid>, bounded: Option<f32>, con
     })
 }
 
+/// For `cube` ([R³]: per cell, bit 0 set when empty, bit 1 when occupied) and rays heading into
+/// `octant`: per cell, the largest side of [`CORNER_SIDES`] whose cube from the cell (reaching
+/// along the octant) is all in the cell's state, cells past the grid counting as empty. The cube
+/// of side `side + shift` at c is the 8 cubes of side `side` at c + shift·{0, 1}³ (shift ≤ side):
+/// an AND with the cubes `shift` cells on, one axis at a time, a line of cells at a time (both
+/// states at once, one bit each; a cell's own bit stays set while its cube is all its state).
+fn corner_sides(r: usize, mut cube: Vec<u8>, octant: usize) -> Vec<u8> {
+    const PAST: u8 = 0b01;
+    let mut sides = vec![1u8; cube.len()];
+    let mut row = vec![0u8; r];
+    let mut side = 1;
+    for &target in &CORNER_SIDES[1..] {
+        let shift = target - side;
+        for axis in 0..3 {
+            let up = octant >> (2 - axis) & 1 == 1;
+            // Along x the lines are the grid's slabs, along y a slab's rows, along z single cells.
+            let line = [r * r, r, 1][axis];
+            cube.chunks_mut(line * r).for_each(|block| and_shifted(block, line, shift, up, PAST, &mut row));
+        }
+        side = target;
+        sides.iter_mut().zip(&cube).for_each(|(s, &c)| *s = if c != 0 { side as u8 } else { *s });
+    }
+    sides
+}
+
+/// `block`'s lines of `len` cells, each ANDed in place with the line `shift` on (up) or back
+/// (down), a line past the block counting as `past`. Lines one at a time in the order that reads
+/// a line before it is written; single cells (`len` 1) from a copy of the block in `row`.
+fn and_shifted(block: &mut [u8], len: usize, shift: usize, up: bool, past: u8, row: &mut [u8]) {
+    let lines = block.len() / len;
+    let reach = lines.saturating_sub(shift);
+    if len == 1 {
+        row[..lines].copy_from_slice(block);
+        let (keep, edge) = if up { (&mut block[..reach], &row[shift.min(lines)..lines]) } else { (&mut block[lines - reach..], &row[..reach]) };
+        keep.iter_mut().zip(edge).for_each(|(x, &y)| *x &= y);
+        let past_end = if up { &mut block[reach..] } else { &mut block[..lines - reach] };
+        past_end.iter_mut().for_each(|x| *x &= past);
+        return;
+    }
+    for step in 0..lines {
+        let m = if up { step } else { lines - 1 - step };
+        let partner = if up { m + shift } else { m.wrapping_sub(shift) };
+        if partner < lines {
+            // Two disjoint lines: split where the later one starts.
+            let (first, second) = block.split_at_mut(m.max(partner) * len);
+            let (line, other) = if up { (&mut first[m * len..][..len], &second[..len]) } else { (&mut second[..len], &first[partner * len..][..len]) };
+            line.iter_mut().zip(other).for_each(|(x, &y)| *x &= y);
+        } else {
+            block[m * len..][..len].iter_mut().for_each(|x| *x &= past);
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -410,7 +455,7 @@ mod tests {
     }
 
     #[test]
-    fn empty_reach_is_the_chebyshev_distance_to_the_nearest_occupied_cell_capped() {
+    fn corner_reach_is_the_largest_cube_of_the_cells_state_along_the_octant() {
         // 24³, one occupied cell at (2, 3, 4).
         let r = 24;
         let at = |i: usize, j: usize, k: usize| (i * r + j) * r + k;
@@ -418,17 +463,34 @@ mod tests {
         density[at(2, 3, 4)] = 1.0;
         let mut grid = OccupancyGrid::new(r, 1.0, 0.5);
         grid.update(&density, 1.0);
-        let reach = grid.empty_reach();
-        assert_eq!((reach[at(2, 3, 4)], reach[at(3, 3, 4)], reach[at(1, 2, 5)]), (0, 1, 1));
-        // max(|4 − 2|, |5 − 3|, |4 − 4|) = 2; max(5, 4, 3) = 5; 20 cells away: capped at 9.
-        assert_eq!((reach[at(4, 5, 4)], reach[at(7, 7, 7)], reach[at(22, 3, 4)]), (2, 5, MAX_REACH as u8 + 1));
-        assert_eq!(reach.iter().filter(|&&d| d == 1).count(), 26);
+        let (up, down) = (grid.corner_reach(0b111).to_vec(), grid.corner_reach(0b000).to_vec());
+        // +x+y+z from (1, 1, 1): side 3 spans cells 1..=3 (z misses 4), side 4 holds (2, 3, 4).
+        assert_eq!(up[at(1, 1, 1)], 3);
+        // −x−y−z: nothing occupied below, past the grid counts as empty.
+        assert_eq!(down[at(1, 1, 1)], 32);
+        assert_eq!((up[at(2, 3, 4)], down[at(2, 3, 4)]), (OCCUPIED_CUBE | 1, OCCUPIED_CUBE | 1));
+        // (2, 3, 3) heading +z: side 2 would hold (2, 3, 4); heading −z, (2, 3, 4) is never reached.
+        assert_eq!((grid.corner_reach(0b001)[at(2, 3, 3)], grid.corner_reach(0b110)[at(2, 3, 3)]), (1, 32));
+        // +x−y−z from (0, 3, 4): the cube of side 3 reaches x = 2 with y = 3 and z = 4 in it.
+        assert_eq!(grid.corner_reach(0b100)[at(0, 3, 4)], 2);
+        // Every value against the definition, computed cube by cube, on a few cells and octants.
+        let occupied = |i: i64, j: i64, k: i64| (0..r as i64).contains(&i) && (0..r as i64).contains(&j) && (0..r as i64).contains(&k) && density[at(i as usize, j as usize, k as usize)] > 0.5;
+        for octant in 0..8 {
+            let sign = [(octant >> 2) & 1, (octant >> 1) & 1, octant & 1].map(|b| if b == 1 { 1i64 } else { -1 });
+            let table = grid.corner_reach(octant);
+            for c in [(0, 0, 0), (1, 2, 3), (2, 3, 4), (5, 5, 5), (23, 0, 11), (3, 3, 3), (2, 4, 4)] {
+                let state = occupied(c.0, c.1, c.2);
+                let fits = |s: i64| (0..s).all(|a| (0..s).all(|b| (0..s).all(|e| occupied(c.0 + a * sign[0], c.1 + b * sign[1], c.2 + e * sign[2]) == state)));
+                let side = CORNER_SIDES.iter().rev().find(|&&s| fits(s as i64)).copied().unwrap_or(0) as u8;
+                assert_eq!(table[at(c.0 as usize, c.1 as usize, c.2 as usize)], side | if state { OCCUPIED_CUBE } else { 0 }, "octant {octant}, cell {c:?}");
+            }
+        }
         // Kept until the grid changes: a second occupied cell at (2, 3, 8).
         density[at(2, 3, 8)] = 1.0;
         grid.update(&density, 1.0);
-        assert_eq!((grid.empty_reach()[at(2, 3, 6)], grid.empty_reach()[at(2, 3, 7)]), (2, 1));
+        assert_eq!(grid.corner_reach(0b001)[at(2, 3, 6)], 2);
         grid.set_threshold(2.0);
-        assert!(grid.empty_reach().iter().all(|&d| d == MAX_REACH as u8 + 1), "nothing is occupied above 2");
+        assert!(grid.corner_reach(0b001).iter().all(|&s| s == 32), "nothing is occupied above 2");
     }
 
     #[test]
