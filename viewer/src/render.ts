@@ -159,6 +159,79 @@ export async function renderDense(s: Sampling, white: boolean, coarse: Field, fi
  *  samples, and compositing them. */
 export interface MarchTiming { marchMs: number; compositeMs: number }
 
+/** renderMarch's queue of rays waiting for their next samples (a ring from `head`, `queued`
+ *  long), and the points the last gathered call holds. */
+interface Ring { head: number; queued: number; points: number }
+
+/** Gather the next occupied samples of as many queued rays as fit in one field call (each at
+ *  most `chunk`, MAX_POINTS in all): positions into `pts`, view directions into `dirs`, steps
+ *  into `ks`; the rays and their counts into `rays`, `counts`. Rays with no samples left leave
+ *  the queue. Returns how many rays; `ring.points` the samples. A plain function, as compositeCall. */
+function gatherCall(march: Marcher, vd: Float32Array, chunk: number, queue: Int32Array, ring: Ring, pts: Float32Array,
+  dirs: Float32Array, ks: Int32Array, rays: Int32Array, counts: Int32Array): number {
+  const n = queue.length;
+  let m = 0, batch = 0, head = ring.head, queued = ring.queued;
+  while (queued > 0 && m + chunk <= MAX_POINTS) {
+    const r = queue[head];
+    head = head + 1 === n ? 0 : head + 1; queued--;
+    const c = march.next(r, chunk, pts, ks, m);
+    if (c === 0) continue; // no samples left: done
+    const vx = vd[3 * r], vy = vd[3 * r + 1], vz = vd[3 * r + 2];
+    for (let p = m; p < m + c; p++) { dirs[3 * p] = vx; dirs[3 * p + 1] = vy; dirs[3 * p + 2] = vz; }
+    rays[batch] = r; counts[batch] = c; batch++; m += c;
+  }
+  ring.head = head; ring.queued = queued; ring.points = m;
+  return batch;
+}
+
+/** What compositing a marched frame's field calls keeps between them (renderMarch's arrays). */
+interface MarchState {
+  rgb: Float32Array; depth: Float32Array; acc: Float32Array; trans: Float32Array; done: Int32Array;
+  stepLen: Float32Array; dNorm: Float32Array; t: Float32Array; stepInterval: Float32Array | null;
+  cursor: Int32Array; end: Int32Array; queue: Int32Array; segment: number; minTransmittance: number;
+}
+
+/** Composite one field call's samples (`counts[q]` for ray `rays[q]`, q < `batch`, their steps
+ *  in `ks`) into their rays in order, with RayAccumulator's float32 arithmetic; the segment count
+ *  runs over a ray's occupied samples, and a ray stops after the segment where its
+ *  transmittance falls below the threshold, or after its last. The rays that go on join the
+ *  queue (ring of `queue.length`, from `head`); returns its new length. A plain function rather
+ *  than part of renderMarch's async loop: V8 optimises a hot loop of a function it has called a
+ *  few times, while one inside an async function waits for that function's own optimisation
+ *  (a page's first frame composited at half speed). */
+function compositeCall(st: MarchState, sig: Float32Array, col: Float32Array, ks: Int32Array, rays: Int32Array,
+  counts: Int32Array, batch: number, head: number, queued: number): number {
+  const { rgb, depth, acc, trans, done, stepLen, dNorm, t, stepInterval, cursor, end, queue, segment, minTransmittance } = st;
+  const n = queue.length;
+  let p = 0;
+  for (let q = 0; q < batch; q++) {
+    const r = rays[q], p0 = p, len = stepLen[r], dn = dNorm[r];
+    let T = trans[r], stopped = false, cr = rgb[3 * r], cg = rgb[3 * r + 1], cb = rgb[3 * r + 2], z = depth[r], a = acc[r], nd = done[r];
+    // Samples to the end of the ray's current segment (a countdown, not a modulo per sample).
+    let toSegmentEnd = segment - (nd % segment);
+    for (let c = 0; c < counts[q]; c++, p++) {
+      const delta = stepInterval === null ? len : f(stepInterval[ks[p]] * dn);
+      const alpha = f(1 - f(Math.exp(f(-Math.max(sig[p], 0) * delta))));
+      const w = f(alpha * T);
+      cr = f(cr + f(w * col[3 * p])); cg = f(cg + f(w * col[3 * p + 1])); cb = f(cb + f(w * col[3 * p + 2]));
+      z = f(z + f(w * t[ks[p]]));
+      a = f(a + w);
+      T = f(T * f(f(1 - alpha) + f(1e-10)));
+      nd++;
+      if (--toSegmentEnd === 0) {
+        toSegmentEnd = segment;
+        if (T < minTransmittance) { stopped = true; break; }
+      }
+    }
+    rgb[3 * r] = cr; rgb[3 * r + 1] = cg; rgb[3 * r + 2] = cb; depth[r] = z; acc[r] = a; done[r] = nd;
+    p = p0 + counts[q];
+    trans[r] = T;
+    // A ray also stops after its last (partial) segment; cursor at the end means no samples left.
+    if (!stopped && cursor[r] < end[r]) { queue[(head + queued) % n] = r; queued++; }
+  }
+  return queued;
+}
+
 /** march(): march_steps equal intervals over [near, far] (a contracted grid: the segments of
  *  contraction.ts's marchSegments, δ of each sample its segment's), a sample at each middle, only samples in
  *  occupied cells evaluated (marched lazily with empty-space skipping, see march.ts), front to
@@ -187,58 +260,22 @@ export async function renderMarch(s: Sampling, steps: number, white: boolean, gr
   }
   // A ring of the rays waiting for their next samples: each ray is in it at most once.
   const queue = new Int32Array(Math.max(n, 1));
-  let head = 0, queued = 0;
-  for (let r = 0; r < n; r++) if (cursor[r] < end[r]) queue[queued++] = r;
+  const ring: Ring = { head: 0, queued: 0, points: 0 };
+  for (let r = 0; r < n; r++) if (cursor[r] < end[r]) queue[ring.queued++] = r;
   const pts = new Float32Array(3 * MAX_POINTS), dirs = new Float32Array(3 * MAX_POINTS), ks = new Int32Array(MAX_POINTS);
   const rays = new Int32Array(MAX_POINTS), counts = new Int32Array(MAX_POINTS);
+  const state: MarchState = { rgb, depth, acc, trans, done, stepLen, dNorm, t, stepInterval, cursor, end, queue, segment, minTransmittance };
   let points = 0;
-  while (queued > 0) {
+  while (ring.queued > 0) {
     if (cancelled()) return null;
-    // Gather the next occupied samples of as many queued rays as fit in one call.
-    let m = 0, batch = 0;
-    while (queued > 0 && m + chunk <= MAX_POINTS) {
-      const r = queue[head];
-      head = head + 1 === n ? 0 : head + 1; queued--;
-      const c = march.next(r, chunk, pts, ks, m);
-      if (c === 0) continue; // no samples left: done
-      const vx = vd[3 * r], vy = vd[3 * r + 1], vz = vd[3 * r + 2];
-      for (let p = m; p < m + c; p++) { dirs[3 * p] = vx; dirs[3 * p + 1] = vy; dirs[3 * p + 2] = vz; }
-      rays[batch] = r; counts[batch] = c; batch++; m += c;
-    }
+    const batch = gatherCall(march, vd, chunk, queue, ring, pts, dirs, ks, rays, counts), m = ring.points;
     let t1 = performance.now();
     clock.marchMs += t1 - t0;
     if (m === 0) break;
     const out = await field(pts.subarray(0, 3 * m), dirs.subarray(0, 3 * m), m);
     points += m;
     t0 = performance.now();
-    const sig = out.sigma, col = out.rgb;
-    // Composite each ray's samples in order; the segment count runs over its occupied samples.
-    let p = 0;
-    for (let q = 0; q < batch; q++) {
-      const r = rays[q], p0 = p, len = stepLen[r], dn = dNorm[r];
-      let T = trans[r], stopped = false, cr = rgb[3 * r], cg = rgb[3 * r + 1], cb = rgb[3 * r + 2], z = depth[r], a = acc[r], nd = done[r];
-      // Samples to the end of the ray's current segment (a countdown, not a modulo per sample).
-      let toSegmentEnd = segment - (nd % segment);
-      for (let c = 0; c < counts[q]; c++, p++) {
-        const delta = stepInterval === null ? len : f(stepInterval[ks[p]] * dn);
-        const alpha = f(1 - f(Math.exp(f(-Math.max(sig[p], 0) * delta))));
-        const w = f(alpha * T);
-        cr = f(cr + f(w * col[3 * p])); cg = f(cg + f(w * col[3 * p + 1])); cb = f(cb + f(w * col[3 * p + 2]));
-        z = f(z + f(w * t[ks[p]]));
-        a = f(a + w);
-        T = f(T * f(f(1 - alpha) + f(1e-10)));
-        nd++;
-        if (--toSegmentEnd === 0) {
-          toSegmentEnd = segment;
-          if (T < minTransmittance) { stopped = true; break; }
-        }
-      }
-      rgb[3 * r] = cr; rgb[3 * r + 1] = cg; rgb[3 * r + 2] = cb; depth[r] = z; acc[r] = a; done[r] = nd;
-      p = p0 + counts[q];
-      trans[r] = T;
-      // A ray also stops after its last (partial) segment; cursor at the end means no samples left.
-      if (!stopped && cursor[r] < end[r]) { queue[(head + queued) % n] = r; queued++; }
-    }
+    ring.queued = compositeCall(state, out.sigma, out.rgb, ks, rays, counts, batch, ring.head, ring.queued);
     t1 = performance.now();
     clock.compositeMs += t1 - t0;
     t0 = t1;
