@@ -43,42 +43,63 @@ export function octantOf(dx: number, dy: number, dz: number): number {
   return (dx > 0 ? 4 : 0) | (dy > 0 ? 2 : 0) | (dz > 0 ? 1 : 0);
 }
 
+/** cornerReach's step along x or y: the R lines of `len` cells from `start` in `cube` (32-bit
+ *  words of 4 cells when `len` is a multiple of 4), each ANDed in place with the line `shift`
+ *  on (up) or back, a line past the block counting as `past` (in every byte). */
+function andLines(cube: Uint8Array, words: Uint32Array | null, start: number, len: number, R: number, shift: number, up: number,
+  past: number): void {
+  const a = words ?? cube, w = words ? 4 : 1, l = len / w, s0 = start / w, pastAll = words ? past * 0x01010101 : past;
+  for (let step = 0; step < R; step++) {
+    const m = up ? step : R - 1 - step, partner = up ? m + shift : m - shift, at = s0 + m * l;
+    if (partner >= 0 && partner < R) {
+      const from = s0 + partner * l;
+      for (let i = 0; i < l; i++) a[at + i] &= a[from + i];
+    } else for (let i = 0; i < l; i++) a[at + i] &= pastAll;
+  }
+}
+
 /** grid.rs's OccupancyGrid::corner_reach: for rays heading into `octant`, per cell, the largest
  *  side s of CORNER_SIDES such that the cube of s cells a side with this cell at its corner,
  *  reaching along the octant's directions, is all in the cell's state (all empty, cells past the
  *  grid counting as empty, or all occupied): s, with OCCUPIED_CUBE set for an occupied cell.
- *  Made once per grid and octant (R³ bytes). By ANDs with the cube `shift` cells on, one axis at
- *  a time (the cube of side + shift is the 8 cubes of side at c + shift·{0, 1}³), both states at
- *  once: bit 0 of a cell stays set while its cube is all empty, bit 1 while all occupied. */
+ *  Made once per grid and octant (R³ bytes), when a ray first heads into it. By ANDs with the
+ *  cube `shift` cells on, one axis at a time (the cube of side + shift is the 8 cubes of side at
+ *  c + shift·{0, 1}³), both states at once: bit 0 of a cell stays set while its cube is all
+ *  empty, bit 1 while all occupied; 4 cells a 32-bit word where the rows allow. */
 export function cornerReach(g: Grid, octant: number): Uint8Array {
   let tables = corners.get(g);
   if (!tables) corners.set(g, (tables = []));
   const made = tables[octant];
   if (made) return made;
   const R = g.res, n = R ** 3, past = 1;
-  const cube = Uint8Array.from(g.occupied, (v) => (v ? 2 : 1)), sides = new Uint8Array(n).fill(1);
-  let side = 1;
-  for (const target of CORNER_SIDES.slice(1)) {
-    const shift = target - side;
-    for (let axis = 0; axis < 3; axis++) {
-      const up = (octant >> (2 - axis)) & 1, stride = [R * R, R, 1][axis];
-      // In place: heading up the cell `shift` on has a larger index, so ascending order reads it
-      // before it is written (descending when heading down).
-      for (let ii = 0; ii < R; ii++) {
-        const i = up ? ii : R - 1 - ii;
-        for (let jj = 0; jj < R; jj++) {
-          const j = up ? jj : R - 1 - jj;
-          for (let kk = 0; kk < R; kk++) {
-            const k = up ? kk : R - 1 - kk, c = (i * R + j) * R + k, at = axis === 0 ? i : axis === 1 ? j : k;
-            cube[c] &= up ? (at + shift < R ? cube[c + shift * stride] : past) : (at >= shift ? cube[c - shift * stride] : past);
-          }
-        }
+  const cube = new Uint8Array(n), level = new Uint8Array(n);
+  for (let c = 0; c < n; c++) cube[c] = g.occupied[c] ? 2 : 1;
+  const words = R % 4 === 0 ? new Uint32Array(cube.buffer) : null, levels = words ? new Uint32Array(level.buffer) : null;
+  for (let t = 1; t < CORNER_SIDES.length; t++) {
+    const shift = CORNER_SIDES[t] - CORNER_SIDES[t - 1];
+    for (let axis = 0; axis < 2; axis++) {
+      const up = (octant >> (2 - axis)) & 1, len = axis === 0 ? R * R : R;
+      for (let start = 0; start < n; start += len * R) andLines(cube, words, start, len, R, shift, up, past);
+    }
+    // Along z, a row at a time, in place in the order that reads a cell before it is written.
+    const keep = Math.max(R - shift, 0);
+    if (octant & 1) {
+      for (let row = 0; row < n; row += R) {
+        for (let k = 0; k < keep; k++) cube[row + k] &= cube[row + k + shift];
+        for (let k = keep; k < R; k++) cube[row + k] &= past;
+      }
+    } else {
+      for (let row = 0; row < n; row += R) {
+        for (let k = R - 1; k >= R - keep; k--) cube[row + k] &= cube[row + k - shift];
+        for (let k = 0; k < R - keep; k++) cube[row + k] &= past;
       }
     }
-    side = target;
-    for (let c = 0; c < n; c++) if (cube[c]) sides[c] = side;
+    // How many sides each cell's cube has passed (a cell's own bit still set: it passed this one).
+    if (words && levels) for (let i = 0; i < words.length; i++) { const x = words[i]; levels[i] += (x | (x >>> 1)) & 0x01010101; }
+    else for (let c = 0; c < n; c++) level[c] += cube[c] ? 1 : 0;
   }
-  for (let c = 0; c < n; c++) if (g.occupied[c]) sides[c] |= OCCUPIED_CUBE;
+  const sides = level;
+  for (let c = 0; c < n; c++) sides[c] = CORNER_SIDES[level[c]] | (g.occupied[c] ? OCCUPIED_CUBE : 0);
   tables[octant] = sides;
   return sides;
 }

@@ -10,7 +10,6 @@ import type { Grid } from "./march";
 import { type Field, MAX_POINTS, type MarchTiming, renderDense, renderMarch } from "./render";
 import type { FromWorker, Intrinsics, Provider, ToWorker } from "./protocol";
 import { type Adapter, pickProvider } from "./provider";
-import { cornerReach } from "./march";
 import { FEATURES_TENSOR, SH4_DIM, SH_TENSOR, type SplitGraph, splitHashGrid } from "./hashgrid";
 import { ParallelEncoder } from "./encoder";
 
@@ -129,8 +128,6 @@ async function load(bundleUrl: string, ortUrl: string, dense: boolean, ep: strin
     grid = parseGrid(await fetchOk(new URL(scene.occupancy.file, bundleUrl).href));
     checkGridContraction(scene, grid);
   } else if (isBounded(scene)) grid = wholeBox(scene.occupancy.bound, isContracted(scene));
-  // The cubes marching jumps, once per bundle rather than in a frame (8·R³ bytes: 2 MB at 64³).
-  if (grid) for (let q = 0; q < 8; q++) cornerReach(grid, q);
 
   // Another bundle replaces this one (a live snapshot): its sessions are freed once no render uses
   // them (loads wait in the render queue).

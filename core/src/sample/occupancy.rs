@@ -485,6 +485,31 @@ mod tests {
                 assert_eq!(table[at(c.0 as usize, c.1 as usize, c.2 as usize)], side | if state { OCCUPIED_CUBE } else { 0 }, "octant {octant}, cell {c:?}");
             }
         }
+        // Every cell of a 13³ grid, every octant: a tenth of the cells occupied, a solid 5³ block
+        // inside and a 4³ one in a corner of the grid (an occupied cube stops at the grid's faces).
+        let r13 = 13usize;
+        let mut rng = crate::rng::Rng::new(13);
+        let mut cells: Vec<f32> = (0..r13.pow(3)).map(|_| if rng.uniform() < 0.1 { 1.0 } else { 0.0 }).collect();
+        for (i, j, k) in (0..r13).flat_map(|i| (0..r13).flat_map(move |j| (0..r13).map(move |k| (i, j, k)))) {
+            if ((2..7).contains(&i) && (3..8).contains(&j) && (4..9).contains(&k)) || (i >= 9 && j < 4 && k >= 9) {
+                cells[(i * r13 + j) * r13 + k] = 1.0;
+            }
+        }
+        let mut other = OccupancyGrid::new(r13, 1.0, 0.5);
+        other.update(&cells, 1.0);
+        let inside = |v: i64| (0..r13 as i64).contains(&v);
+        let full = |i: i64, j: i64, k: i64| inside(i) && inside(j) && inside(k) && cells[((i as usize) * r13 + j as usize) * r13 + k as usize] > 0.5;
+        for octant in 0..8 {
+            let sign = [(octant >> 2) & 1, (octant >> 1) & 1, octant & 1].map(|b| if b == 1 { 1i64 } else { -1 });
+            let table = other.corner_reach(octant);
+            for c in 0..r13.pow(3) {
+                let (i, j, k) = ((c / (r13 * r13)) as i64, (c / r13 % r13) as i64, (c % r13) as i64);
+                let state = full(i, j, k);
+                let fits = |s: i64| (0..s).all(|a| (0..s).all(|b| (0..s).all(|e| full(i + a * sign[0], j + b * sign[1], k + e * sign[2]) == state)));
+                let side = CORNER_SIDES.iter().take_while(|&&s| fits(s as i64)).last().copied().unwrap_or(0) as u8;
+                assert_eq!(table[c], side | if state { OCCUPIED_CUBE } else { 0 }, "13³, octant {octant}, cell {i} {j} {k}");
+            }
+        }
         // Kept until the grid changes: a second occupied cell at (2, 3, 8).
         density[at(2, 3, 8)] = 1.0;
         grid.update(&density, 1.0);

@@ -1,7 +1,7 @@
 // The marcher (src/march.ts) against the reference marching: every interval tested with
 // isOccupied, sample for sample, bit for bit (as core/src/render/grid.rs's tests).
 import { describe, expect, it } from "vitest";
-import { type Grid, isOccupied } from "../../src/march";
+import { CORNER_SIDES, type Grid, OCCUPIED_CUBE, cornerReach, isOccupied } from "../../src/march";
 import { RayMarch } from "../../src/march";
 
 const f = Math.fround;
@@ -68,6 +68,37 @@ function same(g: Grid, list: [number[], number[]][], near: number, far: number, 
   expect(wrong.slice(0, 5)).toEqual([]);
   return { samples: want.reduce((s, k) => s + k.length, 0), tested: got.tested };
 }
+
+describe("the cubes marching jumps (cornerReach)", () => {
+  it("gives each cell the largest cube of its state from it along the octant, on every cell", () => {
+    // 13³ (rows of bytes) and 16³ (4 cells a 32-bit word), a tenth of the cells occupied, a
+    // solid 5³ block inside and a 4³ one in a corner of the grid, against the definition cube by
+    // cube (past the grid counts as empty: an occupied cube stops at the grid's faces).
+    for (const R of [13, 16]) {
+      const u = rng(R), occupied = Uint8Array.from({ length: R ** 3 }, () => (u() < 0.1 ? 1 : 0));
+      for (let i = 2; i < 7; i++) for (let j = 3; j < 8; j++) for (let k = 4; k < 9; k++) occupied[(i * R + j) * R + k] = 1;
+      for (let i = R - 4; i < R; i++) for (let j = 0; j < 4; j++) for (let k = R - 4; k < R; k++) occupied[(i * R + j) * R + k] = 1;
+      const g: Grid = { res: R, bound: 1, occupied };
+      const at = (i: number, j: number, k: number) =>
+        i >= 0 && i < R && j >= 0 && j < R && k >= 0 && k < R ? occupied[(i * R + j) * R + k] : 0;
+      for (let q = 0; q < 8; q++) {
+        const table = cornerReach(g, q), sx = q & 4 ? 1 : -1, sy = q & 2 ? 1 : -1, sz = q & 1 ? 1 : -1;
+        for (let i = 0; i < R; i++) for (let j = 0; j < R; j++) for (let k = 0; k < R; k++) {
+          const state = at(i, j, k);
+          const fits = (s: number) => {
+            for (let a = 0; a < s; a++) for (let b = 0; b < s; b++) for (let c = 0; c < s; c++)
+              if (at(i + a * sx, j + b * sy, k + c * sz) !== state) return false;
+            return true;
+          };
+          let side = 1;
+          for (const s of CORNER_SIDES) if (fits(s)) side = s; else break;
+          expect(table[(i * R + j) * R + k], `R ${R}, octant ${q}, cell ${i} ${j} ${k}`).toBe(side | (state ? OCCUPIED_CUBE : 0));
+        }
+      }
+      expect(cornerReach(g, 0)).toBe(cornerReach(g, 0)); // made once
+    }
+  });
+});
 
 describe("marching with empty-space skipping", () => {
   it("takes the samples of testing every interval on random rays, in any chunk size", () => {
