@@ -278,9 +278,10 @@ class Bundle:
         """:func:`_render.march_grid` on the CPU as one loop per session of ``graph``, side by
         side: the rays' chunks dealt out in turn (so each loop gets rays from all over the
         frame), each loop marching, evaluating on its own session and compositing while the
-        others' sessions evaluate (numpy and onnxruntime let go of the GIL). A point's output does
-        not depend on the others in its call, so the pixels are those of one loop. ``stages``
-        gets the loops' mean."""
+        others' sessions evaluate (onnxruntime lets go of the GIL; the loops' numpy work, on
+        arrays of some thousands of elements, holds it, so it overlaps the other loops'
+        evaluation rather than their numpy work). A point's output does not depend on the others
+        in its call, so the pixels are those of one loop. ``stages`` gets the loops' mean."""
         assert self.grid is not None
         n = len(o)
         loops = min(len(graph.sessions), -(-n // chunk)) if graph.gpu is None else 1
