@@ -413,7 +413,7 @@ class Marcher:
         return np.zeros(m), np.full(m, float(self.steps)), t_max
 
     def deltas(self, k: np.ndarray, ray: np.ndarray) -> np.ndarray:
-        """δ of the samples at steps ``k`` of rays ``ray`` (flat, alike): interval · ‖d‖, float32."""
+        """δ of the samples at steps ``k`` of rays ``ray`` (alike shapes): interval · ‖d‖, float32."""
         if self.intervals is None:
             return self.delta.take(ray)
         return self.intervals.take(k) * self.norm.take(ray)
@@ -786,11 +786,7 @@ def _round_block(field: FieldFn, marcher: Marcher, viewdirs: np.ndarray, k: np.n
     np.cumsum(lanes, out=at[1:])
     t_lanes = marcher.t.take(k)
     d, o, v = marcher.d.take(rays, axis=1), marcher.o.take(rays, axis=1), viewdirs.take(rays, axis=0)
-    if marcher.intervals is None:
-        interval = marcher.delta.take(rays)
-    else:
-        interval = marcher.intervals.take(k)
-        interval *= marcher.norm.take(rays)
+    delta_lanes = marcher.deltas(k, np.broadcast_to(rays, k.shape))
     total = int(at[-1])
     points = np.empty((total, 3), F32)
     dirs = np.empty((total, 3), F32)
@@ -802,7 +798,7 @@ def _round_block(field: FieldFn, marcher: Marcher, viewdirs: np.ndarray, k: np.n
             break
         a, b = at[j], at[j + 1]
         t[a:b] = t_lanes[j, :m]
-        delta[a:b] = interval[:m] if interval.ndim == 1 else interval[j, :m]
+        delta[a:b] = delta_lanes[j, :m]
         p = points[a:b].T
         np.multiply(t[a:b], d[:, :m], out=p)
         p += o[:, :m]

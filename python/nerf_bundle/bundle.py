@@ -284,7 +284,7 @@ class Bundle:
         in its call, so the pixels are those of one loop. ``stages`` gets the loops' mean."""
         assert self.grid is not None
         n = len(o)
-        loops = min(len(graph.sessions), -(-n // chunk)) if graph.gpu is None else 1
+        loops = min(len(graph.sessions), -(-n // chunk))  # on a GPU one session: one loop
         steps = max(self.march_steps, 1)
         if loops <= 1:
             return R.march_grid(graph, self.grid, o, d, viewdirs, self.near, self.far, steps, min_t, self.white_background, chunk,

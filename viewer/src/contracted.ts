@@ -7,18 +7,17 @@
 // step is tested, as in Rust. Pure.
 
 import { type Segment, contractionFactor } from "./contraction";
-import { type Grid, type Marcher, OCCUPIED_CUBE, cornerReach, octantOf } from "./march";
+import { type Grid, type Marcher, OCCUPIED_CUBE, raysCubes } from "./march";
 
 const f = Math.fround;
 
 /** One axis of the cube of `s` cells from cell c reaching up (or down) that axis, cut to the inner
  *  cube's cells [first, end) (a contracted grid over ±b): where o + t·d leaves it shrunk by
- *  `margin` (∞ for d = 0), or NaN when the exact point at `tt` lies outside the shrunk cube or
- *  the cube outside the inner cube (no jump). In f64. */
+ *  `margin` (∞ for d = 0), or NaN when the exact point at `tt` lies outside the shrunk cube (as
+ *  in a cell outside the inner cube: no jump). In f64. */
 function axisExit(b: number, side: number, margin: number, c: number, s: number, up: number, first: number, end: number,
   o: number, d: number, tt: number): number {
   const lo = -b + Math.max(up ? c : c + 1 - s, first) * side, hi = -b + Math.min(up ? c + s : c + 1, end) * side;
-  if (lo < -1 || hi > 1) return NaN;
   const x = o + tt * d;
   if (!(lo + margin <= x && x <= hi - margin)) return NaN;
   return d > 0 ? (hi - margin - o) / d : d < 0 ? (lo + margin - o) / d : Infinity;
@@ -43,9 +42,9 @@ export class ContractedMarch implements Marcher {
    *  −2 + 4(i + 1)/R, inside ±1 from ⌈R/4⌉ to ⌊3R/4⌋. */
   private readonly innerFirst: number;
   private readonly innerEnd: number;
-  /** Per ray: the octant it heads into (octantOf), whose cubes (cornerReach) it jumps through. */
+  /** Per ray: the octant it heads into, and per octant its cubes (raysCubes). */
   private readonly octant: Uint8Array;
-  private readonly cubes: Uint8Array[] = [];
+  private readonly cubes: Uint8Array[];
 
   constructor(private readonly grid: Grid, private readonly o: Float32Array, private readonly d: Float32Array,
     private readonly segments: Segment[]) {
@@ -67,11 +66,7 @@ export class ContractedMarch implements Marcher {
     this.cellSide = (2 * f(grid.bound)) / grid.res;
     this.innerFirst = Math.ceil(grid.res / 4);
     this.innerEnd = Math.floor((3 * grid.res) / 4);
-    this.octant = new Uint8Array(n);
-    for (let r = 0; r < n; r++) {
-      const q = (this.octant[r] = octantOf(d[3 * r], d[3 * r + 1], d[3 * r + 2]));
-      this.cubes[q] ??= cornerReach(grid, q);
-    }
+    ({ octant: this.octant, cubes: this.cubes } = raysCubes(grid, d));
   }
 
   /** The segment holding step k. */

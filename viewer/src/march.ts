@@ -43,6 +43,17 @@ export function octantOf(dx: number, dy: number, dz: number): number {
   return (dx > 0 ? 4 : 0) | (dy > 0 ? 2 : 0) | (dz > 0 ? 1 : 0);
 }
 
+/** Per ray of directions `d` [n, 3], the octant it heads into (octantOf), and per octant its
+ *  cubes (cornerReach), made for the octants the rays head into. */
+export function raysCubes(g: Grid, d: Float32Array): { octant: Uint8Array; cubes: Uint8Array[] } {
+  const n = d.length / 3, octant = new Uint8Array(n), cubes: Uint8Array[] = [];
+  for (let r = 0; r < n; r++) {
+    const q = (octant[r] = octantOf(d[3 * r], d[3 * r + 1], d[3 * r + 2]));
+    cubes[q] ??= cornerReach(g, q);
+  }
+  return { octant, cubes };
+}
+
 /** cornerReach's step along x or y: the R lines of `len` cells from `start` in `cube` (32-bit
  *  words of 4 cells when `len` is a multiple of 4), each ANDed in place with the line `shift`
  *  on (up) or back, a line past the block counting as `past` (in every byte). */
@@ -145,9 +156,9 @@ export class RayMarch implements Marcher {
   tested = 0;
   /** Per ray: the margin of its slab tests; NaN where the ray tests every step (non-finite input). */
   private readonly margin: Float64Array;
-  /** Per ray: the octant it heads into (octantOf), whose cubes (cornerReach) it jumps through. */
+  /** Per ray: the octant it heads into, and per octant its cubes (raysCubes). */
   private readonly octant: Uint8Array;
-  private readonly cubes: Uint8Array[] = [];
+  private readonly cubes: Uint8Array[];
   private readonly cellSide: number;
 
   constructor(private readonly grid: Grid, private readonly o: Float32Array, private readonly d: Float32Array,
@@ -157,7 +168,7 @@ export class RayMarch implements Marcher {
     for (let k = 0; k < steps; k++) this.t[k] = f(near + f(f(k + 0.5) * interval));
     this.cursor = new Int32Array(n); this.end = new Int32Array(n); this.margin = new Float64Array(n);
     this.occupiedUntil = new Int32Array(n);
-    this.octant = new Uint8Array(n);
+    ({ octant: this.octant, cubes: this.cubes } = raysCubes(grid, d));
     const b = f(grid.bound), R = grid.res;
     this.cellSide = (2 * b) / R;
     // The largest coordinate magnitude a sample reaches bounds its rounding error.
@@ -172,8 +183,6 @@ export class RayMarch implements Marcher {
       const scale = Math.max(b, Math.abs(ox) + tMax * Math.abs(dx), Math.abs(oy) + tMax * Math.abs(dy), Math.abs(oz) + tMax * Math.abs(dz));
       const margin = 1e-3 * this.cellSide + 64 * 2 ** -23 * scale;
       this.margin[r] = margin;
-      const q = (this.octant[r] = octantOf(dx, dy, dz));
-      this.cubes[q] ??= cornerReach(grid, q);
       const lo = -b - margin, hi = -b + R * this.cellSide + margin;
       slab(ox, oy, oz, dx, dy, dz, lo, lo, lo, hi, hi, hi);
       if (slabEnter > slabLeave) continue; // misses the grid: cursor = end = 0
@@ -250,9 +259,10 @@ export class RayMarch implements Marcher {
       else { const p = (ly - oy) * iy, q = (hy - oy) * iy; enter = Math.max(enter, Math.min(p, q)); leave = Math.min(leave, Math.max(p, q)); }
       if (dz === 0) { if (oz < lz || oz > hz) leave = -Infinity; }
       else { const p = (lz - oz) * iz, q = (hz - oz) * iz; enter = Math.max(enter, Math.min(p, q)); leave = Math.min(leave, Math.max(p, q)); }
-      // Every step whose exact t is before the exit lies inside the shrunk cube, so in the cube; the jump lands on the first step at or after the exit. (grid.rs lands one step
-      // short; not needed here: a step's f32 t and position are off the exact ones by far less
-      // than the margin, and the tests compare the samples with testing every interval.)
+      // Every step whose exact t is before the exit lies inside the shrunk cube, so in the cube;
+      // the jump lands on the first step at or after the exit. (grid.rs lands one step short; not
+      // needed here: a step's f32 t and position are off the exact ones by far less than the
+      // margin, and the tests compare the samples with testing every interval.)
       const inside = enter <= tk && tk <= leave;
       // (A reciprocal: an ulp of f64 off the quotient, far inside the margin.)
       const kl = inside ? Math.ceil((leave - near) * perInterval - 0.5) : 0;

@@ -149,10 +149,9 @@ pub struct Skipper<'a> {
     grid: &'a OccupancyGrid,
     /// A cell's side in world units.
     cell_side: f64,
-    /// Half the side of the centred cube where world and grid coordinates agree (the grid's
-    /// bound; 1 on a contracted grid): cubes are jumped through only inside it.
-    identity_half: f64,
-    /// The cells lo..hi per axis inside that cube (a cube is cut at its faces).
+    /// The cells lo..hi per axis of the centred cube where cells are boxes of the world (the
+    /// whole grid; the cube ±1 on a contracted grid): cubes are jumped through only inside it,
+    /// cut at its faces.
     identity_cells: (usize, usize),
 }
 
@@ -161,8 +160,8 @@ impl<'a> Skipper<'a> {
     pub fn new(grid: &'a OccupancyGrid) -> Self {
         let r = grid.resolution();
         // Contracted: cell i spans −2 + 4i/R .. −2 + 4(i + 1)/R, inside ±1 from ⌈R/4⌉ to ⌊3R/4⌋.
-        let (identity_half, identity_cells) = if grid.contraction().is_some() { (1.0, (r.div_ceil(4), 3 * r / 4)) } else { (grid.bound() as f64, (0, r)) };
-        Skipper { grid, cell_side: 2.0 * grid.bound() as f64 / r as f64, identity_half, identity_cells }
+        let identity_cells = if grid.contraction().is_some() { (r.div_ceil(4), 3 * r / 4) } else { (0, r) };
+        Skipper { grid, cell_side: 2.0 * grid.bound() as f64 / r as f64, identity_cells }
     }
 
     /// The cells of the cube of `side` cells from `cell` reaching into `octant` ([`OccupancyGrid::corner_reach`]),
@@ -332,8 +331,9 @@ impl RayMarch {
                     let (lo, hi) = skipper.cell_box(lo, hi, -self.margin);
                     let tt = t as f64;
                     let mut exit = f64::INFINITY;
-                    // Only where the grid's cells are world boxes (not in a contracted shell).
-                    let mut inside = lo.iter().chain(&hi).all(|v| v.abs() <= skipper.identity_half);
+                    // The cube lies where cells are world boxes (`corner_cells` cuts it there); a
+                    // cell outside (a contracted shell) gets a box that misses it, so no jump.
+                    let mut inside = true;
                     for a in 0..3 {
                         let x = self.o[a] + tt * self.d[a];
                         inside &= lo[a] <= x && x <= hi[a];

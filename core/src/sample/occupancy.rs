@@ -415,8 +415,8 @@ fn corner_sides(r: usize, mut cube: Vec<u8>, octant: usize) -> Vec<u8> {
 /// a line before it is written; single cells (`len` 1) from a copy of the block in `row`.
 fn and_shifted(block: &mut [u8], len: usize, shift: usize, up: bool, past: u8, row: &mut [u8]) {
     let lines = block.len() / len;
-    let reach = lines.saturating_sub(shift);
     if len == 1 {
+        let reach = lines.saturating_sub(shift);
         row[..lines].copy_from_slice(block);
         let (keep, edge) = if up { (&mut block[..reach], &row[shift.min(lines)..lines]) } else { (&mut block[lines - reach..], &row[..reach]) };
         keep.iter_mut().zip(edge).for_each(|(x, &y)| *x &= y);
