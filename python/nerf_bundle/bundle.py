@@ -9,7 +9,7 @@ from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from . import _gpu
+from . import _gpu, _native
 from . import _render as R
 from ._field import GPU_POINTS_PER_RUN, Graph, parse_device
 from ._limits import (DEFAULT_CHUNK, DEFAULT_MARCH_STEPS, MAX_FRAMES, MAX_FRAME_PIXELS, MAX_GRAPH_BYTES, MAX_IMAGE_SIDE,
@@ -102,10 +102,14 @@ class Bundle:
         self.march_steps = int(scene.get("march_steps", DEFAULT_MARCH_STEPS))
         self.white_background = bool(scene["white_background"])
         self._gpu_loop: Optional[_gpu.GpuLoop] = None
+        #: The marching loop on the CPU: "native" (nerf-core's, in Rust: :mod:`_native`) or
+        #: "numpy" (:func:`_render.march_grid`, loops side by side).
+        self.loop = "native" if _native.available() else "numpy"
 
     @classmethod
     def open(cls, path: "str | os.PathLike[str]", *, providers: Optional[Sequence[Any]] = None, threads: Optional[int] = None,
-             skip_empty_space: bool = True, points_per_run: Optional[int] = None, device: Optional[str] = None) -> "Bundle":
+             skip_empty_space: bool = True, points_per_run: Optional[int] = None, device: Optional[str] = None,
+             loop: Optional[str] = None) -> "Bundle":
         """Open and check the bundle at ``path`` as nerf-render does (limits of untrusted bundles,
         file names inside the bundle, the graph contract); raises :class:`BundleError` naming
         the file and the problem.
@@ -124,8 +128,16 @@ class Bundle:
         ``os.cpu_count()``; on a GPU one), each with one intra-op thread on pieces of
         ``points_per_run`` points (default 2,048); marching on the CPU runs one loop per session
         (:meth:`_march_side_by_side`). ``skip_empty_space=False`` ignores
-        occupancy.bin (nerf-render ``--dense``)."""
+        occupancy.bin (nerf-render ``--dense``). ``loop``: the marching loop on the CPU,
+        ``"native"`` (nerf-core's, in Rust: ``nerf_bundle_native``, which ``scripts/setup.sh``
+        builds; ValueError where it is not installed) or ``"numpy"``; by default native where
+        installed. Both take the same samples and make the same field calls; their pixels agree
+        to float32 rounding (nerf-render's are the native loop's)."""
         path = os.fspath(path)
+        if loop not in (None, "native", "numpy"):
+            raise ValueError(f"loop={loop!r}: expected \"native\" or \"numpy\"")
+        if loop == "native" and not _native.available():
+            raise ValueError(f"loop=\"native\": the native loop (nerf_bundle_native) is not installed: {_native.HOW_TO_BUILD}")
         gpu = parse_device(device) if device is not None else None
         if device is not None and providers is not None:
             raise ValueError(f"device={device!r} and providers=...: pass one of them (device picks the providers)")
@@ -153,6 +165,8 @@ class Bundle:
             box = CONTRACTED_BOUND if contraction is not None else F32(occ["bound"])
             grid = R.Grid(np.ones(1, bool), 1, box, contraction)
         bundle = cls(path, scene, graphs, grid, skip_empty_space)
+        if loop is not None:
+            bundle.loop = loop
         if gpu is not None:
             bundle.device = f"cuda:{gpu}"
             cupy = _gpu.cupy_or_none() if grid is not None and grid.contraction is None else None
@@ -165,7 +179,7 @@ class Bundle:
                 except Exception as e:  # CuPy's compile and CUDA errors
                     why = f"the GPU loop's kernels cannot start ({e})"
             if grid is not None and bundle._gpu_loop is None:
-                warnings.warn(f"{path}: {why}: the loop around the field runs in numpy on the CPU, most of a GPU frame's time",
+                warnings.warn(f"{path}: {why}: the loop around the field runs on the CPU ({bundle.loop}), most of a GPU frame's time",
                               stacklevel=2)
         for split in ("test", "orbit"):
             bundle.poses(split)  # non-finite or malformed poses are refused now
@@ -263,6 +277,10 @@ class Bundle:
         marched all together (each chunk's field calls as nerf-render makes them), or dense a
         chunk at a time."""
         min_t = float(R.MIN_TRANSMITTANCE) if self.skip_empty_space else None
+        if self.grid is not None and self._gpu_loop is None and self.loop == "native":
+            graph = self._graph("fine" if self.n_fine > 0 else "coarse")
+            return _native.march_grid(graph, self.grid, o, d, view, self.near, self.far, max(self.march_steps, 1), min_t,
+                                      self.white_background, chunk, stages)
         viewdirs = R.unit(view)
         if self.grid is not None:
             stage = "fine" if self.n_fine > 0 else "coarse"

@@ -93,11 +93,11 @@ def test_bad_options(spheres):
 
 
 def test_loops_side_by_side_render_the_frame_of_one_loop():
-    """threads=3 marches the chunks dealt out to three loops, each on its own session: the same
-    frame as one loop, bit for bit (onnxruntime's output for a point does not depend on the
-    other points of its call), with the three loops' stages averaged."""
-    one = nerf_bundle.Bundle.open(MODELS / "lego-ngp", threads=1)
-    three = nerf_bundle.Bundle.open(MODELS / "lego-ngp", threads=3)
+    """threads=3 with the numpy loop marches the chunks dealt out to three loops, each on its
+    own session: the same frame as one loop, bit for bit (onnxruntime's output for a point does
+    not depend on the other points of its call), with the three loops' stages averaged."""
+    one = nerf_bundle.Bundle.open(MODELS / "lego-ngp", threads=1, loop="numpy")
+    three = nerf_bundle.Bundle.open(MODELS / "lego-ngp", threads=3, loop="numpy")
     pose = one.poses("test")[0]
     want = one.render(pose, 60, chunk=500)
     got = three.render(pose, 60, chunk=500)

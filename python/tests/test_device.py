@@ -93,10 +93,10 @@ def test_op_types_tell_the_bitwise_lowering_from_the_portable_one():
     assert "BitwiseXor" not in portable and {"Gather", "MatMul"} <= portable
 
 
-def test_without_cupy_the_loop_stays_in_numpy_and_says_so(monkeypatch):
+def test_without_cupy_the_loop_stays_on_the_cpu_and_says_so(monkeypatch):
     sessions_that_say_cuda(monkeypatch)
     monkeypatch.setitem(sys.modules, "cupy", None)  # `import cupy` fails
-    with pytest.warns(UserWarning, match="CuPy is not installed.*numpy on the CPU"):
+    with pytest.warns(UserWarning, match="CuPy is not installed.*runs on the CPU"):
         bundle = nerf_bundle.Bundle.open(MODELS / "lego-ngp", device="cuda")
     assert bundle._gpu_loop is None
     assert bundle.render(bundle.poses("test")[0], 16).rgb.shape == (16, 16, 3)

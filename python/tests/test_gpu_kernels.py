@@ -92,7 +92,7 @@ def _numpy_field(loop: _gpu.GpuLoop, graph, points, dirs, colour, sigma, total: 
 
 
 def test_the_kernels_render_the_numpy_loops_frame(tmp_path, monkeypatch):
-    bundle = nerf_bundle.Bundle.open(MODELS / "lego-ngp", threads=1)
+    bundle = nerf_bundle.Bundle.open(MODELS / "lego-ngp", threads=1, loop="numpy")
     loop = _gpu.GpuLoop(_fake_cupy(tmp_path), 0, bundle.grid)
     monkeypatch.setattr(_gpu.GpuLoop, "_field", _numpy_field)
     pose = bundle.poses("test")[0]
@@ -108,7 +108,7 @@ def test_the_kernels_render_the_numpy_loops_frame(tmp_path, monkeypatch):
 def test_the_kernels_march_degenerate_rays_as_the_numpy_loop(tmp_path, monkeypatch):
     """Rays without a direction, along axes and cell faces, outside the cube, random: the
     samples of every interval tested (:func:`_render.occupied_samples`) and equal pixels."""
-    bundle = nerf_bundle.Bundle.open(MODELS / "lego-ngp", threads=1)
+    bundle = nerf_bundle.Bundle.open(MODELS / "lego-ngp", threads=1, loop="numpy")
     monkeypatch.setattr(_gpu.GpuLoop, "_field", _numpy_field)
     rng = np.random.default_rng(3)
     # From a sphere of radius 4 towards points near the model.

@@ -102,6 +102,18 @@ impl OccupancyGrid {
         OccupancyGrid { resolution, bound, threshold, density: vec![f32::INFINITY; resolution.pow(3)], contraction: None, corners: Default::default() }
     }
 
+    /// A grid over ±`bound` whose cells are occupied where `occupied` (`[R³]`, cell order) is
+    /// true: the cells a bundle's renderer reads, without their densities (threshold 0,
+    /// occupied cells density 1, the rest 0).
+    ///
+    /// # Panics
+    /// If `occupied` does not hold one flag per cell.
+    pub fn from_occupied(resolution: usize, bound: f32, occupied: &[bool]) -> Self {
+        assert_eq!(occupied.len(), resolution.pow(3), "one flag per cell");
+        let density = occupied.iter().map(|&o| if o { 1.0 } else { 0.0 }).collect();
+        OccupancyGrid { resolution, bound, threshold: 0.0, density, contraction: None, corners: Default::default() }
+    }
+
     /// A fresh grid as `config` describes.
     pub fn from_config(config: &OccupancyConfig) -> Self {
         Self::new(config.resolution, config.bound, config.threshold).with_contraction(config.contraction)
@@ -452,6 +464,19 @@ mod tests {
         assert_eq!(grid.cell([0.0, f32::NAN, 0.0]), None);
         assert!(grid.is_occupied([0.0, 0.0, 0.0]), "a fresh grid is all occupied");
         assert!(!grid.is_occupied([0.0, 0.0, 2.0]), "outside is empty");
+    }
+
+    #[test]
+    fn a_grid_from_flags_is_occupied_where_they_are_true() {
+        let mut flags = vec![false; 8];
+        flags[4 + 2 + 1] = true; // cell (1, 1, 1): x, y, z > 0
+        let grid = OccupancyGrid::from_occupied(2, 1.0, &flags);
+        assert!(grid.is_occupied([0.5, 0.5, 0.5]));
+        assert!(!grid.is_occupied([0.5, 0.5, -0.5]));
+        assert!(!grid.is_occupied([-0.5, 0.5, 0.5]));
+        assert_eq!(grid.occupied_fraction(), 1.0 / 8.0);
+        assert_eq!(grid.corner_reach(7)[0], 1, "cell (0, 0, 0)'s cube of 2 holds (1, 1, 1)");
+        assert_eq!(grid.corner_reach(0)[0], 32, "heading −x−y−z, past the grid is empty");
     }
 
     #[test]
