@@ -13,5 +13,5 @@ cargo test --release --workspace "$@"
 # frames (viewer/tests/browser.test.mjs).
 (cd viewer && npm run --silent typecheck && npm run --silent test:unit && npm run --silent test:browser)
 # The Python package against nerf-render's frames, its bad-bundle refusals, and its wheel; the
-# native loop setup.sh built must be there (test_native_loop.py).
+# native loop setup.sh built must be there (test_native_module.py).
 NERF_REQUIRE_NATIVE=1 "$NERF_PYTHON" -m pytest -q python/tests

@@ -56,8 +56,9 @@ class Graph:
     [N, 1] out."""
 
     def __init__(self, path: str, workers: int, providers: Optional[Sequence] = None,
-                 points_per_run: int = POINTS_PER_RUN, gpu: Optional[int] = None) -> None:
+                 points_per_run: int = POINTS_PER_RUN, gpu: Optional[int] = None, whole_graph: bool = False) -> None:
         import onnxruntime as ort
+        from . import _native
 
         self.path = path
         self.points_per_run = max(1, points_per_run)
@@ -104,16 +105,30 @@ class Graph:
         if inputs != ["points", "viewdirs"] or not {"rgb", "sigma"} <= set(outputs):
             raise BundleError(f"{path}: inputs {inputs} and outputs {outputs} break the graph contract "
                               "(inputs points, viewdirs [N, 3]; outputs rgb [N, 3], sigma [N, 1])")
-        self.sessions = [first] + [ort.InferenceSession(model, opts, providers=providers, **strict) for _ in range(workers - 1)]
+        #: A hash-grid graph on onnxruntime's CPU provider, split as nerf-render splits it
+        #: (``HashEncoder`` of :mod:`_native`, where the native module is installed and
+        #: ``whole_graph`` is not asked): the encodings in Rust, the head in the sessions; None:
+        #: the sessions run the whole graph.
+        self.encoder = _native.hash_encoder(path, model) if providers == ["CPUExecutionProvider"] and not whole_graph else None
+        if self.encoder is not None:
+            model, first = self.encoder.head, None
+        self.sessions = ([first] if first is not None else []) + [
+            ort.InferenceSession(model, opts, providers=providers, **strict) for _ in range(workers - (first is not None))]
         self.pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="nerf-bundle") if workers > 1 else None
         self._lock = threading.Lock()
 
     def _run_part(self, k: int, points: np.ndarray, viewdirs: np.ndarray, rgb: np.ndarray, sigma: np.ndarray) -> None:
         session, piece = self.sessions[k], self.points_per_run
+        if self.encoder is not None and len(points):
+            features, sh = self.encoder.encode(points, viewdirs)
         for s in range(0, len(points), piece):
             e = min(s + piece, len(points))
+            if self.encoder is not None:
+                inputs = {self.encoder.FEATURES: features[s:e], self.encoder.SH: sh[s:e]}
+            else:
+                inputs = {"points": points[s:e], "viewdirs": viewdirs[s:e]}
             try:
-                out_rgb, out_sigma = session.run(["rgb", "sigma"], {"points": points[s:e], "viewdirs": viewdirs[s:e]})
+                out_rgb, out_sigma = session.run(["rgb", "sigma"], inputs)
             except Exception as err:  # onnxruntime's own types; on a CPU its errors are bugs, left as they are
                 if self.gpu is None:
                     raise

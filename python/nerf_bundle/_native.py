@@ -11,6 +11,7 @@ from typing import Any, Optional
 import numpy as np
 
 from . import _render as R
+from ._validate import BundleError
 
 F32 = np.float32
 #: The version of ``nerf_bundle_native``'s functions this module calls (its ``INTERFACE``).
@@ -40,6 +41,20 @@ HOW_TO_BUILD = ("`bash scripts/setup.sh` builds it into the project's venv; else
 def available() -> bool:
     """Whether the native loop is installed (and of the interface this package calls)."""
     return _EXT is not None
+
+
+def hash_encoder(path: str, model: bytes) -> Optional[Any]:
+    """The ``HashEncoder`` of the field graph ``model`` (read from ``path``): a hash-grid graph
+    split as nerf-render splits it, the hash grid and the harmonics in Rust (the core's
+    encodings, which training uses) and the head for onnxruntime, whose ``Gather`` of the
+    table's rows is most of the whole graph's time on a CPU; None without the native module or
+    where the graph is not a hash-grid field that can be cut (it runs whole)."""
+    if _EXT is None:
+        return None
+    try:
+        return _EXT.HashEncoder.of_graph(path, model)
+    except ValueError as e:
+        raise BundleError(str(e)) from None
 
 
 def _native_grid(grid: R.Grid) -> Any:

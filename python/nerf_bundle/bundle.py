@@ -109,7 +109,7 @@ class Bundle:
     @classmethod
     def open(cls, path: "str | os.PathLike[str]", *, providers: Optional[Sequence[Any]] = None, threads: Optional[int] = None,
              skip_empty_space: bool = True, points_per_run: Optional[int] = None, device: Optional[str] = None,
-             loop: Optional[str] = None) -> "Bundle":
+             loop: Optional[str] = None, whole_graph: bool = False) -> "Bundle":
         """Open and check the bundle at ``path`` as nerf-render does (limits of untrusted bundles,
         file names inside the bundle, the graph contract); raises :class:`BundleError` naming
         the file and the problem.
@@ -132,7 +132,11 @@ class Bundle:
         ``"native"`` (nerf-core's, in Rust: ``nerf_bundle_native``, which ``scripts/setup.sh``
         builds; ValueError where it is not installed) or ``"numpy"``; by default native where
         installed. Both take the same samples and make the same field calls; their pixels agree
-        to float32 rounding (nerf-render's are the native loop's)."""
+        to float32 rounding (nerf-render's are the native loop's). With the native module, a
+        hash-grid graph on the CPU provider is split as nerf-render splits it: the hash grid and
+        the harmonics in Rust, the rest of the graph in onnxruntime (its ``Gather`` of the
+        table's rows is most of the whole graph's time); ``whole_graph=True`` runs it whole
+        (``nerf-render --whole-graph``)."""
         path = os.fspath(path)
         if loop not in (None, "native", "numpy"):
             raise ValueError(f"loop={loop!r}: expected \"native\" or \"numpy\"")
@@ -151,7 +155,7 @@ class Bundle:
         graphs: Dict[str, Graph] = {}
         for role, (key, name) in graph_files(scene).items():
             file = bounded_file(bundle_file(path, name, key), MAX_GRAPH_BYTES, key)
-            graphs[role] = Graph(file, workers, providers, points_per_run, gpu)
+            graphs[role] = Graph(file, workers, providers, points_per_run, gpu, whole_graph)
         occ = scene.get("occupancy")
         grid = None
         contraction = contraction_of(scene)

@@ -1,5 +1,6 @@
 """``python -m nerf_bundle render BUNDLE (--split test | --orbit [--frames N] | --pose FILE) --out DIR
-[--width W [--height H]] [--npy] [--limit K] [--threads N] [--chunk N] [--dense] [--loop native|numpy]``
+[--width W [--height H]] [--npy] [--limit K] [--threads N] [--chunk N] [--dense] [--loop native|numpy]
+[--whole-graph]``
 
 Writes ``<name>.png`` per view (needs Pillow) and, with ``--npy``, ``<name>.npy`` float32
 [H, W, 5] = r, g, b, depth, acc, named as nerf-render names them: a bundle's test views by
@@ -8,7 +9,7 @@ or 3×4 OpenGL camera-to-world matrix, or an object with ``transform_matrix``) w
 A line per frame (``k/N``) reports progress. ``--device cuda[:N]`` renders on a GPU.
 
 ``python -m nerf_bundle bench BUNDLE [--device cpu|cuda[:N]] [--view N] [--repeat K] [--width W]
-[--threads N] [--loop native|numpy] [--parity] [--json]`` renders test view N K times and prints,
+[--threads N] [--loop native|numpy] [--whole-graph] [--parity] [--json]`` renders test view N K times and prints,
 per frame, the total seconds, the seconds inside onnxruntime (the wall time of the field calls;
 with numpy loops side by side, each loop's on average), the rest (outside) and its stages (the
 native loop's marching, packing and compositing are one pass: its ``march``); ``--parity`` also renders the view with onnxruntime's CPU provider
@@ -29,6 +30,8 @@ from .bundle import Bundle
 
 
 LOOP_HELP = "the marching loop on the CPU: native (Rust, nerf_bundle_native) or numpy (default: native where installed)"
+WHOLE_HELP = ("run a hash-grid graph whole in onnxruntime (default on the CPU with nerf_bundle_native: its encodings in "
+              "Rust, the rest in onnxruntime, as nerf-render)")
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -51,6 +54,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--dense", action="store_true", help="ignore occupancy.bin (as nerf-render --dense)")
     r.add_argument("--device", help="cpu (default), or cuda / cuda:N: onnxruntime's CUDA provider on GPU N (needs onnxruntime-gpu)")
     r.add_argument("--loop", choices=["native", "numpy"], help=LOOP_HELP)
+    r.add_argument("--whole-graph", action="store_true", help=WHOLE_HELP)
     b = sub.add_parser("bench", help="time frames: total, inside onnxruntime, outside, and the stages")
     b.add_argument("bundle", help="bundle directory")
     b.add_argument("--device", default="cpu", help="cpu (default), or cuda / cuda:N (needs onnxruntime-gpu)")
@@ -59,6 +63,7 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--width", type=int, help="render at this width (the camera scales with it)")
     b.add_argument("--threads", type=int, help="onnxruntime sessions side by side on the CPU (default: one per core)")
     b.add_argument("--loop", choices=["native", "numpy"], help=LOOP_HELP)
+    b.add_argument("--whole-graph", action="store_true", help=WHOLE_HELP)
     b.add_argument("--parity", action="store_true", help="also render on the CPU provider and print the largest |Δ|")
     b.add_argument("--json", action="store_true", help="print one JSON object")
     return p
@@ -103,7 +108,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         print("error: writing PNGs needs Pillow: pip install 'nerf_bundle[images]' (or pass --npy for raw arrays only)", file=sys.stderr)
         return 2
     try:
-        bundle = Bundle.open(a.bundle, threads=a.threads, skip_empty_space=not a.dense, device=a.device, loop=a.loop)
+        bundle = Bundle.open(a.bundle, threads=a.threads, skip_empty_space=not a.dense, device=a.device, loop=a.loop, whole_graph=a.whole_graph)
         if a.pose:
             poses, names = [_read_pose(a.pose)], ["pose"]
         elif a.orbit:
@@ -145,7 +150,7 @@ def bench(a: argparse.Namespace) -> int:
     try:
         if a.repeat < 1 or a.repeat > 1000:
             raise ValueError(f"--repeat: {a.repeat} is outside 1..1000")
-        bundle = Bundle.open(a.bundle, threads=a.threads, device=a.device, loop=a.loop)
+        bundle = Bundle.open(a.bundle, threads=a.threads, device=a.device, loop=a.loop, whole_graph=a.whole_graph)
         poses = bundle.poses("test")
         if not 0 <= a.view < len(poses):
             raise ValueError(f"--view: {a.view} is not a test view (the bundle has {len(poses)})")
@@ -170,7 +175,7 @@ def bench(a: argparse.Namespace) -> int:
                       f"outside {row['outside_s']:.3f} s ({split})", flush=True)
         parity = None
         if a.parity:
-            cpu = Bundle.open(a.bundle, threads=a.threads, loop=a.loop).render(poses[a.view], a.width)
+            cpu = Bundle.open(a.bundle, threads=a.threads, loop=a.loop, whole_graph=a.whole_graph).render(poses[a.view], a.width)
             assert last is not None
             diff = np.abs(last.raw.astype(np.float64) - cpu.raw)
             parity = {"max_abs": float(diff.max()), "max_abs_rgb_depth_acc": [float(v) for v in diff.max(axis=(0, 1))]}
@@ -179,11 +184,13 @@ def bench(a: argparse.Namespace) -> int:
         return 1
     best = min(frames[1:] or frames, key=lambda f: f["total_s"])
     loop = "GPU (CuPy)" if bundle._gpu_loop is not None else bundle.loop
+    encoding = "rust" if any(g.encoder is not None for g in bundle.graphs.values()) else "graph"
     if a.json:
         print(json.dumps({"bundle": a.bundle, "device": bundle.device, "view": a.view, "width": cam.width, "height": cam.height,
-                          "loop": loop, "frames": frames, "best": best, "parity_vs_cpu": parity}))
+                          "loop": loop, "encoding": encoding, "frames": frames, "best": best, "parity_vs_cpu": parity}))
     else:
-        print(f"{cam.width}×{cam.height} on {bundle.device}, {loop} loop: best {best['total_s']:.3f} s per frame, "
+        print(f"{cam.width}×{cam.height} on {bundle.device}, {loop} loop, "
+              f"{'hash encoding in Rust' if encoding == 'rust' else 'whole graph'}: best {best['total_s']:.3f} s per frame, "
               f"{best['onnxruntime_s']:.3f} s in onnxruntime, {best['outside_s']:.3f} s outside"
               + ("" if len(frames) == 1 else " (the first frame, warming up, left out)"))
         if parity is not None:

@@ -1,16 +1,25 @@
-//! `nerf_bundle_native`: the marching loop of nerf-core (`render::grid::render_rays_in`, what
-//! nerf-render runs) for the Python package, with the field a Python callable. Everything but
-//! the field's calls runs in Rust with the interpreter released, so loops in other threads
-//! (and their onnxruntime calls) go on meanwhile.
+//! `nerf_bundle_native`: for the Python package, nerf-render's CPU work in Rust.
+//! - [`march_grid`]: the marching loop of nerf-core (`render::grid::render_rays_in`), with the
+//!   field a Python callable. Everything but the field's calls runs with the interpreter
+//!   released, so other threads (and their onnxruntime calls) go on meanwhile.
+//! - [`HashEncoder`]: a hash-grid graph split as nerf-render splits it, the encodings in Rust
+//!   (the core's, training's) and the head graph for onnxruntime.
 
+use nerf_bundle::graph::{check_contract, decode_model, metadata};
+use nerf_bundle::ngp::{FEATURES_TENSOR, FIELD_KEY, SH_TENSOR, head_graph, read_ngp};
 use nerf_core::camera::Rays;
+use nerf_core::field::ngp::hash_grid::{GridBound, HashGrid};
+use nerf_core::field::ngp::spherical_harmonics::{SH4_DIM, sh4};
 use nerf_core::field::{Field, FieldOutput, Stage};
 use nerf_core::render::RenderOptions;
 use nerf_core::render::grid::{Skipper, render_rays_in};
 use nerf_core::sample::{Contraction, OccupancyGrid, SamplingConfig};
 use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
+use prost::Message;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
+use pyo3::types::PyBytes;
+use std::path::Path;
 
 /// What the Python package checks before it uses this module: bumped whenever the functions'
 /// arguments or results change.
@@ -153,10 +162,68 @@ fn march_grid<'py>(
     Ok((PyArray1::from_vec(py, rgb).reshape([n, 3])?, PyArray1::from_vec(py, depth), PyArray1::from_vec(py, acc)))
 }
 
+/// A hash-grid field graph split where nerf-render splits it: the hash grid of the points and
+/// the harmonics of the view directions in Rust, the rest (the head) for onnxruntime.
+#[pyclass(frozen)]
+struct HashEncoder {
+    grid: HashGrid,
+    bound: GridBound,
+    head: Vec<u8>,
+}
+
+#[pymethods]
+impl HashEncoder {
+    /// The head's inputs: the features [N, L·F] and the harmonics [N, 16].
+    #[classattr]
+    const FEATURES: &'static str = FEATURES_TENSOR;
+    #[classattr]
+    const SH: &'static str = SH_TENSOR;
+
+    /// The encoder of the graph `model` (ONNX bytes; `path` names it in errors), or None where
+    /// it is not a hash-grid field or cannot be cut (older graphs: they run whole).
+    #[staticmethod]
+    fn of_graph(path: &str, model: &[u8]) -> PyResult<Option<Self>> {
+        let path = Path::new(path);
+        let model = decode_model(path, model).map_err(|e| PyValueError::new_err(e.to_string()))?;
+        check_contract(&model).map_err(|e| PyValueError::new_err(format!("{}: {e}", path.display())))?;
+        if metadata(&model, FIELD_KEY) != Some("ngp") {
+            return Ok(None);
+        }
+        let plain = read_ngp(&model).map_err(|e| PyValueError::new_err(format!("{}: {e}", path.display())))?;
+        let grid = HashGrid::from_params(plain.spec.grid, plain.table).map_err(|e| PyValueError::new_err(format!("{}: {e}", path.display())))?;
+        Ok(head_graph(&model, grid.output_dim()).ok().map(|head| HashEncoder { grid, bound: plain.spec.bound, head: head.encode_to_vec() }))
+    }
+
+    /// The head graph, ONNX bytes: inputs [`Self::FEATURES`] and [`Self::SH`], outputs rgb, sigma.
+    #[getter]
+    fn head<'py>(&self, py: Python<'py>) -> Bound<'py, PyBytes> {
+        PyBytes::new(py, &self.head)
+    }
+
+    /// The head's inputs for `points` and unit `viewdirs` [n, 3]: features [n, L·F] and
+    /// harmonics [n, 16], float32 (the interpreter released meanwhile).
+    fn encode<'py>(&self, py: Python<'py>, points: PyReadonlyArray2<'py, f32>, viewdirs: PyReadonlyArray2<'py, f32>) -> PyResult<(Bound<'py, PyArray2<f32>>, Bound<'py, PyArray2<f32>>)> {
+        let (points, viewdirs) = (rows(&points, "points")?, rows(&viewdirs, "viewdirs")?);
+        if points.len() != viewdirs.len() {
+            return Err(PyValueError::new_err(format!("{} points and {} view directions", points.len(), viewdirs.len())));
+        }
+        let (n, width) = (points.len(), self.grid.output_dim());
+        let (features, sh) = py.detach(|| {
+            let unit: Vec<[f32; 3]> = points.iter().map(|&p| self.bound.to_unit(p)).collect();
+            let mut features = vec![0.0; n * width];
+            self.grid.forward_into(&unit, &mut features);
+            let sh: Vec<f32> = viewdirs.iter().flat_map(|&d| sh4(d)).collect();
+            (features, sh)
+        });
+        Ok((PyArray1::from_vec(py, features).reshape([n, width])?, PyArray1::from_vec(py, sh).reshape([n, SH4_DIM])?))
+    }
+}
+
 #[pymodule]
 fn nerf_bundle_native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("INTERFACE", INTERFACE)?;
     m.add_class::<Grid>()?;
+    m.add_class::<HashEncoder>()?;
     m.add_function(wrap_pyfunction!(march_grid, m)?)?;
     Ok(())
 }

@@ -1,8 +1,9 @@
-"""The native marching loop (``nerf_bundle_native``, nerf-core's loop in Rust) against the numpy
-loop: the same points evaluated, pixels equal to float32 rounding (the loops' exp: glibc's
-``expf`` in Rust, float64 rounded in numpy, at most an ulp apart), on bundles and on awkward rays;
-errors from the field and bad arrays reach the caller. (Against nerf-render: test_native.py
-and test_contracted.py, which render with the default loop.)"""
+"""The native module (``nerf_bundle_native``). Its marching loop (nerf-core's, in Rust) against
+the numpy loop: the same points evaluated, pixels equal to float32 rounding (the loops' exp:
+glibc's ``expf`` in Rust, float64 rounded in numpy, at most an ulp apart), on bundles and on
+awkward rays; errors from the field and bad arrays reach the caller. Its hash encoder (a
+hash-grid graph split as nerf-render splits it) against the whole graph. (Against nerf-render:
+test_native.py and test_contracted.py, which render with the defaults.)"""
 from __future__ import annotations
 
 import os
@@ -53,7 +54,7 @@ class Recording:
 def test_both_loops_evaluate_the_same_points_and_give_the_same_pixels(bundle_path, width, chunk, monkeypatch):
     frames, calls = {}, {}
     for loop in ("numpy", "native"):
-        bundle = nerf_bundle.Bundle.open(bundle_path, threads=1, loop=loop)
+        bundle = nerf_bundle.Bundle.open(bundle_path, threads=1, loop=loop, whole_graph=True)
         graph = bundle._graph("fine" if bundle.n_fine > 0 else "coarse")
         calls[loop] = []
         monkeypatch.setattr(bundle, "_graph", lambda stage, g=graph, log=calls[loop]: Recording(g, log))
@@ -168,3 +169,27 @@ def test_the_loop_option(monkeypatch):
     with pytest.raises(ValueError, match="not installed.*scripts/setup.sh"):
         nerf_bundle.Bundle.open(MODELS / "spheres", loop="native")
     assert nerf_bundle.Bundle.open(MODELS / "spheres", threads=1).loop == "numpy", "without it, numpy"
+
+
+@needs_native
+def test_the_split_field_is_the_whole_graph():
+    """The hash grid and harmonics in Rust, the head in onnxruntime: the whole graph's outputs,
+    on points inside the box and past it, along any direction."""
+    split = nerf_bundle.Bundle.open(MODELS / "lego-ngp", threads=2)
+    whole = nerf_bundle.Bundle.open(MODELS / "lego-ngp", threads=2, whole_graph=True)
+    assert split.graphs["field"].encoder is not None and whole.graphs["field"].encoder is None
+    head = {i.name for i in split.graphs["field"].sessions[0].get_inputs()}
+    assert head == {_native._EXT.HashEncoder.FEATURES, _native._EXT.HashEncoder.SH}
+    rng = np.random.default_rng(4)
+    points = rng.uniform(-2.0, 2.0, (5000, 3)).astype(F32)
+    dirs = R.unit(rng.normal(size=(5000, 3)).astype(F32))
+    (rgb_a, sigma_a), (rgb_b, sigma_b) = split.field(points, dirs), whole.field(points, dirs)
+    assert np.abs(rgb_a - rgb_b).max() <= 1e-6
+    assert np.abs(sigma_a - sigma_b).max() <= 1e-6 * max(1.0, float(np.abs(sigma_b).max()))
+    assert sigma_b.max() > 10, "some points lie in the model"
+    pose = split.poses("test")[0]
+    assert np.abs(split.render(pose, 40).raw - whole.render(pose, 40).raw).max() <= 1e-5
+    # Not a hash grid: the MLP bundle's graphs run whole.
+    assert all(g.encoder is None for g in nerf_bundle.Bundle.open(MODELS / "lego", threads=1).graphs.values())
+    with pytest.raises(ValueError, match="points"):
+        split.graphs["field"].encoder.encode(points[:, :2], dirs)
