@@ -73,6 +73,14 @@ def test_bench_prints_the_split_and_parity_as_json():
         assert f["onnxruntime_s"] > 0 and abs(f["total_s"] - f["onnxruntime_s"] - f["outside_s"]) < 2e-4
         assert sum(f["stages_s"].values()) <= f["outside_s"] + 1e-3 and f["stages_s"]["march"] > 0
     assert out["parity_vs_cpu"]["max_abs"] == 0.0, "the CPU provider against itself"
+    from nerf_bundle import _native
+    if _native.available():
+        assert (out["loop"], out["encoding"]) == ("native", "rust")
+    done = run_cli("bench", str(MODELS / "lego-ngp"), "--width", "24", "--repeat", "1", "--loop", "numpy", "--whole-graph", "--json")
+    assert done.returncode == 0, done.stderr
+    out = json.loads(done.stdout)
+    assert (out["loop"], out["encoding"]) == ("numpy", "graph")
+    assert out["frames"][0]["stages_s"]["composite"] > 0, "the numpy loop's stages apart"
 
 
 @pytest.mark.skipif(CUDA, reason="this onnxruntime has the CUDA provider")
