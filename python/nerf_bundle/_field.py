@@ -14,6 +14,7 @@ from typing import Any, Callable, List, Optional, Sequence, Tuple
 
 import numpy as np
 
+from . import _native
 from ._limits import POINTS_PER_RUN
 from ._onnx import check_graph_bytes, op_types
 from ._validate import BundleError
@@ -58,7 +59,6 @@ class Graph:
     def __init__(self, path: str, workers: int, providers: Optional[Sequence] = None,
                  points_per_run: int = POINTS_PER_RUN, gpu: Optional[int] = None, whole_graph: bool = False) -> None:
         import onnxruntime as ort
-        from . import _native
 
         self.path = path
         self.points_per_run = max(1, points_per_run)

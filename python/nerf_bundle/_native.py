@@ -1,8 +1,8 @@
-"""The marching loop in Rust, where ``nerf_bundle_native`` is installed (``scripts/setup.sh``
-builds it from ``python/native``: nerf-core's ``grid::render_rays_in``, the loop nerf-render
-runs). The samples, field calls and compositing are :func:`_render.march_grid`'s; only the
-field's calls run in Python. The rest runs with the GIL released, so loops side by side
-overlap each other's marching too, not only each other's onnxruntime calls."""
+"""nerf-render's CPU work in Rust, where ``nerf_bundle_native`` is installed (``scripts/setup.sh``
+builds it from ``python/native``): the marching loop (nerf-core's ``grid::render_rays_in``, the
+loop nerf-render runs; its samples, field calls and compositing are :func:`_render.march_grid`'s,
+only the field's calls run in Python, the rest with the GIL released) and the hash encoding of
+a split hash-grid graph (:func:`hash_encoder`)."""
 from __future__ import annotations
 
 import time

@@ -126,8 +126,8 @@ class Bundle:
         the CPU path (default CPU); with ``device`` a ValueError (say one or the other).
         ``threads``: onnxruntime sessions per graph run side by side (default
         ``os.cpu_count()``; on a GPU one), each with one intra-op thread on pieces of
-        ``points_per_run`` points (default 2,048); marching on the CPU runs one loop per session
-        (:meth:`_march_side_by_side`). ``skip_empty_space=False`` ignores
+        ``points_per_run`` points (default 2,048); the numpy loop runs one loop per session
+        (:meth:`_march_side_by_side`), the native one a loop whose calls the sessions split. ``skip_empty_space=False`` ignores
         occupancy.bin (nerf-render ``--dense``). ``loop``: the marching loop on the CPU,
         ``"native"`` (nerf-core's, in Rust: ``nerf_bundle_native``, which ``scripts/setup.sh``
         builds; ValueError where it is not installed) or ``"numpy"``; by default native where
