@@ -21,8 +21,10 @@
 use crate::graph::{float_initializer, metadata};
 use crate::proto::{GraphProto, ModelProto};
 use nerf_core::field::DenseLayer;
-use nerf_core::field::ngp::hash_grid::{HashGridConfig, LevelLayout};
+use nerf_core::field::ngp::hash_grid::{GridBound, HashGrid, HashGridConfig, LevelLayout};
+use nerf_core::field::ngp::spherical_harmonics::{SH4_DIM, sh4};
 use nerf_core::field::ngp::{NgpSpec, PlainNgp};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// Metadata key naming the field kind.
@@ -160,6 +162,44 @@ pub fn read_ngp(model: &ModelProto) -> Result<PlainNgp, String> {
     let plain = PlainNgp { spec, table, layers };
     plain.validate().map_err(|e| e.to_string())?;
     Ok(plain)
+}
+
+/// A hash-grid graph split where the CPU renderers split it (`nerf-render`, the Python
+/// package's native module): the core's hash grid and harmonics (the encodings training uses)
+/// compute the [`head_graph`]'s inputs, and onnxruntime runs the head. onnxruntime's `Gather`
+/// of the table's rows is most of the whole graph's time on a CPU; the Rust encoding reads the
+/// same rows at 2–3× the speed.
+pub struct SplitNgp {
+    /// The graph after the cuts ([`head_graph`]).
+    pub head: ModelProto,
+    /// The hash grid, with the graph's table.
+    pub grid: HashGrid,
+    /// The world box the grid covers.
+    pub bound: GridBound,
+}
+
+impl SplitNgp {
+    /// `model` split, or None where it is not a hash-grid field or cannot be cut (graphs
+    /// written before the encodings' outputs were named: they run whole).
+    pub fn of(model: &ModelProto) -> Result<Option<Self>, String> {
+        if metadata(model, FIELD_KEY) != Some("ngp") {
+            return Ok(None);
+        }
+        let plain = read_ngp(model)?;
+        let grid = HashGrid::from_params(plain.spec.grid, plain.table).map_err(|e| e.to_string())?;
+        Ok(head_graph(model, grid.output_dim()).ok().map(|head| SplitNgp { head, grid, bound: plain.spec.bound }))
+    }
+
+    /// The head's inputs for `points` with unit `viewdirs` (alike lengths n): the features
+    /// into `features` `[n · L·F]` ([`FEATURES_TENSOR`]), the harmonics into `sh` `[n · 16]`
+    /// ([`SH_TENSOR`]); `unit` `[n]` is scratch (the points in the grid's unit cube).
+    pub fn encode_into(&self, points: &[[f32; 3]], viewdirs: &[[f32; 3]], unit: &mut [[f32; 3]], features: &mut [f32], sh: &mut [f32]) {
+        unit.iter_mut().zip(points).for_each(|(u, &p)| *u = self.bound.to_unit(p));
+        self.grid.forward_into(unit, features);
+        sh.par_chunks_mut(SH4_DIM * 1024).zip(viewdirs.par_chunks(1024)).for_each(|(sh, dirs)| {
+            sh.chunks_exact_mut(SH4_DIM).zip(dirs).for_each(|(row, &d)| row.copy_from_slice(&sh4(d)));
+        });
+    }
 }
 
 /// The part of a hash-grid graph after its encodings: the graph's own nodes that compute `rgb`

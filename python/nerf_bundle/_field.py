@@ -84,6 +84,13 @@ class Graph:
             warnings.warn(f"{path}: the bitwise lowering's BitwiseXor nodes run on the CPU, with copies to and from GPU "
                           f"{gpu}; `nerf export --bundle <this bundle> --portable --out <dir>` makes one that runs wholly "
                           "on the GPU, with the same pixels", stacklevel=3)
+        #: A hash-grid graph on onnxruntime's CPU provider, split as nerf-render splits it
+        #: (``HashEncoder`` of :mod:`_native`, where the native module is installed and
+        #: ``whole_graph`` is not asked; it checks the whole graph's contract): the encodings in
+        #: Rust, the head in the sessions; None: the sessions run the whole graph.
+        self.encoder = _native.hash_encoder(path, model) if providers == ["CPUExecutionProvider"] and not whole_graph else None
+        if self.encoder is not None:
+            model = self.encoder.head
         # On a GPU, an error rather than onnxruntime's fall-back to the CPU (at load or run).
         strict = {"enable_fallback": 0} if gpu is not None else {}
         try:
@@ -102,18 +109,11 @@ class Graph:
         self.gpu = gpu
         inputs = sorted(i.name for i in first.get_inputs())
         outputs = sorted(o.name for o in first.get_outputs())
-        if inputs != ["points", "viewdirs"] or not {"rgb", "sigma"} <= set(outputs):
+        expected = ["points", "viewdirs"] if self.encoder is None else sorted([self.encoder.FEATURES, self.encoder.SH])
+        if inputs != expected or not {"rgb", "sigma"} <= set(outputs):
             raise BundleError(f"{path}: inputs {inputs} and outputs {outputs} break the graph contract "
                               "(inputs points, viewdirs [N, 3]; outputs rgb [N, 3], sigma [N, 1])")
-        #: A hash-grid graph on onnxruntime's CPU provider, split as nerf-render splits it
-        #: (``HashEncoder`` of :mod:`_native`, where the native module is installed and
-        #: ``whole_graph`` is not asked): the encodings in Rust, the head in the sessions; None:
-        #: the sessions run the whole graph.
-        self.encoder = _native.hash_encoder(path, model) if providers == ["CPUExecutionProvider"] and not whole_graph else None
-        if self.encoder is not None:
-            model, first = self.encoder.head, None
-        self.sessions = ([first] if first is not None else []) + [
-            ort.InferenceSession(model, opts, providers=providers, **strict) for _ in range(workers - (first is not None))]
+        self.sessions = [first] + [ort.InferenceSession(model, opts, providers=providers, **strict) for _ in range(workers - 1)]
         self.pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="nerf-bundle") if workers > 1 else None
         self._lock = threading.Lock()
 

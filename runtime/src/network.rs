@@ -24,11 +24,10 @@
 use crate::environment::{Device, environment_for, place};
 use crate::error::{Result, RuntimeError};
 use nerf_core::field::FieldOutput;
-use nerf_bundle::graph::{MAX_GRAPH_BYTES, check_contract, check_initializers, decode_model, metadata};
-use nerf_bundle::ngp::{FEATURES_TENSOR, FIELD_KEY, SH_TENSOR, head_graph, read_ngp};
-use nerf_core::field::ngp::spherical_harmonics::{SH4_DIM, sh4};
+use nerf_bundle::graph::{MAX_GRAPH_BYTES, check_contract, check_initializers, decode_model};
+use nerf_bundle::ngp::{FEATURES_TENSOR, SH_TENSOR, SplitNgp};
+use nerf_core::field::ngp::spherical_harmonics::SH4_DIM;
 use rayon::prelude::*;
-use nerf_core::field::ngp::hash_grid::{GridBound, HashGrid};
 use prost::Message;
 use ort::memory::{AllocationDevice, Allocator, AllocatorType, MemoryInfo, MemoryType};
 use ort::session::Session;
@@ -82,12 +81,6 @@ pub enum Encoding {
     Graph,
 }
 
-/// The hash grid of a split graph, evaluated (with the harmonics) before its head.
-struct RustEncoder {
-    grid: HashGrid,
-    bound: GridBound,
-}
-
 /// Points encoded at a time on the split path: the features of a block (8 MiB at 32 per point)
 /// are computed on all cores, then the head's sessions run on them.
 const ENCODE_BLOCK: usize = 1 << 16;
@@ -96,7 +89,7 @@ const ENCODE_BLOCK: usize = 1 << 16;
 pub struct OrtNetwork {
     sessions: Vec<Session>,
     /// Set when the hash encoding runs in Rust and the sessions hold the graph's head.
-    encoder: Option<RustEncoder>,
+    encoder: Option<SplitNgp>,
     points_per_run: usize,
     path: PathBuf,
     /// Points evaluated so far (for benchmarks: how much work skipping saves).
@@ -145,7 +138,7 @@ impl OrtNetwork {
         check_initializers(&model).map_err(|e| RuntimeError::bundle(path, e))?;
         let ort_err = |e: &dyn std::fmt::Display| RuntimeError::Ort { path: path.to_path_buf(), message: e.to_string() };
         let (model, bytes, encoder) = match encoding {
-            Encoding::Rust if metadata(&model, FIELD_KEY) == Some("ngp") => split(path, model, bytes)?,
+            Encoding::Rust => split(path, model, bytes)?,
             _ => (model, bytes, None),
         };
         // The library first: ort's own calls (a tensor for the shared tables) would otherwise
@@ -287,11 +280,7 @@ impl OrtNetwork {
             let m = points.len();
             let encoder = self.encoder.as_ref().expect("split");
             let (unit, features, sh) = (&mut unit[..m], &mut features[..m * width], &mut sh[..m * SH4_DIM]);
-            unit.iter_mut().zip(points).for_each(|(u, &p)| *u = encoder.bound.to_unit(p));
-            encoder.grid.forward_into(unit, features);
-            sh.par_chunks_mut(SH4_DIM * 1024).zip(viewdirs.par_chunks(1024)).for_each(|(sh, dirs)| {
-                sh.chunks_exact_mut(SH4_DIM).zip(dirs).for_each(|(row, &d)| row.copy_from_slice(&sh4(d)));
-            });
+            encoder.encode_into(points, viewdirs, unit, features, sh);
             let encoded = std::time::Instant::now();
             self.encoding_seconds += (encoded - start).as_secs_f64();
             let inputs = [Input { name: FEATURES_TENSOR, values: features, width }, Input { name: SH_TENSOR, values: sh, width: SH4_DIM }];
@@ -356,18 +345,13 @@ unsafe fn bind_in_place(binding: &mut ort::session::IoBinding, name: &std::ffi::
 }
 
 /// A hash-grid graph split for [`Encoding::Rust`]: its head (checked like any graph) and the
-/// encoder, or the graph unchanged where it cannot be cut (written before the features were
-/// named) — it then runs whole, as before.
+/// encoder, or the graph unchanged where it is not a hash grid or cannot be cut (written before
+/// the features were named) — it then runs whole, as before.
 #[allow(clippy::type_complexity)]
-fn split(path: &Path, model: nerf_bundle::proto::ModelProto, bytes: Vec<u8>) -> Result<(nerf_bundle::proto::ModelProto, Vec<u8>, Option<RustEncoder>)> {
-    let plain = read_ngp(&model).map_err(|e| RuntimeError::bundle(path, e))?;
-    let grid = HashGrid::from_params(plain.spec.grid, plain.table).map_err(|e| RuntimeError::bundle(path, e.to_string()))?;
-    match head_graph(&model, grid.output_dim()) {
-        Ok(head) => {
-            let bytes = head.encode_to_vec();
-            Ok((head, bytes, Some(RustEncoder { grid, bound: plain.spec.bound })))
-        }
-        Err(_) => Ok((model, bytes, None)),
+fn split(path: &Path, model: nerf_bundle::proto::ModelProto, bytes: Vec<u8>) -> Result<(nerf_bundle::proto::ModelProto, Vec<u8>, Option<SplitNgp>)> {
+    match SplitNgp::of(&model).map_err(|e| RuntimeError::bundle(path, e))? {
+        Some(split) => Ok((split.head.clone(), split.head.encode_to_vec(), Some(split))),
+        None => Ok((model, bytes, None)),
     }
 }
 

@@ -5,11 +5,10 @@
 //! - [`HashEncoder`]: a hash-grid graph split as nerf-render splits it, the encodings in Rust
 //!   (the core's, training's) and the head graph for onnxruntime.
 
-use nerf_bundle::graph::{check_contract, decode_model, metadata};
-use nerf_bundle::ngp::{FEATURES_TENSOR, FIELD_KEY, SH_TENSOR, head_graph, read_ngp};
+use nerf_bundle::graph::{check_contract, decode_model};
+use nerf_bundle::ngp::{FEATURES_TENSOR, SH_TENSOR, SplitNgp};
 use nerf_core::camera::Rays;
-use nerf_core::field::ngp::hash_grid::{GridBound, HashGrid};
-use nerf_core::field::ngp::spherical_harmonics::{SH4_DIM, sh4};
+use nerf_core::field::ngp::spherical_harmonics::SH4_DIM;
 use nerf_core::field::{Field, FieldOutput, Stage};
 use nerf_core::render::RenderOptions;
 use nerf_core::render::grid::{Skipper, render_rays_in};
@@ -162,12 +161,16 @@ fn march_grid<'py>(
     Ok((PyArray1::from_vec(py, rgb).reshape([n, 3])?, PyArray1::from_vec(py, depth), PyArray1::from_vec(py, acc)))
 }
 
-/// A hash-grid field graph split where nerf-render splits it: the hash grid of the points and
-/// the harmonics of the view directions in Rust, the rest (the head) for onnxruntime.
+/// The head's inputs: features [n, L·F] and harmonics [n, 16].
+type HeadInputs<'py> = (Bound<'py, PyArray2<f32>>, Bound<'py, PyArray2<f32>>);
+
+/// A hash-grid field graph split where nerf-render splits it ([`SplitNgp`]): the hash grid of
+/// the points and the harmonics of the view directions in Rust, the rest (the head) for
+/// onnxruntime.
 #[pyclass(frozen)]
 struct HashEncoder {
-    grid: HashGrid,
-    bound: GridBound,
+    split: SplitNgp,
+    /// The head, encoded once.
     head: Vec<u8>,
 }
 
@@ -186,12 +189,8 @@ impl HashEncoder {
         let path = Path::new(path);
         let model = decode_model(path, model).map_err(|e| PyValueError::new_err(e.to_string()))?;
         check_contract(&model).map_err(|e| PyValueError::new_err(format!("{}: {e}", path.display())))?;
-        if metadata(&model, FIELD_KEY) != Some("ngp") {
-            return Ok(None);
-        }
-        let plain = read_ngp(&model).map_err(|e| PyValueError::new_err(format!("{}: {e}", path.display())))?;
-        let grid = HashGrid::from_params(plain.spec.grid, plain.table).map_err(|e| PyValueError::new_err(format!("{}: {e}", path.display())))?;
-        Ok(head_graph(&model, grid.output_dim()).ok().map(|head| HashEncoder { grid, bound: plain.spec.bound, head: head.encode_to_vec() }))
+        let split = SplitNgp::of(&model).map_err(|e| PyValueError::new_err(format!("{}: {e}", path.display())))?;
+        Ok(split.map(|split| HashEncoder { head: split.head.encode_to_vec(), split }))
     }
 
     /// The head graph, ONNX bytes: inputs [`Self::FEATURES`] and [`Self::SH`], outputs rgb, sigma.
@@ -202,17 +201,15 @@ impl HashEncoder {
 
     /// The head's inputs for `points` and unit `viewdirs` [n, 3]: features [n, L·F] and
     /// harmonics [n, 16], float32 (the interpreter released meanwhile).
-    fn encode<'py>(&self, py: Python<'py>, points: PyReadonlyArray2<'py, f32>, viewdirs: PyReadonlyArray2<'py, f32>) -> PyResult<(Bound<'py, PyArray2<f32>>, Bound<'py, PyArray2<f32>>)> {
+    fn encode<'py>(&self, py: Python<'py>, points: PyReadonlyArray2<'py, f32>, viewdirs: PyReadonlyArray2<'py, f32>) -> PyResult<HeadInputs<'py>> {
         let (points, viewdirs) = (rows(&points, "points")?, rows(&viewdirs, "viewdirs")?);
         if points.len() != viewdirs.len() {
             return Err(PyValueError::new_err(format!("{} points and {} view directions", points.len(), viewdirs.len())));
         }
-        let (n, width) = (points.len(), self.grid.output_dim());
+        let (n, width) = (points.len(), self.split.grid.output_dim());
         let (features, sh) = py.detach(|| {
-            let unit: Vec<[f32; 3]> = points.iter().map(|&p| self.bound.to_unit(p)).collect();
-            let mut features = vec![0.0; n * width];
-            self.grid.forward_into(&unit, &mut features);
-            let sh: Vec<f32> = viewdirs.iter().flat_map(|&d| sh4(d)).collect();
+            let (mut unit, mut features, mut sh) = (vec![[0.0; 3]; n], vec![0.0; n * width], vec![0.0; n * SH4_DIM]);
+            self.split.encode_into(&points, &viewdirs, &mut unit, &mut features, &mut sh);
             (features, sh)
         });
         Ok((PyArray1::from_vec(py, features).reshape([n, width])?, PyArray1::from_vec(py, sh).reshape([n, SH4_DIM])?))
