@@ -216,14 +216,19 @@ export class RayMarch implements Marcher {
     let k = this.cursor[r], n = 0, tested = 0, occupiedUntil = this.occupiedUntil[r];
     const end = this.end[r];
     while (k < end && n < max) {
-      const tk = t[k];
-      const x = f(ox + f(tk * dx)), y = f(oy + f(tk * dy)), z = f(oz + f(tk * dz));
       if (k < occupiedUntil) {
-        const p = at + n;
-        pts[3 * p] = x; pts[3 * p + 1] = y; pts[3 * p + 2] = z;
-        ks[p] = k; n++; k++;
+        // The steps left in the occupied cube of the last test, emitted untested.
+        const stop = Math.min(occupiedUntil, end, k + max - n);
+        n += stop - k;
+        for (let p = at + n - (stop - k); k < stop; k++, p++) {
+          const tk = t[k];
+          pts[3 * p] = f(ox + f(tk * dx)); pts[3 * p + 1] = f(oy + f(tk * dy)); pts[3 * p + 2] = f(oz + f(tk * dz));
+          ks[p] = k;
+        }
         continue;
       }
+      const tk = t[k];
+      const x = f(ox + f(tk * dx)), y = f(oy + f(tk * dy)), z = f(oz + f(tk * dz));
       tested++;
       // The cell is that of the float32 u = (x + b)/2b·R. In float64 with a multiplication u is
       // off by at most a few float32 ulps (3·2⁻²⁴ relative), so where it lies farther than `faceGap`

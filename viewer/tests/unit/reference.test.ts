@@ -4,7 +4,7 @@
 import { describe, expect, it } from "vitest";
 import ref from "../fixtures/reference.json";
 import { cameraRays, ndcRays, outputSize, pinhole, resized } from "../../src/camera";
-import { type Field, coarseT, renderDense, renderMarch, samplePdf, weightsOf } from "../../src/render";
+import { type Field, coarseT, expAlpha, renderDense, renderMarch, samplePdf, weightsOf } from "../../src/render";
 import { toU8 } from "../../src/view";
 import { graphFiles, isBounded, parseGrid } from "../../src/bundle";
 
@@ -58,6 +58,24 @@ describe("sampling and compositing", () => {
       weightsOf(r.t, r.sigma.slice(k * S, (k + 1) * S), Math.fround(r.dnorm[k]), w);
       close(w, r.w.slice(k * S, (k + 1) * S), 1e-6);
     }
+  });
+  it("expAlpha is Math.exp to 1e-14 over compositing's range, and Math.exp outside it", () => {
+    // Every float32 step of 2⁻¹⁰ from −110 to 0, and the edges: α's float32 is Math.exp's but
+    // for a rounding tie or so (both are off the exact exp by far less than a float32 ulp).
+    let worst = 0, differ = 0, count = 0;
+    for (let x = -110; x <= 0; x += 2 ** -10, count++) {
+      const got = expAlpha(x), want = Math.exp(x);
+      if (want > 1e-300) worst = Math.max(worst, Math.abs(got / want - 1));
+      if (Math.fround(got) !== Math.fround(want)) differ++;
+    }
+    expect(worst).toBeLessThan(1e-14);
+    expect(differ / count).toBeLessThan(1e-5);
+    expect(expAlpha(0)).toBe(1);
+    expect(expAlpha(-0)).toBe(1);
+    expect(Math.fround(expAlpha(-104.5))).toBe(0);
+    for (const x of [NaN, 0.5, 3, -Infinity]) expect(expAlpha(x)).toBe(Math.exp(x));
+    // A hand value: e⁻¹.
+    expect(Math.abs(expAlpha(-1) - 0.36787944117144233)).toBeLessThan(1e-16);
   });
   it("sample_pdf", () => {
     const r = ref.sample_pdf, nb = r.bins.length / 3, nw = r.weights.length / 3, out = new Float32Array(r.n);
