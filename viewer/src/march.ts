@@ -218,9 +218,9 @@ export class RayMarch implements Marcher {
     while (k < end && n < max) {
       if (k < occupiedUntil) {
         // The steps left in the occupied cube of the last test, emitted untested.
-        const stop = Math.min(occupiedUntil, end, k + max - n);
+        const stop = Math.min(occupiedUntil, end, k + max - n), first = at + n;
         n += stop - k;
-        for (let p = at + n - (stop - k); k < stop; k++, p++) {
+        for (let p = first; k < stop; k++, p++) {
           const tk = t[k];
           pts[3 * p] = f(ox + f(tk * dx)); pts[3 * p + 1] = f(oy + f(tk * dy)); pts[3 * p + 2] = f(oz + f(tk * dz));
           ks[p] = k;
