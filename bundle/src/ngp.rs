@@ -170,8 +170,6 @@ pub fn read_ngp(model: &ModelProto) -> Result<PlainNgp, String> {
 /// of the table's rows is most of the whole graph's time on a CPU; the Rust encoding reads the
 /// same rows at 2–3× the speed.
 pub struct SplitNgp {
-    /// The graph after the cuts ([`head_graph`]).
-    pub head: ModelProto,
     /// The hash grid, with the graph's table.
     pub grid: HashGrid,
     /// The world box the grid covers.
@@ -179,15 +177,16 @@ pub struct SplitNgp {
 }
 
 impl SplitNgp {
-    /// `model` split, or None where it is not a hash-grid field or cannot be cut (graphs
-    /// written before the encodings' outputs were named: they run whole).
-    pub fn of(model: &ModelProto) -> Result<Option<Self>, String> {
+    /// `model` split into the graph after the cuts ([`head_graph`]) and its encoder, or None
+    /// where it is not a hash-grid field or cannot be cut (graphs written before the
+    /// encodings' outputs were named: they run whole).
+    pub fn of(model: &ModelProto) -> Result<Option<(ModelProto, Self)>, String> {
         if metadata(model, FIELD_KEY) != Some("ngp") {
             return Ok(None);
         }
         let plain = read_ngp(model)?;
         let grid = HashGrid::from_params(plain.spec.grid, plain.table).map_err(|e| e.to_string())?;
-        Ok(head_graph(model, grid.output_dim()).ok().map(|head| SplitNgp { head, grid, bound: plain.spec.bound }))
+        Ok(head_graph(model, grid.output_dim()).ok().map(|head| (head, SplitNgp { grid, bound: plain.spec.bound })))
     }
 
     /// The head's inputs for `points` with unit `viewdirs` (alike lengths n): the features

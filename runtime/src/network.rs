@@ -350,7 +350,10 @@ unsafe fn bind_in_place(binding: &mut ort::session::IoBinding, name: &std::ffi::
 #[allow(clippy::type_complexity)]
 fn split(path: &Path, model: nerf_bundle::proto::ModelProto, bytes: Vec<u8>) -> Result<(nerf_bundle::proto::ModelProto, Vec<u8>, Option<SplitNgp>)> {
     match SplitNgp::of(&model).map_err(|e| RuntimeError::bundle(path, e))? {
-        Some(split) => Ok((split.head.clone(), split.head.encode_to_vec(), Some(split))),
+        Some((head, split)) => {
+            let bytes = head.encode_to_vec();
+            Ok((head, bytes, Some(split)))
+        }
         None => Ok((model, bytes, None)),
     }
 }

@@ -190,7 +190,7 @@ impl HashEncoder {
         let model = decode_model(path, model).map_err(|e| PyValueError::new_err(e.to_string()))?;
         check_contract(&model).map_err(|e| PyValueError::new_err(format!("{}: {e}", path.display())))?;
         let split = SplitNgp::of(&model).map_err(|e| PyValueError::new_err(format!("{}: {e}", path.display())))?;
-        Ok(split.map(|split| HashEncoder { head: split.head.encode_to_vec(), split }))
+        Ok(split.map(|(head, split)| HashEncoder { head: head.encode_to_vec(), split }))
     }
 
     /// The head graph, ONNX bytes: inputs [`Self::FEATURES`] and [`Self::SH`], outputs rgb, sigma.
