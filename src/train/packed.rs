@@ -101,22 +101,64 @@ pub fn composite_packed_backward(
 /// Returns the kept samples (packed, ray by ray) and each one's index in `samples`.
 pub fn visible_samples(samples: &PackedSamples, sigma: &[f32], min_transmittance: f32) -> (PackedSamples, Vec<usize>) {
     assert_eq!(sigma.len(), samples.t.len(), "one density per sample");
-    let mut kept = PackedSamples { offsets: vec![0], ..PackedSamples::default() };
-    let mut index = Vec::with_capacity(samples.t.len());
-    for r in 0..samples.n_rays() {
-        let mut transmittance = 1.0f32;
-        for i in samples.ray(r) {
-            if transmittance < min_transmittance {
-                break;
+    // One round of every sample evaluates them in order: positions are indices.
+    visible_samples_in_rounds(samples, min_transmittance, usize::MAX, |batch| batch.iter().map(|&i| sigma[i]).collect())
+}
+
+/// [`visible_samples`], with σ measured in rounds: `density` gets the next `round` samples
+/// (indices into `samples`) of every ray that light still reaches, ray by ray, and returns
+/// their σ; rays whose light is spent, or whose samples are all measured, leave. A ray then
+/// costs at most `round − 1` samples past its last visible one, not all of its samples
+/// behind the surface. Keeps exactly the samples of [`visible_samples`].
+/// Returns the kept samples and each one's position in the concatenation of the rounds'
+/// batches.
+pub fn visible_samples_in_rounds(samples: &PackedSamples, min_transmittance: f32, round: usize, mut density: impl FnMut(&[usize]) -> Vec<f32>) -> (PackedSamples, Vec<usize>) {
+    let n_rays = samples.n_rays();
+    let round = round.max(1);
+    // Per ray: its next sample to measure (its end once it leaves) and the light left.
+    let mut next: Vec<usize> = samples.offsets[..n_rays].to_vec();
+    let mut light = vec![1.0f32; n_rays];
+    let mut live: Vec<usize> = (0..n_rays).filter(|&r| !samples.ray(r).is_empty() && !(1.0 < min_transmittance)).collect();
+    // Where each kept sample sits in the rounds' batches.
+    let mut position = vec![0usize; samples.t.len()];
+    let mut measured = 0;
+    let mut batch = Vec::new();
+    while !live.is_empty() {
+        batch.clear();
+        for &r in &live {
+            batch.extend(next[r]..next[r].saturating_add(round).min(samples.offsets[r + 1]));
+        }
+        let sigma = density(&batch);
+        assert_eq!(sigma.len(), batch.len(), "one density per sample of the round");
+        let mut k = 0;
+        live.retain(|&r| {
+            let (start, end) = (next[r], next[r].saturating_add(round).min(samples.offsets[r + 1]));
+            let mut spent = false;
+            for i in start..end {
+                position[i] = measured + k + (i - start);
+                light[r] *= 1.0 - alpha_from_density(sigma[k + i - start], samples.delta[i]);
+                next[r] = i + 1;
+                if light[r] < min_transmittance {
+                    spent = true;
+                    break;
+                }
             }
-            index.push(i);
+            k += end - start;
+            !spent && next[r] < samples.offsets[r + 1]
+        });
+        measured += batch.len();
+    }
+    let mut kept = PackedSamples { offsets: vec![0], ..PackedSamples::default() };
+    let mut kept_position = Vec::new();
+    for r in 0..n_rays {
+        for i in samples.offsets[r]..next[r] {
             kept.t.push(samples.t[i]);
             kept.delta.push(samples.delta[i]);
-            transmittance *= 1.0 - alpha_from_density(sigma[i], samples.delta[i]);
+            kept_position.push(position[i]);
         }
-        kept.offsets.push(index.len());
+        kept.offsets.push(kept.t.len());
     }
-    (kept, index)
+    (kept, kept_position)
 }
 
 #[cfg(test)]
@@ -204,6 +246,43 @@ mod tests {
         for (a, b) in full.iter().zip(&part) {
             for c in 0..3 {
                 assert!((a[c] - b[c]).abs() < 2e-3, "{a:?} vs {b:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn rounds_keep_what_one_pass_keeps_and_measure_at_most_a_round_past_it() {
+        let mut rng = Rng::new(11);
+        let (samples, sigma, _) = random_rays(&mut rng);
+        for min_transmittance in [0.0, 1e-4, 0.05, 0.5, 1.0, 1.5] {
+            let (want, index) = visible_samples(&samples, &sigma, min_transmittance);
+            for round in [1, 2, 3, 5, 64] {
+                let mut batches: Vec<usize> = Vec::new();
+                let mut rounds = 0;
+                let (kept, position) = visible_samples_in_rounds(&samples, min_transmittance, round, |batch| {
+                    rounds += 1;
+                    // Ray by ray, in order, at most `round` of each ray.
+                    assert!(batch.windows(2).all(|w| w[0] < w[1]), "{batch:?}");
+                    batches.extend_from_slice(batch);
+                    batch.iter().map(|&i| sigma[i]).collect()
+                });
+                assert_eq!(kept, want, "min {min_transmittance}, round {round}");
+                // Each kept sample's position names it in the rounds' batches.
+                assert_eq!(position.iter().map(|&p| batches[p]).collect::<Vec<_>>(), index);
+                // No sample twice; per ray at most `round − 1` measured past its last kept one.
+                let mut sorted = batches.clone();
+                sorted.dedup();
+                assert_eq!(sorted.len(), batches.len());
+                for r in 0..samples.n_rays() {
+                    let measured = batches.iter().filter(|&&i| samples.ray(r).contains(&i)).count();
+                    assert!(measured >= kept.ray(r).len() && measured < kept.ray(r).len() + round, "ray {r}: {measured} measured, {} kept", kept.ray(r).len());
+                }
+                if round == 1 {
+                    assert_eq!(batches.len(), index.len(), "one at a time measures only what is kept");
+                }
+                if round == 1 && min_transmittance == 0.0 {
+                    assert_eq!(rounds, 17, "nothing stops: the longest ray takes a round per sample");
+                }
             }
         }
     }

@@ -13,7 +13,7 @@ use crate::config::TrainConfig;
 use crate::error::{Error, Result};
 use crate::field::seam::{FieldTrainer, StepStats, StepTiming, TrainedField};
 use crate::run_dir::{Checkpoint, CheckpointState, RunDir};
-use crate::train::packed::{composite_packed, composite_packed_backward, visible_samples};
+use crate::train::packed::{composite_packed, composite_packed_backward, visible_samples_in_rounds};
 use crate::train::occupancy;
 use burn::module::Module;
 use burn::optim::{AdamConfig, ModuleOptimizer};
@@ -38,6 +38,8 @@ type DrawnRays = (Rays, Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<u32>);
 /// Fewest and most rays in one step, whatever the samples per ray.
 const MIN_RAYS: usize = 64;
 const MAX_RAYS: usize = 1 << 14;
+/// Samples per ray and round when a step measures where its rays' light is spent.
+const EARLY_STOP_ROUND: usize = 32;
 
 /// Trains a [`NgpField`].
 pub struct NgpTrainer {
@@ -188,16 +190,28 @@ impl FieldTrainer for NgpTrainer {
         }
         let mut field = self.field.take().expect("field present");
         let mlps = field.fused();
-        let encode = Instant::now();
-        let (mut unit, mut features) = field.encode(&points);
-        let mut grid_s = encode.elapsed().as_secs_f64();
-        if self.config.early_stop_transmittance > 0.0 {
-            let (kept, index) = visible_samples(&samples, &mlps.density(&features), self.config.early_stop_transmittance);
+        let (unit, features, mut grid_s) = if self.config.early_stop_transmittance > 0.0 {
+            // σ a round at a time, so that samples behind a ray's surface are mostly never encoded.
+            let (mut unit, mut features, mut grid_s) = (Vec::new(), Vec::new(), 0.0);
+            let (kept, position) = visible_samples_in_rounds(&samples, self.config.early_stop_transmittance, EARLY_STOP_ROUND, |batch| {
+                let points: Vec<[f32; 3]> = batch.iter().map(|&i| points[i]).collect();
+                let encode = Instant::now();
+                let (u, f) = field.encode(&points);
+                grid_s += encode.elapsed().as_secs_f64();
+                let sigma = mlps.density(&f);
+                unit.extend(u);
+                features.extend(f);
+                sigma
+            });
             let width = field.grid.output_dim();
-            features = index.iter().flat_map(|&i| &features[i * width..(i + 1) * width]).copied().collect();
-            unit = index.iter().map(|&i| unit[i]).collect();
             samples = kept;
-        }
+            let features = position.iter().flat_map(|&p| &features[p * width..(p + 1) * width]).copied().collect();
+            (position.iter().map(|&p| unit[p]).collect(), features, grid_s)
+        } else {
+            let encode = Instant::now();
+            let (unit, features) = field.encode(&points);
+            (unit, features, encode.elapsed().as_secs_f64())
+        };
         let n = samples.t.len();
         self.samples_per_ray = n.max(1) as f32 / rays.len() as f32;
         let viewdirs = rays.view_directions();
