@@ -145,6 +145,7 @@ impl Preset {
                     warmup_steps: 64,
                     threshold_at_most_mean: true,
                     contraction: None,
+                    min_views: 0,
                 },
                 march_steps: 1024,
                 render_march_steps: Some(2048),

@@ -33,7 +33,7 @@ mod tests {
 
     #[test]
     fn updates_follow_the_schedule_and_the_threshold_follows_the_mean() {
-        let config = OccupancyConfig { resolution: 4, bound: 1.0, threshold: 10.0, decay: 0.5, update_every: 16, warmup_steps: 64, threshold_at_most_mean: true, contraction: None };
+        let config = OccupancyConfig { resolution: 4, bound: 1.0, threshold: 10.0, decay: 0.5, update_every: 16, warmup_steps: 64, threshold_at_most_mean: true, contraction: None, min_views: 0 };
         assert!(!due(&config, 63) && due(&config, 64) && !due(&config, 65) && due(&config, 80));
         let mut grid = OccupancyGrid::from_config(&config);
         // σ = 4 inside x < 0, 0 elsewhere: half the cells occupied, mean density 2 after one

@@ -23,6 +23,7 @@
 //! (24 header bytes). Its cells are boxes of the contracted cube [−b, b]³ (b = 2): a point is
 //! contracted before its cell is found. Readers that know only `NERFOCC1` refuse it.
 
+use crate::camera::{PinholeCamera, Pose};
 use crate::error::{Error, Result};
 use crate::rng::Rng;
 use crate::sample::contraction::Contraction;
@@ -60,11 +61,15 @@ pub struct OccupancyConfig {
     /// Cells over the contracted world (unbounded captures; `bound` is then 2). Absent: none.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub contraction: Option<Contraction>,
+    /// Leave empty for good the cells that fewer training cameras than this see ([`UNSEEN`],
+    /// [`OccupancyGrid::mark_unseen`]; world rays only, not NDC's). 0: none.
+    #[serde(default)]
+    pub min_views: usize,
 }
 
 impl Default for OccupancyConfig {
     fn default() -> Self {
-        OccupancyConfig { resolution: 64, bound: 1.5, threshold: 0.05, decay: 0.95, update_every: 16, warmup_steps: 256, threshold_at_most_mean: false, contraction: None }
+        OccupancyConfig { resolution: 64, bound: 1.5, threshold: 0.05, decay: 0.95, update_every: 16, warmup_steps: 256, threshold_at_most_mean: false, contraction: None, min_views: 0 }
     }
 }
 
@@ -87,6 +92,12 @@ impl PartialEq for OccupancyGrid {
         (self.resolution, self.bound, self.threshold, self.contraction) == (other.resolution, other.bound, other.threshold, other.contraction) && self.density == other.density
     }
 }
+
+/// The density estimate of a cell that no training camera sees (instant-ngp's untrained cells,
+/// nerfacc's invisible ones): below every threshold, and kept by [`OccupancyGrid::update`].
+/// Nothing trains the field there, so whatever density it has there is a floater in views
+/// from elsewhere.
+pub const UNSEEN: f32 = -1.0;
 
 /// The sides (in cells) of the cubes [`OccupancyGrid::corner_reach`] records, as the Python
 /// package's `CORNER_SIDES`: each side at most doubles the one before, so a table is three
@@ -245,12 +256,56 @@ impl OccupancyGrid {
         self.density.iter().filter(|d| **d > self.threshold).count() as f32 / self.len().max(1) as f32
     }
 
-    /// Mean of the cells' density estimates (cells not measured yet count as 0). instant-ngp
-    /// caps the occupancy threshold at this, so a young field that is faint everywhere still
-    /// has occupied cells.
+    /// Mean of the cells' density estimates (cells not measured yet count as 0, [`UNSEEN`]
+    /// cells not at all). instant-ngp caps the occupancy threshold at this, so a young field
+    /// that is faint everywhere still has occupied cells.
     pub fn mean_density(&self) -> f32 {
-        let sum: f64 = self.density.iter().filter(|d| d.is_finite()).map(|&d| d as f64).sum();
-        (sum / self.len().max(1) as f64) as f32
+        let seen = self.density.iter().filter(|&&d| d != UNSEEN);
+        let (sum, count) = seen.fold((0.0f64, 0usize), |(sum, count), &d| (if d.is_finite() { sum + d as f64 } else { sum }, count + 1));
+        (sum / count.max(1) as f64) as f32
+    }
+
+    /// Mark [`UNSEEN`] every cell that fewer than `min_views` cameras of `views` see (a camera
+    /// sees a cell when part of the cell's bounding sphere projects into its image, or the
+    /// sphere holds it). 1 is instant-ngp's rule: cells no camera sees; 2 also leaves empty
+    /// what only one camera sees, whose depth nothing pins down. Returns how many cells that
+    /// marked. For grids whose rays are world rays (not NDC's).
+    pub fn mark_unseen(&mut self, views: &[(PinholeCamera, Pose)], min_views: usize) -> usize {
+        let r = self.resolution;
+        let size = 2.0 * self.bound / r as f32;
+        let cameras: Vec<_> = views.iter().map(|(camera, pose)| (camera, pose.origin(), pose.rotation().transpose())).collect();
+        let mut marked = 0;
+        for c in 0..self.len() {
+            let lo = [c / (r * r), (c / r) % r, c % r].map(|n| -self.bound + n as f32 * size);
+            let (centre, radius) = self.cell_sphere(lo, size);
+            let seeing = cameras.iter().filter(|&&(camera, origin, to_camera)| sphere_in_view(camera, to_camera * (glam::Vec3::from(centre) - origin), radius));
+            if seeing.take(min_views).count() < min_views {
+                self.density[c] = UNSEEN;
+                marked += 1;
+            }
+        }
+        self.corners = Default::default();
+        marked
+    }
+
+    /// The world centre and bounding radius of the cell whose (grid-space) corner is `lo`.
+    fn cell_sphere(&self, lo: [f32; 3], size: f32) -> ([f32; 3], f32) {
+        let centre = lo.map(|v| v + 0.5 * size);
+        match self.contraction {
+            None => (centre, 0.5 * size * 3f32.sqrt()),
+            Some(c) => {
+                // The cell's world box is bounded by its corners' images (the inverse is
+                // monotonic per axis within a cell); corners on the boundary lie at infinity.
+                let world = c.invert(centre);
+                let radius = (0..8)
+                    .map(|k| {
+                        let corner = c.invert([0, 1, 2].map(|a| lo[a] + if k >> a & 1 == 1 { size } else { 0.0 }));
+                        (0..3).map(|a| (corner[a] - world[a]).powi(2)).sum::<f32>().sqrt()
+                    })
+                    .fold(0.0f32, |m, d| if d.is_nan() { f32::INFINITY } else { m.max(d) });
+                (world, radius)
+            }
+        }
     }
 
     /// One uniformly random point inside every cell, in cell order (world points: on a
@@ -271,11 +326,11 @@ impl OccupancyGrid {
     }
 
     /// Fold in densities (σ after ReLU) measured at one point per cell (cell order, as from
-    /// [`random_cell_points`](Self::random_cell_points)).
+    /// [`random_cell_points`](Self::random_cell_points)). [`UNSEEN`] cells stay so.
     pub fn update(&mut self, sigma: &[f32], decay: f32) {
         assert_eq!(sigma.len(), self.len(), "one density per cell");
         self.corners = Default::default();
-        for (d, &s) in self.density.iter_mut().zip(sigma) {
+        for (d, &s) in self.density.iter_mut().zip(sigma).filter(|(d, _)| **d != UNSEEN) {
             let s = s.max(0.0);
             *d = if d.is_finite() { (*d * decay).max(s) } else { s };
         }
@@ -374,6 +429,23 @@ impl OccupancyGrid {
     }
 }
 
+/// Whether a sphere of `radius` around `centre` (camera space, OpenGL: the camera looks down
+/// −z) reaches into `camera`'s image: generous, never the other way round (a sphere that holds
+/// the camera or crosses its plane counts as seen; the image is grown by the sphere's projected
+/// radius, half again for the lens's distortion).
+fn sphere_in_view(camera: &PinholeCamera, centre: glam::Vec3, radius: f32) -> bool {
+    let depth = -centre.z;
+    if !radius.is_finite() || centre.length() <= radius || (depth <= radius && depth > -radius) {
+        return true;
+    }
+    if depth <= 0.0 {
+        return false;
+    }
+    let Some((i, j)) = camera.project(centre) else { return true };
+    let margin = 1.5 * radius * camera.fx.max(camera.fy) / (depth * depth - radius * radius).sqrt();
+    i >= -margin && i <= camera.width as f32 + margin && j >= -margin && j <= camera.height as f32 + margin
+}
+
 /// What a grid file's header says.
 struct Header {
     resolution: usize,
@@ -453,6 +525,7 @@ fn and_shifted(block: &mut [u8], len: usize, shift: usize, up: bool, past: u8, r
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::camera::OpenCvDistortion;
 
     #[test]
     fn cells_cover_the_cube_in_documented_order() {
@@ -622,5 +695,73 @@ mod tests {
         std::fs::write(&path, &long).unwrap();
         let err = OccupancyGrid::load(&path).unwrap_err().to_string();
         assert!(err.contains(&format!("{} bytes, expected {}", long.len(), bytes.len())), "{err}");
+    }
+
+    fn pinhole(width: u32, height: u32, focal: f32) -> PinholeCamera {
+        PinholeCamera::from_intrinsics(&crate::camera::Intrinsics { width, height, focal })
+    }
+
+    #[test]
+    fn a_camera_inside_the_grid_leaves_unseen_only_the_cells_behind_it() {
+        // Cells of side 1 over [−2, 2]³ (bounding spheres of radius √3/2 ≈ 0.87); the camera at
+        // the origin looks down −z, 2·atan(50/10) ≈ 157° wide. Cells centred at z = 1.5 end
+        // 0.63 behind its plane: unseen. Those at z = 0.5 cross its plane and those at −0.5
+        // hold it within their sphere: seen. Those at −1.5 project at most (±1.5/1.5)·10 px
+        // from the image centre: seen.
+        let identity = Pose::from_rows([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]);
+        let mut grid = OccupancyGrid::new(4, 2.0, 0.5);
+        assert_eq!(grid.mark_unseen(&[(pinhole(100, 100, 10.0), identity)], 1), 16);
+        for c in 0..grid.len() {
+            assert_eq!(grid.density[c] == UNSEEN, c % 4 == 3, "cell {c}: k = {}", c % 4);
+            assert_eq!(grid.is_cell_occupied(c), c % 4 != 3, "cell {c}");
+        }
+        // Updates keep them empty; the mean counts only the others.
+        grid.update(&[8.0; 64], 0.5);
+        assert_eq!(grid.occupied_fraction(), 0.75);
+        assert_eq!(grid.mean_density(), 8.0);
+        // Without cameras nothing is seen.
+        assert_eq!(OccupancyGrid::new(2, 1.0, 0.5).mark_unseen(&[], 1), 8);
+        // Nor with one camera, when two are asked for; nothing is marked when none are.
+        assert_eq!(OccupancyGrid::new(4, 2.0, 0.5).mark_unseen(&[(pinhole(100, 100, 10.0), identity)], 2), 64);
+        assert_eq!(OccupancyGrid::new(4, 2.0, 0.5).mark_unseen(&[], 0), 0);
+    }
+
+    #[test]
+    fn no_point_that_enough_cameras_see_lies_in_an_unseen_cell() {
+        // A camera sees a point when it projects into the image and the ray of that pixel
+        // points at it (beyond the distortion's fold, projections land in the image without a
+        // ray there).
+        let mut camera = pinhole(64, 48, 80.0);
+        camera.distortion = Some(OpenCvDistortion { k1: 0.06, k2: -0.08, p1: -1e-3, p2: 2e-4 });
+        let views: Vec<(PinholeCamera, Pose)> = (0..3).map(|k| (camera, Pose::spherical(120.0 * k as f32 + 10.0, -20.0, 1.0 + k as f32))).collect();
+        let seeing = |p: [f32; 3]| {
+            let sees = |(camera, pose): &&(PinholeCamera, Pose)| {
+                let v = pose.rotation().transpose() * (glam::Vec3::from(p) - pose.origin());
+                camera.project(v).is_some_and(|(i, j)| {
+                    let inside = i >= 0.0 && i <= camera.width as f32 && j >= 0.0 && j <= camera.height as f32;
+                    inside && camera.camera_direction(i, j).normalize().dot(v.normalize()) > 1.0 - 1e-5
+                })
+            };
+            views.iter().filter(sees).count()
+        };
+        let mut rng = Rng::new(5);
+        for contraction in [None, Some(Contraction::Linf)] {
+            let bound = if contraction.is_some() { 2.0 } else { 1.5 };
+            let mut previous = 0;
+            for min_views in [1, 2] {
+                let mut grid = OccupancyGrid::new(16, bound, 0.5).with_contraction(contraction);
+                let unseen = grid.mark_unseen(&views, min_views);
+                assert!(unseen > previous && unseen < grid.len(), "{contraction:?}, {min_views}: {unseen} unseen cells");
+                previous = unseen;
+                for _ in 0..20 {
+                    for (c, p) in grid.random_cell_points(&mut rng).into_iter().enumerate() {
+                        if grid.density[c] == UNSEEN {
+                            let n = seeing(p);
+                            assert!(n < min_views, "{contraction:?}: cell {c} marked unseen by {min_views}, yet {n} cameras see {p:?} in it");
+                        }
+                    }
+                }
+            }
+        }
     }
 }

@@ -75,9 +75,16 @@ impl NgpTrainer {
         let names = || train.views.iter().map(|v| v.name.clone()).collect();
         let appearance = config.appearance.then(|| Appearance::new(names(), config.shapes.ngp.color_hidden));
         let cameras = config.refine_cameras.then(|| CameraCorrections::new(names()));
+        let mut occupancy = OccupancyGrid::from_config(&config.occupancy);
+        let min_views = config.occupancy.min_views;
+        if min_views > 0 && config.sampling.ndc.is_none() {
+            let views: Vec<_> = train.views.iter().map(|v| (v.camera, v.pose)).collect();
+            let unseen = occupancy.mark_unseen(&views, min_views);
+            eprintln!("occupancy grid: {unseen} of {} cells seen by fewer than {min_views} training cameras, left empty", occupancy.len());
+        }
         Ok(NgpTrainer {
             rng: Rng::new(config.seed),
-            occupancy: OccupancyGrid::from_config(&config.occupancy),
+            occupancy,
             batcher: RayBatcher::new(train)?,
             field: Some(field),
             optim,
