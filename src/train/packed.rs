@@ -98,20 +98,14 @@ pub fn composite_packed_backward(
 /// `min_transmittance` in front of them (nerfacc's `early_stop_eps`, instant-ngp's compaction of
 /// a training batch). The others weigh less than that, together, so a step drops them before
 /// the colour MLP and the backward pass, and its sample budget goes to samples that matter.
-/// Returns the kept samples (packed, ray by ray) and each one's index in `samples`.
-pub fn visible_samples(samples: &PackedSamples, sigma: &[f32], min_transmittance: f32) -> (PackedSamples, Vec<usize>) {
-    assert_eq!(sigma.len(), samples.t.len(), "one density per sample");
-    // One round of every sample evaluates them in order: positions are indices.
-    visible_samples_in_rounds(samples, min_transmittance, usize::MAX, |batch| batch.iter().map(|&i| sigma[i]).collect())
-}
-
-/// [`visible_samples`], with σ measured in rounds: `density` gets the next `round` samples
-/// (indices into `samples`) of every ray that light still reaches, ray by ray, and returns
-/// their σ; rays whose light is spent, or whose samples are all measured, leave. A ray then
-/// costs at most `round − 1` samples past its last visible one, not all of its samples
-/// behind the surface. Keeps exactly the samples of [`visible_samples`].
-/// Returns the kept samples and each one's position in the concatenation of the rounds'
-/// batches.
+///
+/// σ is measured in rounds: `density` gets the next `round` samples (indices into `samples`)
+/// of every ray that light still reaches, ray by ray, and returns their σ; rays whose light is
+/// spent, or whose samples are all measured, leave. A ray then costs at most `round − 1`
+/// samples past its last visible one, not all of its samples behind the surface; which samples
+/// are kept does not depend on `round`.
+/// Returns the kept samples (packed, ray by ray) and each one's position in the concatenation
+/// of the rounds' batches (with one round of every sample, its index in `samples`).
 pub fn visible_samples_in_rounds(samples: &PackedSamples, min_transmittance: f32, round: usize, mut density: impl FnMut(&[usize]) -> Vec<f32>) -> (PackedSamples, Vec<usize>) {
     let n_rays = samples.n_rays();
     let round = round.max(1);
@@ -165,6 +159,12 @@ pub fn visible_samples_in_rounds(samples: &PackedSamples, min_transmittance: f32
 mod tests {
     use super::*;
     use nerf_core::rng::Rng;
+
+    /// Every sample measured at once: each kept sample's position is its index.
+    fn visible_samples(samples: &PackedSamples, sigma: &[f32], min_transmittance: f32) -> (PackedSamples, Vec<usize>) {
+        assert_eq!(sigma.len(), samples.t.len(), "one density per sample");
+        visible_samples_in_rounds(samples, min_transmittance, usize::MAX, |batch| batch.iter().map(|&i| sigma[i]).collect())
+    }
 
     fn random_rays(rng: &mut Rng) -> (PackedSamples, Vec<f32>, Vec<[f32; 3]>) {
         let mut samples = PackedSamples { offsets: vec![0], ..PackedSamples::default() };

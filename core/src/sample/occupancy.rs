@@ -216,6 +216,12 @@ impl OccupancyGrid {
         Some(cell)
     }
 
+    /// The (i, j, k) of cell index `cell` (the inverse of [`Self::cell`]'s numbering).
+    fn cell_indices(&self, cell: usize) -> [usize; 3] {
+        let r = self.resolution;
+        [cell / (r * r), (cell / r) % r, cell % r]
+    }
+
     /// Whether `p` lies in an occupied cell.
     pub fn is_occupied(&self, p: [f32; 3]) -> bool {
         self.cell(p).is_some_and(|c| self.is_cell_occupied(c))
@@ -276,7 +282,7 @@ impl OccupancyGrid {
         let cameras: Vec<_> = views.iter().map(|(camera, pose)| (camera, pose.origin(), pose.rotation().transpose())).collect();
         let mut marked = 0;
         for c in 0..self.len() {
-            let lo = [c / (r * r), (c / r) % r, c % r].map(|n| -self.bound + n as f32 * size);
+            let lo = self.cell_indices(c).map(|n| -self.bound + n as f32 * size);
             let (centre, radius) = self.cell_sphere(lo, size);
             let seeing = cameras.iter().filter(|&&(camera, origin, to_camera)| sphere_in_view(camera, to_camera * (glam::Vec3::from(centre) - origin), radius));
             if seeing.take(min_views).count() < min_views {
@@ -315,8 +321,7 @@ impl OccupancyGrid {
         let size = 2.0 * self.bound / r as f32;
         (0..self.len())
             .map(|c| {
-                let (i, j, k) = (c / (r * r), (c / r) % r, c % r);
-                let p = [i, j, k].map(|n| -self.bound + (n as f32 + rng.uniform()) * size);
+                let p = self.cell_indices(c).map(|n| -self.bound + (n as f32 + rng.uniform()) * size);
                 match self.contraction {
                     Some(c) => c.invert(p),
                     None => p,
