@@ -3,7 +3,8 @@
 //! holds exactly the trained field), rendering
 //! (`nerf render` vs `nerf-render` ≥ 60 dB, the numpy consumer ≤ 1e-4, marched through the grid
 //! and, with `--dense`, through the whole box),
-//! and bad input (a truncated table, impossible grid configs) refused with clear errors.
+//! and bad input (a truncated table, impossible grid configs, a `min_views` no cell reaches)
+//! refused with clear errors.
 
 mod common;
 
@@ -25,6 +26,18 @@ fn train_tiny(scene: &Path, run: &Path, iters: usize) -> nerf::train::TrainSumma
 fn train_tiny_at(scene: &Path, run: &Path, iters: usize, downscale: u32) -> nerf::train::TrainSummary {
     let options = TrainOptions { format: None, data: scene.to_path_buf(), run: run.to_path_buf(), config: tiny_ngp(), ndc: None, contract: None, downscale, time_budget_min: None, iters: Some(iters), progress: false };
     train(&options).unwrap()
+}
+
+#[test]
+fn a_min_views_no_cell_reaches_is_refused_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = small_scene(dir.path());
+    let mut config = tiny_ngp();
+    // The scene has 20 training cameras: no cell can be seen by 21.
+    config.occupancy.min_views = 21;
+    let options = TrainOptions { format: None, data: scene, run: dir.path().join("run"), config, ndc: None, contract: None, downscale: 1, time_budget_min: None, iters: Some(2), progress: false };
+    let err = train(&options).err().expect("min_views above the camera count is refused").to_string();
+    assert!(err.contains("min_views = 21") && err.contains("of the 20 training cameras"), "{err}");
 }
 
 /// `nerf render --npy` of test view 0 (burn) vs `nerf-render --npy` of the bundle

@@ -77,9 +77,16 @@ impl NgpTrainer {
         let cameras = config.refine_cameras.then(|| CameraCorrections::new(names()));
         let mut occupancy = OccupancyGrid::from_config(&config.occupancy);
         let min_views = config.occupancy.min_views;
-        if min_views > 0 && config.sampling.ndc.is_none() {
+        if min_views > 0 && config.sampling.ndc.is_some() {
+            eprintln!("note: [occupancy] min_views = {min_views} is not applied: this run marches NDC rays (forward-facing)");
+        } else if min_views > 0 {
             let views: Vec<_> = train.views.iter().map(|v| (v.camera, v.pose)).collect();
             let unseen = occupancy.mark_unseen(&views, min_views);
+            if unseen == occupancy.len() {
+                // Every ray would march through empty cells only: nothing would ever train.
+                let problem = format!("[occupancy] min_views = {min_views}: no cell of the occupancy grid is seen by that many of the {} training cameras; lower it", views.len());
+                return Err(Error::Config(problem));
+            }
             eprintln!("occupancy grid: {unseen} of {} cells seen by fewer than {min_views} training cameras, left empty", occupancy.len());
         }
         Ok(NgpTrainer {
