@@ -149,8 +149,11 @@ impl Preset {
                 },
                 march_steps: 1024,
                 render_march_steps: Some(2048),
-                // Measured on lego at 400×400 (docs/quality.md): +0.7 dB after 10 minutes.
-                early_stop_transmittance: 1e-4,
+                // 1e-4 (nerfacc's) gave lego at 400×400 +0.7 dB after 10 minutes over keeping
+                // every sample (docs/quality.md); 0.01 keeps a quarter of fox's samples a ray, so
+                // a step holds four times the rays: +1.58 dB on fox, +0.94 on fern, +0.36 on lego
+                // at 10 minutes (docs/captures.md).
+                early_stop_transmittance: 0.01,
                 ..Preset::Paper.config()
             },
         }
@@ -283,6 +286,10 @@ pub struct TrainConfig {
     pub refine_cameras: bool,
 }
 
+/// The `ngp` preset's `early_stop_transmittance` until it became 0.01: what a run recorded
+/// without the key resumes with.
+const NGP_EARLY_STOP_BEFORE_0_01: f32 = 1e-4;
+
 /// Default [`TrainConfig::target_samples`].
 pub const DEFAULT_TARGET_SAMPLES: usize = 1 << 16;
 
@@ -324,15 +331,21 @@ impl TrainConfig {
 
     /// A run's recorded `config.toml`: as [`from_toml_str`](Self::from_toml_str), except that
     /// keys from before a preset changed read as runs were trained then (`lr_schedule`:
-    /// `exponential`), so an old run resumes as it started.
+    /// `exponential`; an `ngp` run's `early_stop_transmittance`: 1e-4), so an old run resumes as
+    /// it started.
     pub fn from_run_toml(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
         let mut table: toml::Table = toml::from_str(&text).map_err(|e| Error::invalid(path, e.to_string()))?;
         table.entry("lr_schedule").or_insert_with(|| toml::Value::String("exponential".into()));
-        Self::from_toml_str(&toml::to_string(&table).expect("a parsed table serialises"), None).map_err(|e| match e {
+        let early_stop_recorded = table.contains_key("early_stop_transmittance");
+        let mut config = Self::from_toml_str(&toml::to_string(&table).expect("a parsed table serialises"), None).map_err(|e| match e {
             Error::Config(problem) => Error::invalid(path, problem),
             other => other,
-        })
+        })?;
+        if !early_stop_recorded && config.preset == Preset::Ngp {
+            config.early_stop_transmittance = NGP_EARLY_STOP_BEFORE_0_01;
+        }
+        Ok(config)
     }
 
     /// A preset, overridden by the keys of a TOML file (which may itself name a `preset`).
@@ -493,14 +506,26 @@ mod tests {
 
     #[test]
     fn the_step_keys_read_from_the_preset_and_are_checked() {
-        // A config file from before `rays_per_image` and `early_stop_transmittance` takes the
+        // A config file without `rays_per_image` and `early_stop_transmittance` takes the
         // preset's: 256 rays an image, and for ngp runs the early stop.
         let mut old = toml::Table::try_from(Preset::Ngp.config()).unwrap();
         old.remove("rays_per_image");
         old.remove("early_stop_transmittance");
         let c = TrainConfig::from_toml_str(&toml::to_string(&old).unwrap(), None).unwrap();
-        assert_eq!((c.rays_per_image, c.early_stop_transmittance, c.jitter_pixels), (256, 1e-4, None));
+        assert_eq!((c.rays_per_image, c.early_stop_transmittance, c.jitter_pixels), (256, 0.01, None));
         assert_eq!(Preset::CpuFast.config().early_stop_transmittance, 0.0);
+        // A run recorded without the key resumes with the early stop it trained with: the ngp
+        // preset's 1e-4 of then; an MLP run's stays 0; a recorded key is kept.
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("config.toml");
+        std::fs::write(&path, toml::to_string(&old).unwrap()).unwrap();
+        assert_eq!(TrainConfig::from_run_toml(&path).unwrap().early_stop_transmittance, 1e-4);
+        let mut mlp = toml::Table::try_from(Preset::CpuFast.config()).unwrap();
+        mlp.remove("early_stop_transmittance");
+        std::fs::write(&path, toml::to_string(&mlp).unwrap()).unwrap();
+        assert_eq!(TrainConfig::from_run_toml(&path).unwrap().early_stop_transmittance, 0.0);
+        std::fs::write(&path, Preset::Ngp.config().to_toml()).unwrap();
+        assert_eq!(TrainConfig::from_run_toml(&path).unwrap().early_stop_transmittance, 0.01);
         for (key, bad) in [
             ("early_stop_transmittance", "1.0"),
             ("early_stop_transmittance", "-0.1"),
