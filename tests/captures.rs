@@ -7,7 +7,7 @@
 
 mod common;
 
-use common::{nerf, nerf_render, python, s, tiny_ngp};
+use common::{max_difference, nerf, nerf_render, python, s, tiny_ngp};
 use glam::Vec3;
 use nerf::run_dir::RunDir;
 use nerf::train::{TrainOptions, train};
@@ -91,10 +91,16 @@ fn check_parity(run: &Path, bundle: &Path, data: &Path, name: &str, ort_npy: &Pa
     let text = format!("{}{}", String::from_utf8_lossy(&py.stdout), String::from_utf8_lossy(&py.stderr));
     assert!(py.status.success(), "render_rays.py: {text}");
     // r, g, b and acc are in [0, 1]; depth is in world units (up to `far`, 100 for a contracted
-    // capture), so it is compared relative to its size: a depth of 50 carries rounding of 4e-6.
-    a.chunks_exact(5)
-        .zip(b.chunks_exact(5))
-        .flat_map(|(p, q)| (0..5).map(move |c| (p[c] - q[c]).abs() / if c == 3 { p[c].abs().max(1.0) } else { 1.0 }))
+    // capture), so it is compared relative to its size (as ngp_parity.rs compares σ): a depth of
+    // 50 carries rounding of 4e-6.
+    let channel = |v: &[f32], c: usize| v.chunks_exact(5).map(|p| p[c]).collect::<Vec<f32>>();
+    ["r", "g", "b", "depth", "acc"]
+        .iter()
+        .enumerate()
+        .map(|(c, what)| {
+            let scale: fn(f32) -> f32 = if *what == "depth" { |d| d.abs().max(1.0) } else { |_| 1.0 };
+            max_difference(what, &channel(&a, c), &channel(&b, c), scale)
+        })
         .fold(0.0f32, f32::max)
 }
 
