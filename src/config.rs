@@ -86,6 +86,7 @@ impl Preset {
                 rays_per_image: default_rays_per_image(),
                 jitter_pixels: None,
                 early_stop_transmittance: 0.0,
+                distortion_loss: 0.0,
                 appearance: false,
                 refine_cameras: false,
             },
@@ -272,6 +273,13 @@ pub struct TrainConfig {
     /// every sample. A config file without the key (runs from before it) takes the preset's.
     #[serde(default)]
     pub early_stop_transmittance: f32,
+    /// Weight of mip-NeRF 360's distortion loss ([`crate::train::distortion`]) beside the
+    /// photometric MSE, a mean over a step's rays of each ray's loss in marching-step
+    /// distances (0 to 1 over the march): density floating in front of a surface costs
+    /// something even where it fits the training photos. The hash-grid field only. 0 (and
+    /// absent): off.
+    #[serde(default)]
+    pub distortion_loss: f32,
     /// Learn a code per training image that the colour MLP sees (nerfacto's appearance
     /// embedding, [`crate::field::ngp::appearance`]), for captures whose exposure or white
     /// balance changes between photos; renders and bundles use the codes' mean. The hash-grid
@@ -442,6 +450,12 @@ impl TrainConfig {
         if !(0.0..1.0).contains(&self.early_stop_transmittance) {
             return Err(format!("early_stop_transmittance = {}: must be in [0, 1)", self.early_stop_transmittance));
         }
+        if !(self.distortion_loss >= 0.0 && self.distortion_loss.is_finite()) {
+            return Err(format!("distortion_loss = {}: must be a finite weight ≥ 0", self.distortion_loss));
+        }
+        if self.distortion_loss > 0.0 && self.field != FieldKind::Ngp {
+            return Err(format!("distortion_loss: the distortion loss is the ngp field's (field = {:?})", self.field.name()));
+        }
         limits::check_count(self.march_steps, limits::MAX_SAMPLES_PER_RAY, "steps", Origin::Key("march_steps")).map_err(|e| e.to_string())?;
         if let Some(steps) = self.render_march_steps {
             limits::check_count(steps, limits::MAX_SAMPLES_PER_RAY, "steps", Origin::Key("render_march_steps")).map_err(|e| e.to_string())?;
@@ -530,6 +544,9 @@ mod tests {
             ("early_stop_transmittance", "1.0"),
             ("early_stop_transmittance", "-0.1"),
             ("rays_per_image", "0"),
+            ("distortion_loss", "-0.01"),
+            ("distortion_loss", "nan"),
+            ("distortion_loss", "0.01\npreset = 'cpu-fast'"),
             // The MLP field trains through pixel centres, as nerf-pytorch does.
             ("jitter_pixels", "true\npreset = 'cpu-fast'"),
         ] {

@@ -5,6 +5,7 @@
 
 pub mod adam;
 pub mod cameras;
+pub mod distortion;
 pub mod occupancy;
 pub mod packed;
 mod run;

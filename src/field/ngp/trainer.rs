@@ -14,6 +14,7 @@ use crate::error::{Error, Result};
 use crate::field::seam::{FieldTrainer, StepStats, StepTiming, TrainedField};
 use crate::run_dir::{Checkpoint, CheckpointState, RunDir};
 use crate::train::packed::{composite_packed, composite_packed_backward, visible_samples_in_rounds};
+use crate::train::distortion::{distortion_backward, step_coordinates};
 use crate::train::occupancy;
 use burn::module::Module;
 use burn::optim::{AdamConfig, ModuleOptimizer};
@@ -28,7 +29,7 @@ use nerf_core::render::packed::PackedSamples;
 use crate::train::cameras::{CAMERAS_FILE, CameraCorrections, CorrectionGradient};
 use nerf_core::render::metrics::psnr_from_mse;
 use nerf_core::sample::occupancy::OccupancyGrid;
-use nerf_core::render::grid::occupied_samples;
+use nerf_core::render::grid::{march_segments, occupied_samples};
 use nerf_core::{Rays, Rng};
 use std::time::Instant;
 
@@ -242,7 +243,16 @@ impl FieldTrainer for NgpTrainer {
         let ((rgb, sigma), saved) = mlps.forward_train(&features, &sh, codes);
         let (colors, _) = composite_packed(&samples, &sigma, &rgb, &backgrounds);
         let (mse, grad_color) = mean_squared_error(&colors, &targets);
-        let (grad_sigma, grad_rgb) = composite_packed_backward(&samples, &sigma, &rgb, &backgrounds, &grad_color);
+        let (mut grad_sigma, grad_rgb) = composite_packed_backward(&samples, &sigma, &rgb, &backgrounds, &grad_color);
+        if self.config.distortion_loss > 0.0 {
+            // λ · the mean over rays of each ray's distortion, distances in marching steps.
+            let segments = march_segments(s.near, s.far, self.config.march_steps, self.occupancy.contraction());
+            let steps: usize = segments.iter().map(|s| s.steps).sum();
+            let width = vec![1.0 / steps as f32; n];
+            let grad_loss = vec![self.config.distortion_loss / rays.len() as f32; rays.len()];
+            let grad = distortion_backward(&samples, &sigma, &step_coordinates(&segments, &samples.t), &width, &grad_loss);
+            grad_sigma.iter_mut().zip(grad).for_each(|(g, d)| *g += d);
+        }
         let forward_done = Instant::now();
         let mut grad_sh = vec![0.0f32; if self.cameras.is_some() { n * SH4_DIM } else { 0 }];
         let (mlp_grads, grad_features) = mlps.backward(&features, &sh, codes, &saved, &grad_rgb, &grad_sigma, self.cameras.is_some().then_some(&mut grad_sh[..]));
