@@ -14,7 +14,7 @@
 //! cube (and in NDC), steps that grow with distance in a contracted world, as mip-NeRF 360
 //! measures its s in a space where its samples are evenly spread.
 
-use nerf_core::render::compositing::alpha_from_density;
+use nerf_core::render::compositing::{alpha_from_density, RayAccumulator};
 use nerf_core::render::grid::Segment;
 use nerf_core::render::packed::PackedSamples;
 use rayon::prelude::*;
@@ -42,25 +42,28 @@ pub fn step_coordinates(segments: &[Segment], t: &[f32]) -> Vec<f32> {
 }
 
 /// Per ray, the distortion loss of the weights that `sigma` gives `samples` (σ ≤ 0 counts as
-/// empty, as compositing has it).
+/// empty, as compositing has it), every sample standing for an interval of `width` (one
+/// marching step: 1 / the steps in [`step_coordinates`]).
 ///
 /// # Shapes
-/// `sigma`, `s`, `width`: `[n_samples]` → `[n_rays]`.
-pub fn distortion(samples: &PackedSamples, sigma: &[f32], s: &[f32], width: &[f32]) -> Vec<f32> {
-    check_shapes(samples, sigma, s, width);
+/// `sigma`, `s`: `[n_samples]` → `[n_rays]`.
+pub fn distortion(samples: &PackedSamples, sigma: &[f32], s: &[f32], width: f32) -> Vec<f32> {
+    check_shapes(samples, sigma, s);
     (0..samples.n_rays())
         .into_par_iter()
-        .map(|r| {
-            let (mut transmittance, mut weight_before, mut moment_before, mut loss) = (1.0f32, 0.0f32, 0.0f32, 0.0f32);
-            for i in samples.ray(r) {
-                let alpha = alpha_from_density(sigma[i], samples.delta[i]);
-                let w = transmittance * alpha;
-                transmittance *= 1.0 - alpha;
-                loss += 2.0 * w * (s[i] * weight_before - moment_before) + w * w * width[i] / 3.0;
-                weight_before += w;
-                moment_before += w * s[i];
-            }
-            loss
+        .map_init(RayWeights::default, |ray, r| {
+            ray.fill(samples, sigma, r);
+            let (mut weight_before, mut moment_before) = (0.0f32, 0.0f32);
+            samples
+                .ray(r)
+                .zip(&ray.weights)
+                .map(|(i, &w)| {
+                    let loss = 2.0 * w * (s[i] * weight_before - moment_before) + w * w * width / 3.0;
+                    weight_before += w;
+                    moment_before += w * s[i];
+                    loss
+                })
+                .sum()
         })
         .collect()
 }
@@ -70,32 +73,25 @@ pub fn distortion(samples: &PackedSamples, sigma: &[f32], s: &[f32], width: &[f3
 ///
 /// # Shapes
 /// `grad_loss`: `[n_rays]` → `[n_samples]`.
-pub fn distortion_backward(samples: &PackedSamples, sigma: &[f32], s: &[f32], width: &[f32], grad_loss: &[f32]) -> Vec<f32> {
-    check_shapes(samples, sigma, s, width);
+pub fn distortion_backward(samples: &PackedSamples, sigma: &[f32], s: &[f32], width: f32, grad_loss: &[f32]) -> Vec<f32> {
+    check_shapes(samples, sigma, s);
     assert_eq!(grad_loss.len(), samples.n_rays(), "one loss gradient per ray");
     let per_ray: Vec<Vec<f32>> = (0..samples.n_rays())
         .into_par_iter()
-        .map(|r| {
+        .map_init(RayWeights::default, |ray, r| {
+            ray.fill(samples, sigma, r);
             let range = samples.ray(r);
-            // Weights and the light left behind each sample.
-            let (mut weights, mut after) = (Vec::with_capacity(range.len()), Vec::with_capacity(range.len()));
-            let mut transmittance = 1.0f32;
-            for i in range.clone() {
-                let alpha = alpha_from_density(sigma[i], samples.delta[i]);
-                weights.push(transmittance * alpha);
-                transmittance *= 1.0 - alpha;
-                after.push(transmittance);
-            }
+            let weights = &ray.weights;
             // ∂L/∂wₖ = 2(sₖWₖ − Pₖ + (P_total − Pₖ − wₖsₖ) − sₖ(W_total − Wₖ − wₖ)) + ⅔wₖhₖ.
-            let (total_weight, total_moment) = range.clone().zip(&weights).fold((0.0f32, 0.0f32), |(a, b), (i, &w)| (a + w, b + w * s[i]));
+            let (total_weight, total_moment) = range.clone().zip(weights).fold((0.0f32, 0.0f32), |(a, b), (i, &w)| (a + w, b + w * s[i]));
             let (mut weight_before, mut moment_before) = (0.0f32, 0.0f32);
             let grad_weight: Vec<f32> = range
                 .clone()
-                .zip(&weights)
+                .zip(weights)
                 .map(|(i, &w)| {
                     let weight_after = total_weight - weight_before - w;
                     let moment_after = total_moment - moment_before - w * s[i];
-                    let g = 2.0 * (s[i] * weight_before - moment_before + moment_after - s[i] * weight_after) + 2.0 / 3.0 * w * width[i];
+                    let g = 2.0 * (s[i] * weight_before - moment_before + moment_after - s[i] * weight_after) + 2.0 / 3.0 * w * width;
                     weight_before += w;
                     moment_before += w * s[i];
                     g * grad_loss[r]
@@ -106,7 +102,7 @@ pub fn distortion_backward(samples: &PackedSamples, sigma: &[f32], s: &[f32], wi
             let mut grad_sigma = vec![0.0f32; range.len()];
             for (k, i) in range.enumerate().rev() {
                 if sigma[i] > 0.0 {
-                    grad_sigma[k] = samples.delta[i] * (after[k] * grad_weight[k] - behind);
+                    grad_sigma[k] = samples.delta[i] * (ray.after[k] * grad_weight[k] - behind);
                 }
                 behind += weights[k] * grad_weight[k];
             }
@@ -116,10 +112,29 @@ pub fn distortion_backward(samples: &PackedSamples, sigma: &[f32], s: &[f32], wi
     per_ray.concat()
 }
 
-fn check_shapes(samples: &PackedSamples, sigma: &[f32], s: &[f32], width: &[f32]) {
+/// One ray's compositing weights and the light left after each sample, as compositing's
+/// [`RayAccumulator`] gives them, in buffers reused ray to ray.
+#[derive(Default)]
+struct RayWeights {
+    weights: Vec<f32>,
+    after: Vec<f32>,
+}
+
+impl RayWeights {
+    fn fill(&mut self, samples: &PackedSamples, sigma: &[f32], r: usize) {
+        let mut ray = RayAccumulator::default();
+        self.weights.clear();
+        self.after.clear();
+        for i in samples.ray(r) {
+            self.weights.push(ray.add(alpha_from_density(sigma[i], samples.delta[i]), [0.0; 3], 0.0));
+            self.after.push(ray.transmittance());
+        }
+    }
+}
+
+fn check_shapes(samples: &PackedSamples, sigma: &[f32], s: &[f32]) {
     assert_eq!(sigma.len(), samples.t.len(), "one density per sample");
     assert_eq!(s.len(), samples.t.len(), "one distance per sample");
-    assert_eq!(width.len(), samples.t.len(), "one width per sample");
 }
 
 #[cfg(test)]
@@ -135,12 +150,12 @@ mod tests {
         // 2·0.5·0.25·0.4 + ⅓(0.25·0.2 + 0.0625·0.2) = 0.1 + 0.0625/3.
         let samples = PackedSamples { t: vec![1.0, 2.0], delta: vec![1.0, 1.0], offsets: vec![0, 2, 2] };
         let sigma = [2f32.ln(); 2];
-        let loss = distortion(&samples, &sigma, &[0.1, 0.5], &[0.2, 0.2]);
+        let loss = distortion(&samples, &sigma, &[0.1, 0.5], 0.2);
         assert!((loss[0] - (0.1 + 0.0625 / 3.0)).abs() < 1e-6, "{loss:?}");
         // An empty ray costs nothing; one opaque sample costs ⅓h.
         assert_eq!(loss[1], 0.0);
         let one = PackedSamples { t: vec![1.0], delta: vec![100.0], offsets: vec![0, 1] };
-        assert!((distortion(&one, &[1.0], &[0.3], &[0.03])[0] - 0.01).abs() < 1e-6);
+        assert!((distortion(&one, &[1.0], &[0.3], 0.03)[0] - 0.01).abs() < 1e-6);
     }
 
     #[test]
@@ -148,8 +163,8 @@ mod tests {
         // Two samples of α 0.5, close together and far apart: the far pair is a floater.
         let samples = PackedSamples { t: vec![1.0, 2.0], delta: vec![1.0, 1.0], offsets: vec![0, 2] };
         let sigma = [2f32.ln(); 2];
-        let near = distortion(&samples, &sigma, &[0.5, 0.51], &[0.01; 2])[0];
-        let far = distortion(&samples, &sigma, &[0.1, 0.51], &[0.01; 2])[0];
+        let near = distortion(&samples, &sigma, &[0.5, 0.51], 0.01)[0];
+        let far = distortion(&samples, &sigma, &[0.1, 0.51], 0.01)[0];
         assert!(far > 10.0 * near, "{near} {far}");
     }
 
@@ -167,10 +182,10 @@ mod tests {
         let n = samples.t.len();
         let sigma: Vec<f32> = (0..n).map(|_| 4.0 * rng.uniform() - 0.5).collect();
         let s: Vec<f32> = samples.t.iter().map(|t| (t - 0.9) / 3.0 + 0.01 * rng.uniform()).collect();
-        let width: Vec<f32> = (0..n).map(|_| 0.1 + 0.2 * rng.uniform()).collect();
+        let width = 0.15;
         let g: Vec<f32> = (0..samples.n_rays()).map(|_| rng.uniform() - 0.3).collect();
-        let loss = |sigma: &[f32]| distortion(&samples, sigma, &s, &width).iter().zip(&g).map(|(l, g)| *l as f64 * *g as f64).sum::<f64>();
-        let grad = distortion_backward(&samples, &sigma, &s, &width, &g);
+        let loss = |sigma: &[f32]| distortion(&samples, sigma, &s, width).iter().zip(&g).map(|(l, g)| *l as f64 * *g as f64).sum::<f64>();
+        let grad = distortion_backward(&samples, &sigma, &s, width, &g);
         let h = 1e-2f32;
         let mut checked = 0;
         for i in 0..n {

@@ -248,9 +248,8 @@ impl FieldTrainer for NgpTrainer {
             // λ · the mean over rays of each ray's distortion, distances in marching steps.
             let segments = march_segments(s.near, s.far, self.config.march_steps, self.occupancy.contraction());
             let steps: usize = segments.iter().map(|s| s.steps).sum();
-            let width = vec![1.0 / steps as f32; n];
             let grad_loss = vec![self.config.distortion_loss / rays.len() as f32; rays.len()];
-            let grad = distortion_backward(&samples, &sigma, &step_coordinates(&segments, &samples.t), &width, &grad_loss);
+            let grad = distortion_backward(&samples, &sigma, &step_coordinates(&segments, &samples.t), 1.0 / steps as f32, &grad_loss);
             grad_sigma.iter_mut().zip(grad).for_each(|(g, d)| *g += d);
         }
         let forward_done = Instant::now();
