@@ -129,6 +129,8 @@ fn a_capture_trains_evaluates_and_renders_through_its_recorded_placement() {
     // near/far of a capture without bounds: 1.5/30 to 0.5 + √3·1.5, also in config.toml.
     let config = RunDir::open(&run).unwrap().read_config().unwrap();
     assert!((config.sampling.near - 0.05).abs() < 1e-6 && (config.sampling.far - (0.5 + 1.5 * 3f32.sqrt())).abs() < 1e-4);
+    // Photos in the world train with the distortion loss against floaters.
+    assert_eq!(config.distortion_loss, Some(nerf::config::CAPTURE_DISTORTION_LOSS));
     // The orbit circles the cameras around the centre.
     let Some(CameraPath::Circle(orbit)) = placement.orbit else { panic!("{:?}", placement.orbit) };
     assert!(Vec3::from(orbit.target).length() < 1e-3);
@@ -262,6 +264,8 @@ fn a_forward_facing_capture_trains_on_ndc_rays_and_renders_alike_everywhere() {
     assert_eq!((config.sampling.near, config.sampling.far), (0.0, 1.0));
     assert_eq!((ndc.width, ndc.height, ndc.fx, ndc.near), (40.0, 30.0, 36.0, 1.0));
     assert_eq!(config.train_background, Some(nerf_core::dataset::Background::Random));
+    // NDC rays lost with the distortion loss (fern): off.
+    assert_eq!(config.distortion_loss, Some(0.0));
     let placement = RunDir::open(&run).unwrap().read_source().unwrap().unwrap().placement.unwrap();
     assert_eq!(placement.ndc, Some(ndc));
     assert!(matches!(placement.orbit, Some(CameraPath::Spiral(_))), "{:?}", placement.orbit);
@@ -294,7 +298,8 @@ fn a_forward_facing_capture_trains_on_ndc_rays_and_renders_alike_everywhere() {
     assert!(ok && dir.path().join("orbit/orbit.gif").is_file(), "{text}");
     let cube = dir.path().join("cube");
     train_capture(&data, &cube, 2, Some(false));
-    assert_eq!(RunDir::open(&cube).unwrap().read_config().unwrap().sampling.ndc, None);
+    let config = RunDir::open(&cube).unwrap().read_config().unwrap();
+    assert_eq!((config.sampling.ndc, config.distortion_loss), (None, Some(nerf::config::CAPTURE_DISTORTION_LOSS)));
 }
 
 #[test]

@@ -224,6 +224,8 @@ fn a_new_run_trains_rgba_scenes_on_random_backgrounds_and_opaque_ones_on_white()
     let rgba = dir.path().join("rgba");
     train_tiny(&scene, &rgba, 2);
     assert_eq!(background(&rgba), Some(Background::Random));
+    // A Blender scene trains without the distortion loss (lego lost with it).
+    assert_eq!(RunDir::open(&rgba).unwrap().read_config().unwrap().distortion_loss, Some(0.0));
     // The same scene with its background painted white into RGB images: an empty ray on white
     // explains those pixels.
     for split in ["train", "val", "test"] {
@@ -246,6 +248,20 @@ fn a_new_run_trains_rgba_scenes_on_random_backgrounds_and_opaque_ones_on_white()
     let config = TrainConfig { train_background: Some(Background::Black), white_background: false, ..tiny_ngp() };
     train(&TrainOptions { format: None, data: scene.clone(), run: black.clone(), config, ndc: None, contract: None, downscale: 1, time_budget_min: None, iters: Some(2), progress: false }).unwrap();
     assert_eq!(background(&black), Some(Background::Black));
+}
+
+#[test]
+fn the_distortion_weight_reaches_the_trainer() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = small_scene(dir.path());
+    let grid = |weight: f32| {
+        let run = dir.path().join(format!("distortion-{weight}"));
+        let config = TrainConfig { distortion_loss: Some(weight), ..tiny_ngp() };
+        train(&TrainOptions { format: None, data: scene.clone(), run: run.clone(), config, ndc: None, contract: None, downscale: 1, time_budget_min: None, iters: Some(30), progress: false }).unwrap();
+        assert_eq!(RunDir::open(&run).unwrap().read_config().unwrap().distortion_loss, Some(weight), "a set weight is kept");
+        std::fs::read(run.join("checkpoints/step-0000030").join(nerf::field::ngp::GRID_FILE)).unwrap()
+    };
+    assert!(grid(0.0) != grid(0.1), "distortion_loss changed nothing");
 }
 
 fn assert_same_field(straight: &Path, resumed: &Path) {

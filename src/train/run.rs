@@ -210,6 +210,16 @@ fn start_or_resume(run: &RunDir, options: &TrainOptions) -> Result<(Box<dyn Fiel
         let space = if placement.ndc.is_some() { "NDC rays" } else { "the field's frame" };
         eprintln!("{} capture: near {near:.4}, far {far:.4} in {space} (scale {:.4})", placement.format, placement.transform.scale);
     }
+    if config.distortion_loss.is_none() {
+        // Photos marched in the world (a 360° capture, in the cube or contracted) train against
+        // floaters; Blender scenes and NDC rays lost with it. A run from before the key resumes
+        // as it started, without it.
+        let world_photos = format != CaptureFormat::Blender && placement.ndc.is_none();
+        config.distortion_loss = Some(if checkpoint.is_none() { config.decided_distortion_loss(world_photos) } else { 0.0 });
+        if config.distortion_weight() > 0.0 {
+            eprintln!("distortion loss {} against floaters (photos in the world; distortion_loss = 0 in a --config file turns it off)", config.distortion_weight());
+        }
+    }
     if config.refine_cameras && placement.ndc.is_some() {
         let problem = "camera refinement corrects rays in the world, and this capture trains on NDC rays (forward-facing): train with --ndc false, or without --refine-cameras";
         return Err(Error::invalid(&options.data, problem));

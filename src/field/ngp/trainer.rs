@@ -244,11 +244,12 @@ impl FieldTrainer for NgpTrainer {
         let (colors, _) = composite_packed(&samples, &sigma, &rgb, &backgrounds);
         let (mse, grad_color) = mean_squared_error(&colors, &targets);
         let (mut grad_sigma, grad_rgb) = composite_packed_backward(&samples, &sigma, &rgb, &backgrounds, &grad_color);
-        if self.config.distortion_loss > 0.0 {
+        let distortion = self.config.distortion_weight();
+        if distortion > 0.0 {
             // λ · the mean over rays of each ray's distortion, distances in marching steps.
             let segments = march_segments(s.near, s.far, self.config.march_steps, self.occupancy.contraction());
             let steps: usize = segments.iter().map(|s| s.steps).sum();
-            let grad_loss = vec![self.config.distortion_loss / rays.len() as f32; rays.len()];
+            let grad_loss = vec![distortion / rays.len() as f32; rays.len()];
             let grad = distortion_backward(&samples, &sigma, &step_coordinates(&segments, &samples.t), 1.0 / steps as f32, &grad_loss);
             grad_sigma.iter_mut().zip(grad).for_each(|(g, d)| *g += d);
         }
