@@ -4,10 +4,11 @@
 //! something even where it fits the photos.
 //!
 //! For one ray with weights wᵢ (as [`composite_packed`](super::packed::composite_packed) makes
-//! them) at normalised distances sᵢ, each standing for an interval of width hᵢ:
-//! L = Σᵢ Σⱼ wᵢwⱼ|sᵢ − sⱼ| + ⅓ Σᵢ wᵢ²hᵢ (Barron et al. 2022, eq. 15; nerfacto's and nerfacc's).
+//! them) at normalised distances sᵢ, each standing for an interval of the same width h (one
+//! marching step): L = Σᵢ Σⱼ wᵢwⱼ|sᵢ − sⱼ| + ⅓ Σᵢ wᵢ²h (Barron et al. 2022, eq. 15, where each
+//! interval has a width of its own; nerfacto's and nerfacc's).
 //! Samples are front to back, so the double sum is 2 Σᵢ wᵢ (sᵢ·Wᵢ − Pᵢ) with Wᵢ, Pᵢ the sums of
-//! wⱼ and wⱼsⱼ over j < i: O(n) a ray. Then ∂L/∂wₖ = 2 Σⱼ wⱼ|sₖ − sⱼ| + ⅔ wₖhₖ, and through
+//! wⱼ and wⱼsⱼ over j < i: O(n) a ray. Then ∂L/∂wₖ = 2 Σⱼ wⱼ|sₖ − sⱼ| + ⅔ wₖh, and through
 //! wᵢ = Tᵢαᵢ, ∂L/∂σₖ = δₖ·(Tₖ₊₁·∂L/∂wₖ − Σ₍ᵢ>ₖ₎ wᵢ·∂L/∂wᵢ), the same shape as the colour's.
 //!
 //! Distances are in marching steps ([`step_coordinates`]): uniform steps along the ray in the
@@ -82,7 +83,7 @@ pub fn distortion_backward(samples: &PackedSamples, sigma: &[f32], s: &[f32], wi
             ray.fill(samples, sigma, r);
             let range = samples.ray(r);
             let weights = &ray.weights;
-            // ∂L/∂wₖ = 2(sₖWₖ − Pₖ + (P_total − Pₖ − wₖsₖ) − sₖ(W_total − Wₖ − wₖ)) + ⅔wₖhₖ.
+            // ∂L/∂wₖ = 2(sₖWₖ − Pₖ + (P_total − Pₖ − wₖsₖ) − sₖ(W_total − Wₖ − wₖ)) + ⅔wₖh.
             let (total_weight, total_moment) = range.clone().zip(weights).fold((0.0f32, 0.0f32), |(a, b), (i, &w)| (a + w, b + w * s[i]));
             let (mut weight_before, mut moment_before) = (0.0f32, 0.0f32);
             let grad_weight: Vec<f32> = range
