@@ -180,6 +180,32 @@ fn a_capture_trains_evaluates_and_renders_through_its_recorded_placement() {
 }
 
 #[test]
+fn a_run_recorded_without_the_distortion_key_resumes_without_the_loss() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = capture(dir.path());
+    // Three runs alike (seeded) up to step 3; then each resumes to step 6 with `config.toml`
+    // as a run from before the key has it (absent), with 0, and as recorded (0.01).
+    let table_at_6 = |name: &str, recorded: Option<&str>| {
+        let run = dir.path().join(name);
+        train_capture(&data, &run, 3, None);
+        let path = run.join("config.toml");
+        let text = std::fs::read_to_string(&path).unwrap();
+        let line = format!("distortion_loss = {}\n", nerf::config::CAPTURE_DISTORTION_LOSS);
+        assert!(text.contains(&line), "{text}");
+        std::fs::write(&path, text.replace(&line, recorded.unwrap_or(""))).unwrap();
+        train_capture(&data, &run, 6, None);
+        let checkpoint = RunDir::open(&run).unwrap().latest_checkpoint().unwrap().unwrap();
+        assert!(checkpoint.dir.ends_with("step-0000006"), "{}", checkpoint.dir.display());
+        std::fs::read(checkpoint.dir.join("grid.bin")).unwrap()
+    };
+    let absent = table_at_6("absent", None);
+    let off = table_at_6("off", Some("distortion_loss = 0.0\n"));
+    let on = table_at_6("on", Some(&format!("distortion_loss = {}\n", nerf::config::CAPTURE_DISTORTION_LOSS)));
+    assert!(absent == off, "a run recorded without the key resumed with a loss");
+    assert!(absent != on, "the loss left the table unchanged: the test cannot tell");
+}
+
+#[test]
 fn a_capture_without_a_small_scene_box_contracts_by_default() {
     let dir = tempfile::tempdir().unwrap();
     let data = capture(dir.path());
