@@ -196,7 +196,7 @@ fn a_run_recorded_without_the_distortion_key_resumes_without_the_loss() {
         train_capture(&data, &run, 6, None);
         let checkpoint = RunDir::open(&run).unwrap().latest_checkpoint().unwrap().unwrap();
         assert!(checkpoint.dir.ends_with("step-0000006"), "{}", checkpoint.dir.display());
-        std::fs::read(checkpoint.dir.join("grid.bin")).unwrap()
+        std::fs::read(checkpoint.dir.join(nerf::field::ngp::GRID_FILE)).unwrap()
     };
     let absent = table_at_6("absent", None);
     let off = table_at_6("off", Some("distortion_loss = 0.0\n"));
