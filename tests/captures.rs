@@ -129,8 +129,12 @@ fn a_capture_trains_evaluates_and_renders_through_its_recorded_placement() {
     // near/far of a capture without bounds: 1.5/30 to 0.5 + √3·1.5, also in config.toml.
     let config = RunDir::open(&run).unwrap().read_config().unwrap();
     assert!((config.sampling.near - 0.05).abs() < 1e-6 && (config.sampling.far - (0.5 + 1.5 * 3f32.sqrt())).abs() < 1e-4);
-    // Photos in the world train with the distortion loss against floaters.
+    // Photos in the world train with the distortion loss against floaters; in the cube, cells
+    // one camera alone sees stay empty. The test's own march_steps and target_samples (not the
+    // preset's) are kept.
     assert_eq!(config.distortion_loss, Some(nerf::config::CAPTURE_DISTORTION_LOSS));
+    assert_eq!(config.occupancy.min_views, nerf::config::CUBE_CAPTURE.min_views);
+    assert_eq!((config.march_steps, config.target_samples), (tiny_ngp().march_steps, tiny_ngp().target_samples));
     // The orbit circles the cameras around the centre.
     let Some(CameraPath::Circle(orbit)) = placement.orbit else { panic!("{:?}", placement.orbit) };
     assert!(Vec3::from(orbit.target).length() < 1e-3);
@@ -227,6 +231,11 @@ fn a_capture_without_a_small_scene_box_contracts_by_default() {
     assert!(text.contains("contracting the world around the capture") && text.contains("--contract false keeps the cube"), "{text}");
     let (c, text) = contraction("cube", &["--contract", "false"]);
     assert!(c.is_none() && !text.contains("contracting"), "{text}");
+    // The cube's photos march coarser intervals in smaller steps, said so; contracted ones keep
+    // the preset's.
+    let steps = |run: &str| RunDir::open(&dir.path().join(run)).unwrap().read_config().unwrap().march_steps;
+    assert_eq!((steps("cube"), steps("ring")), (nerf::config::CUBE_CAPTURE.march_steps, nerf::config::Preset::Ngp.config().march_steps));
+    assert!(text.contains("photos in the cube: march_steps = 512"), "{text}");
     // An instant-ngp box under 8 bounds the scene (the cube); 16 says the background reaches far.
     let file: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(data.join("transforms.json")).unwrap()).unwrap();
     for (aabb, contracted) in [(4, false), (16, true)] {
@@ -290,8 +299,9 @@ fn a_forward_facing_capture_trains_on_ndc_rays_and_renders_alike_everywhere() {
     assert_eq!((config.sampling.near, config.sampling.far), (0.0, 1.0));
     assert_eq!((ndc.width, ndc.height, ndc.fx, ndc.near), (40.0, 30.0, 36.0, 1.0));
     assert_eq!(config.train_background, Some(nerf_core::dataset::Background::Random));
-    // NDC rays lost with the distortion loss (fern): off.
+    // NDC rays lost with the distortion loss (fern): off, as the cube's settings.
     assert_eq!(config.distortion_loss, Some(0.0));
+    assert_eq!(config.occupancy.min_views, 0);
     let placement = RunDir::open(&run).unwrap().read_source().unwrap().unwrap().placement.unwrap();
     assert_eq!(placement.ndc, Some(ndc));
     assert!(matches!(placement.orbit, Some(CameraPath::Spiral(_))), "{:?}", placement.orbit);

@@ -210,11 +210,20 @@ fn start_or_resume(run: &RunDir, options: &TrainOptions) -> Result<(Box<dyn Fiel
         let space = if placement.ndc.is_some() { "NDC rays" } else { "the field's frame" };
         eprintln!("{} capture: near {near:.4}, far {far:.4} in {space} (scale {:.4})", placement.format, placement.transform.scale);
     }
+    let world_photos = format != CaptureFormat::Blender && placement.ndc.is_none();
+    if checkpoint.is_none() {
+        // Photos in the cube (fox): coarser intervals and smaller steps, haze kept out of what
+        // one camera alone sees. Contracted captures march their own growing segments.
+        let in_the_cube = world_photos && config.occupancy.contraction.is_none();
+        let changed = config.decide_cube_capture(in_the_cube, train.data.views.len());
+        if !changed.is_empty() {
+            eprintln!("photos in the cube: {} (a --config file that sets a key keeps its value)", changed.join(", "));
+        }
+    }
     if config.distortion_loss.is_none() {
         // Photos marched in the world (a 360° capture, in the cube or contracted) train against
         // floaters; Blender scenes and NDC rays lost with it. A run from before the key resumes
         // as it started, without it.
-        let world_photos = format != CaptureFormat::Blender && placement.ndc.is_none();
         config.distortion_loss = Some(if checkpoint.is_none() { config.decided_distortion_loss(world_photos) } else { 0.0 });
         if config.distortion_weight() > 0.0 {
             eprintln!("distortion loss {} against floaters (photos in the world; distortion_loss = 0 in a --config file turns it off)", config.distortion_weight());
