@@ -444,20 +444,20 @@ impl TrainConfig {
             return Vec::new();
         }
         let preset = Preset::Ngp.config();
-        let free = |config: &Self, key: &str| !config.file_keys.iter().any(|k| k == key);
-        let mut changed = Vec::new();
         let CubeCapture { march_steps, target_samples, min_views } = CUBE_CAPTURE;
-        if free(self, "march_steps") && self.march_steps == preset.march_steps {
-            self.march_steps = march_steps;
-            changed.push(format!("march_steps = {march_steps}"));
-        }
-        if free(self, "target_samples") && self.target_samples == preset.target_samples {
-            self.target_samples = target_samples;
-            changed.push(format!("target_samples = {target_samples}"));
-        }
-        if free(self, "occupancy.min_views") && self.occupancy.min_views == preset.occupancy.min_views && training_views >= min_views {
-            self.occupancy.min_views = min_views;
-            changed.push(format!("[occupancy] min_views = {min_views}"));
+        let file_keys = &self.file_keys;
+        let mut changed = Vec::new();
+        // `key` as the file writes it, `label` as the terminal says it.
+        let mut decide = |value: &mut usize, preset: usize, decided: usize, key: &str, label: &str| {
+            if *value == preset && !file_keys.iter().any(|k| k == key) {
+                *value = decided;
+                changed.push(format!("{label} = {decided}"));
+            }
+        };
+        decide(&mut self.march_steps, preset.march_steps, march_steps, "march_steps", "march_steps");
+        decide(&mut self.target_samples, preset.target_samples, target_samples, "target_samples", "target_samples");
+        if training_views >= min_views {
+            decide(&mut self.occupancy.min_views, preset.occupancy.min_views, min_views, "occupancy.min_views", "[occupancy] min_views");
         }
         changed
     }
