@@ -58,8 +58,11 @@ export function levelLayout(c: HashGridConfig, graphLayout: boolean, scales?: Ar
   return levels;
 }
 
-/** The degree-4 harmonics of unit `d` (sh4), into out[at..at + 16]. */
-export function sh4(x: number, y: number, z: number, out: Float32Array, at: number): void {
+/** The degree-4 harmonics of the unit direction dirs[i..i + 3] (sh4), into out[at..at + 16].
+ *  Read from the array rather than passed as three numbers: V8 does not inline this into the
+ *  encoder's loop, and a call boxes each number argument (a scavenge every 20,000 points). */
+export function sh4(dirs: ArrayLike<number>, i: number, out: Float32Array, at: number): void {
+  const x = dirs[i], y = dirs[i + 1], z = dirs[i + 2];
   const c = SH, xy = f(x * y), yz = f(y * z), xz = f(x * z), x2 = f(x * x), y2 = f(y * y), z2 = f(z * z);
   out[at] = c[0];
   out[at + 1] = f(-c[1] * y);
@@ -79,6 +82,18 @@ export function sh4(x: number, y: number, z: number, out: Float32Array, at: numb
   out[at + 15] = f(f(c[6] * x) * f(-x2 + f(3 * y2)));
 }
 
+/** The harmonics (sh4) of `n` unit directions [n, 3] into sh [n, 16]. */
+function sh4Rows(viewdirs: Float32Array, n: number, sh: Float32Array): void {
+  for (let i = 0; i < n; i++) sh4(viewdirs, 3 * i, sh, SH4_DIM * i);
+}
+
+/** A dense level's entry e < 2·entries modulo entries: one subtraction (the graph's padded rows
+ *  hold the same value there too). At module level: a closure made in the per-point loop is an
+ *  object per point that V8 does not elide (a scavenge every few thousand points). */
+function wrap(e: number, entries: number): number {
+  return e >= entries ? e - entries : e;
+}
+
 /** A graph's hash grid and the box it covers (GridBound), evaluated as the Rust encoding. */
 export class HashEncoder {
   /** Features per point, L·F. */
@@ -94,16 +109,24 @@ export class HashEncoder {
    *  world `points` [n, 3] and unit `viewdirs` [n, 3]. */
   encode(points: Float32Array, viewdirs: Float32Array, n: number, features: Float32Array, sh: Float32Array): void {
     if (this.unit.length < 3 * n) this.unit = new Float32Array(3 * n);
-    const unit = this.unit, [m0, m1, m2] = this.min, [s0, s1, s2] = this.scale;
-    // GridBound::to_unit: contracted first where the field is, then (p − min)·scale.
-    for (let i = 0; i < n; i++) {
-      let x = points[3 * i], y = points[3 * i + 1], z = points[3 * i + 2];
-      if (this.contracted) { const k = contractionFactor(x, y, z); x = f(x * k); y = f(y * k); z = f(z * k); }
-      unit[3 * i] = f(f(x - m0) * s0); unit[3 * i + 1] = f(f(y - m1) * s1); unit[3 * i + 2] = f(f(z - m2) * s2);
-    }
+    this.toUnit(points, n);
     // Level by level, so a level's part of the table is reused from cache across the points.
     for (let l = 0; l < this.levels.length; l++) this.encodeLevel(l, n, features);
-    for (let i = 0; i < n; i++) sh4(viewdirs[3 * i], viewdirs[3 * i + 1], viewdirs[3 * i + 2], sh, SH4_DIM * i);
+    sh4Rows(viewdirs, n, sh);
+  }
+
+  /** GridBound::to_unit of `points` [n, 3] into this.unit: contracted first where the field is,
+   *  then (p − min)·scale. Each loop of encode is a function of its own, for the reason
+   *  render.ts's alphaPass gives (chromium's --trace-deopt: encode's compiled first loop fell out
+   *  at the levels' loop 14 to 38 times in four lego-ngp frames). */
+  private toUnit(points: Float32Array, n: number): void {
+    const unit = this.unit, m0 = this.min[0], m1 = this.min[1], m2 = this.min[2], s0 = this.scale[0], s1 = this.scale[1], s2 = this.scale[2];
+    const contracted = this.contracted;
+    for (let i = 0; i < n; i++) {
+      let x = points[3 * i], y = points[3 * i + 1], z = points[3 * i + 2];
+      if (contracted) { const k = contractionFactor(x, y, z); x = f(x * k); y = f(y * k); z = f(z * k); }
+      unit[3 * i] = f(f(x - m0) * s0); unit[3 * i + 1] = f(f(y - m1) * s1); unit[3 * i + 2] = f(f(z - m2) * s2);
+    }
   }
 
   /** One level of every point (grid.rs corners and forward_level), the 8 corners unrolled. */
@@ -127,11 +150,8 @@ export class HashEncoder {
       const k0 = w00 * gz, k1 = w10 * gz, k2 = w01 * gz, k3 = w11 * gz, k4 = w00 * fz, k5 = w10 * fz, k6 = w01 * fz, k7 = w11 * fz;
       let e0, e1, e2, e3, e4, e5, e6, e7;
       if (dense) {
-        // Below 2·entries: one subtraction is the modulo (the graph's padded rows hold the
-        // same value there too).
-        const wrap = (e: number) => (e >= entries ? e - entries : e);
-        e0 = wrap(x0 + y0 + z0); e1 = wrap(x1 + y0 + z0); e2 = wrap(x0 + y1 + z0); e3 = wrap(x1 + y1 + z0);
-        e4 = wrap(x0 + y0 + z1); e5 = wrap(x1 + y0 + z1); e6 = wrap(x0 + y1 + z1); e7 = wrap(x1 + y1 + z1);
+        e0 = wrap(x0 + y0 + z0, entries); e1 = wrap(x1 + y0 + z0, entries); e2 = wrap(x0 + y1 + z0, entries); e3 = wrap(x1 + y1 + z0, entries);
+        e4 = wrap(x0 + y0 + z1, entries); e5 = wrap(x1 + y0 + z1, entries); e6 = wrap(x0 + y1 + z1, entries); e7 = wrap(x1 + y1 + z1, entries);
       } else {
         e0 = (x0 ^ y0 ^ z0) & mask; e1 = (x1 ^ y0 ^ z0) & mask; e2 = (x0 ^ y1 ^ z0) & mask; e3 = (x1 ^ y1 ^ z0) & mask;
         e4 = (x0 ^ y0 ^ z1) & mask; e5 = (x1 ^ y0 ^ z1) & mask; e6 = (x0 ^ y1 ^ z1) & mask; e7 = (x1 ^ y1 ^ z1) & mask;

@@ -133,6 +133,14 @@ function slab(ox: number, oy: number, oz: number, dx: number, dy: number, dz: nu
   slabEnter = enter; slabLeave = leave;
 }
 
+/** t of each step's middle, near + (k + 0.5)·interval in f32, k < steps. A function of its own
+ *  for the reason render.ts's alphaPass gives. */
+function stepMiddles(near: number, interval: number, steps: number): Float32Array {
+  const t = new Float32Array(steps);
+  for (let k = 0; k < steps; k++) t[k] = f(near + f(f(k + 0.5) * interval));
+  return t;
+}
+
 /** What renderMarch asks of a march over every ray: `t[k]` of each step k (over all segments),
  *  `cursor[r]` the next step ray r tests, `end[r]` one past its last, and `next` (see RayMarch). */
 export interface Marcher {
@@ -164,8 +172,7 @@ export class RayMarch implements Marcher {
   constructor(private readonly grid: Grid, private readonly o: Float32Array, private readonly d: Float32Array,
     private readonly near: number, private readonly interval: number, private readonly steps: number) {
     const n = o.length / 3;
-    this.t = new Float32Array(steps);
-    for (let k = 0; k < steps; k++) this.t[k] = f(near + f(f(k + 0.5) * interval));
+    this.t = stepMiddles(near, interval, steps);
     this.cursor = new Int32Array(n); this.end = new Int32Array(n); this.margin = new Float64Array(n);
     this.occupiedUntil = new Int32Array(n);
     ({ octant: this.octant, cubes: this.cubes } = raysCubes(grid, d));

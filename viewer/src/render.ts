@@ -183,7 +183,7 @@ interface Ring { head: number; queued: number; points: number }
 /** Gather the next occupied samples of as many queued rays as fit in one field call (each at
  *  most `chunk`, MAX_POINTS in all): positions into `pts`, view directions into `dirs`, steps
  *  into `ks`; the rays and their counts into `rays`, `counts`. Rays with no samples left leave
- *  the queue. Returns how many rays; `ring.points` the samples. A plain function, as compositeCall. */
+ *  the queue. Returns how many rays; `ring.points` the samples. A plain function, as sumPass. */
 function gatherCall(march: Marcher, vd: Float32Array, chunk: number, queue: Int32Array, ring: Ring, pts: Float32Array,
   dirs: Float32Array, ks: Int32Array, rays: Int32Array, counts: Int32Array): number {
   const n = queue.length;
@@ -209,27 +209,36 @@ interface MarchState {
   alphas: Float32Array;
 }
 
-/** Composite one field call's samples (`counts[q]` for ray `rays[q]`, q < `batch`, their steps
- *  in `ks`) into their rays in order, with RayAccumulator's float32 arithmetic; the segment count
- *  runs over a ray's occupied samples, and a ray stops after the segment where its
- *  transmittance falls below the threshold, or after its last. The rays that go on join the
- *  queue (ring of `queue.length`, from `head`); returns its new length. A plain function rather
- *  than part of renderMarch's async loop: V8 optimises a hot loop of a function it has called a
- *  few times, while one inside an async function waits for that function's own optimisation
- *  (a page's first frame composited at half speed). */
-function compositeCall(st: MarchState, sig: Float32Array, col: Float32Array, ks: Int32Array, rays: Int32Array,
-  counts: Int32Array, batch: number, head: number, queued: number): number {
-  const { rgb, depth, acc, trans, done, stepLen, dNorm, t, stepInterval, cursor, end, queue, segment, minTransmittance } = st;
-  const n = queue.length, alphas = st.alphas;
-  // α of every sample first, in a loop of its own (a quarter off compositing's time in a Node
-  // replay), then the sums, which need them in order.
+/** α of one field call's samples (`counts[q]` for ray `rays[q]`, q < `batch`, their steps in
+ *  `ks`) into `st.alphas`: compositing's first pass. Each hot loop around the field is a
+ *  function of its own (here, in march.ts and hashgrid.ts): V8 compiles a long loop alone during
+ *  a first call (on-stack replacement), before the code after it has run; later calls enter that
+ *  code again and fall out of it where the next loop starts, until the whole function is
+ *  compiled (Node's --trace-deopt on a replayed lego-ngp frame: at the sums' loop 2 to 50 times
+ *  in the first two frames, when α and the sums were one function). */
+function alphaPass(st: MarchState, sig: Float32Array, ks: Int32Array, rays: Int32Array, counts: Int32Array, batch: number): void {
+  const { stepLen, dNorm, stepInterval, alphas } = st;
   let p = 0;
   for (let q = 0; q < batch; q++) {
     const r = rays[q], e = p + counts[q], len = stepLen[r], dn = dNorm[r];
     if (stepInterval === null) for (; p < e; p++) alphas[p] = f(1 - f(expAlpha(f(-Math.max(sig[p], 0) * len))));
     else for (; p < e; p++) alphas[p] = f(1 - f(expAlpha(f(-Math.max(sig[p], 0) * f(stepInterval[ks[p]] * dn)))));
   }
-  p = 0;
+}
+
+/** Composite one field call's samples (`counts[q]` for ray `rays[q]`, q < `batch`, their steps
+ *  in `ks`, their α from alphaPass) into their rays in order, with RayAccumulator's float32
+ *  arithmetic; the segment count runs over a ray's occupied samples, and a ray stops after the
+ *  segment where its transmittance falls below the threshold, or after its last. The rays that
+ *  go on join the queue (ring of `queue.length`, from `head`); returns its new length. A plain
+ *  function rather than part of renderMarch's async loop: V8 optimises a hot loop of a function
+ *  it has called a few times, while one inside an async function waits for that function's own
+ *  optimisation (a page's first frame composited at half speed). */
+function sumPass(st: MarchState, col: Float32Array, ks: Int32Array, rays: Int32Array,
+  counts: Int32Array, batch: number, head: number, queued: number): number {
+  const { rgb, depth, acc, trans, done, t, cursor, end, queue, segment, minTransmittance } = st;
+  const n = queue.length, alphas = st.alphas;
+  let p = 0;
   for (let q = 0; q < batch; q++) {
     const r = rays[q], p0 = p;
     let T = trans[r], stopped = false, cr = rgb[3 * r], cg = rgb[3 * r + 1], cb = rgb[3 * r + 2], z = depth[r], a = acc[r], nd = done[r];
@@ -257,6 +266,26 @@ function compositeCall(st: MarchState, sig: Float32Array, col: Float32Array, ks:
   return queued;
 }
 
+/** Per ray of directions `d` [n, 3]: |d| into dNorm, a step's length interval·|d| into stepLen. */
+function rayLengths(d: Float32Array, interval: number, dNorm: Float32Array, stepLen: Float32Array): void {
+  for (let r = 0; r < dNorm.length; r++) {
+    dNorm[r] = norm3(d[3 * r], d[3 * r + 1], d[3 * r + 2]);
+    stepLen[r] = f(interval * dNorm[r]);
+  }
+}
+
+/** The rays with steps left (cursor < end) into `queue`, in order; returns how many. */
+function queueLive(cursor: Int32Array, end: Int32Array, queue: Int32Array): number {
+  let queued = 0;
+  for (let r = 0; r < cursor.length; r++) if (cursor[r] < end[r]) queue[queued++] = r;
+  return queued;
+}
+
+/** A white background: each ray's rgb + (1 − acc). */
+function addWhite(rgb: Float32Array, acc: Float32Array): void {
+  for (let r = 0; r < acc.length; r++) { const bg = f(1 - acc[r]); for (let a = 0; a < 3; a++) rgb[3 * r + a] = f(rgb[3 * r + a] + bg); }
+}
+
 /** march(): march_steps equal intervals over [near, far] (a contracted grid: the segments of
  *  contraction.ts's marchSegments, δ of each sample its segment's), a sample at each middle, only samples in
  *  occupied cells evaluated (marched lazily with empty-space skipping, see march.ts), front to
@@ -279,14 +308,10 @@ export async function renderMarch(s: Sampling, steps: number, white: boolean, gr
   const stepInterval = march instanceof ContractedMarch ? march.interval : null;
   const rgb = new Float32Array(3 * n), depth = new Float32Array(n), acc = new Float32Array(n);
   const done = new Int32Array(n), trans = new Float32Array(n).fill(1), stepLen = new Float32Array(n), dNorm = new Float32Array(n);
-  for (let r = 0; r < n; r++) {
-    dNorm[r] = norm3(d[3 * r], d[3 * r + 1], d[3 * r + 2]);
-    stepLen[r] = f(interval * dNorm[r]);
-  }
+  rayLengths(d, interval, dNorm, stepLen);
   // A ring of the rays waiting for their next samples: each ray is in it at most once.
   const queue = new Int32Array(Math.max(n, 1));
-  const ring: Ring = { head: 0, queued: 0, points: 0 };
-  for (let r = 0; r < n; r++) if (cursor[r] < end[r]) queue[ring.queued++] = r;
+  const ring: Ring = { head: 0, queued: queueLive(cursor, end, queue), points: 0 };
   const pts = new Float32Array(3 * MAX_POINTS), dirs = new Float32Array(3 * MAX_POINTS), ks = new Int32Array(MAX_POINTS);
   const rays = new Int32Array(MAX_POINTS), counts = new Int32Array(MAX_POINTS);
   const alphas = new Float32Array(MAX_POINTS);
@@ -301,12 +326,13 @@ export async function renderMarch(s: Sampling, steps: number, white: boolean, gr
     const out = await field(pts.subarray(0, 3 * m), dirs.subarray(0, 3 * m), m);
     points += m;
     t0 = performance.now();
-    ring.queued = compositeCall(state, out.sigma, out.rgb, ks, rays, counts, batch, ring.head, ring.queued);
+    alphaPass(state, out.sigma, ks, rays, counts, batch);
+    ring.queued = sumPass(state, out.rgb, ks, rays, counts, batch, ring.head, ring.queued);
     t1 = performance.now();
     clock.compositeMs += t1 - t0;
     t0 = t1;
   }
-  if (white) for (let r = 0; r < n; r++) { const bg = f(1 - acc[r]); for (let a = 0; a < 3; a++) rgb[3 * r + a] = f(rgb[3 * r + a] + bg); }
+  if (white) addWhite(rgb, acc);
   if (timing) { timing.marchMs += clock.marchMs + performance.now() - t0; timing.compositeMs += clock.compositeMs; }
   return { rgb, depth, acc, points };
 }

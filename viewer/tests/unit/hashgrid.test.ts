@@ -81,11 +81,11 @@ describe("HashEncoder", () => {
 describe("sh4", () => {
   it("gives the degree-4 harmonics of +z and +x", () => {
     const out = new Float32Array(SH4_DIM);
-    sh4(0, 0, 1, out, 0);
+    sh4([0, 0, 1], 0, out, 0);
     const c = [0.2820948, 0.4886025, 1.0925484, 0.9461747, 0.31539157, 0.5462742, 0.5900436, 2.8906114, 0.4570458, 0.3731763, 1.4453057].map(Math.fround);
     // Signed zeros as IEEE products give them (0·(1 − 5) = −0 at 11 and 13).
     expect(Array.from(out)).toEqual([c[0], -0, c[1], -0, 0, -0, Math.fround(c[3] - c[4]), -0, 0, 0, 0, -0, Math.fround(2 * c[9]), -0, 0, 0]);
-    sh4(1, 0, 0, out, 0);
+    sh4([1, 0, 0], 0, out, 0);
     // x = 1: −c1·x at 3, c5·x² at 8, c8·x·(1 − 0) at 13, c6·x·(−x²) at 15, −c4 at 6.
     expect([out[3], out[6], out[8], out[13], out[15]]).toEqual([-c[1], -c[4], c[5], c[8], -c[6]]);
   });
