@@ -8,7 +8,7 @@ import { join } from "node:path";
 import { describe, expect, it } from "vitest";
 import { checkGridContraction, checkScene, isContracted, parseGrid, wholeBox } from "../../src/bundle";
 import { norm3 } from "../../src/camera";
-import { ContractedMarch } from "../../src/contracted";
+import { ContractedMarch } from "../../src/marcher";
 import { MAX_SEGMENTS, type Segment, contract, marchSegments } from "../../src/contraction";
 import { type Grid, isOccupied } from "../../src/march";
 import { type Field, renderMarch } from "../../src/render";

@@ -2,7 +2,7 @@
 // isOccupied, sample for sample, bit for bit (as core/src/render/grid.rs's tests).
 import { describe, expect, it } from "vitest";
 import { CORNER_SIDES, type Grid, OCCUPIED_CUBE, cornerReach, isOccupied } from "../../src/march";
-import { RayMarch } from "../../src/march";
+import { RayMarch } from "../../src/marcher";
 
 const f = Math.fround;
 
