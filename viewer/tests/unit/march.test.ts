@@ -2,7 +2,7 @@
 // isOccupied, sample for sample, bit for bit (as core/src/render/grid.rs's tests).
 import { describe, expect, it } from "vitest";
 import { CORNER_SIDES, type Grid, OCCUPIED_CUBE, cornerReach, isOccupied } from "../../src/march";
-import { RayMarch } from "../../src/marcher";
+import { MarchWasm, RayMarch } from "../../src/marcher";
 
 const f = Math.fround;
 
@@ -39,8 +39,9 @@ function everyInterval(g: Grid, o: Float32Array, d: Float32Array, near: number, 
 }
 
 /** The marcher's steps per ray, asked for `chunk` at a time (resumed), with the positions it wrote checked. */
-function marched(g: Grid, o: Float32Array, d: Float32Array, near: number, interval: number, steps: number, chunk: number) {
-  const m = new RayMarch(g, o, d, near, interval, steps), pts = new Float32Array(3 * chunk), ks = new Int32Array(chunk);
+function marched(g: Grid, o: Float32Array, d: Float32Array, near: number, interval: number, steps: number, chunk: number,
+  wasm = new MarchWasm()) {
+  const m = new RayMarch(g, o, d, near, interval, steps, wasm), pts = new Float32Array(3 * chunk), ks = new Int32Array(chunk);
   const out: number[][] = [];
   for (let r = 0; r < o.length / 3; r++) {
     const all: number[] = [];
@@ -58,10 +59,10 @@ function marched(g: Grid, o: Float32Array, d: Float32Array, near: number, interv
   return { steps: out, tested: m.tested };
 }
 
-function same(g: Grid, list: [number[], number[]][], near: number, far: number, steps: number, chunk = 16) {
+function same(g: Grid, list: [number[], number[]][], near: number, far: number, steps: number, chunk = 16, wasm?: MarchWasm) {
   const o = Float32Array.from(list.flatMap((r) => r[0])), d = Float32Array.from(list.flatMap((r) => r[1]));
   const interval = f(f(far - near) / f(steps));
-  const want = everyInterval(g, o, d, near, interval, steps), got = marched(g, o, d, near, interval, steps, chunk);
+  const want = everyInterval(g, o, d, near, interval, steps), got = marched(g, o, d, near, interval, steps, chunk, wasm);
   const wrong: string[] = [];
   for (let r = 0; r < want.length; r++)
     if (want[r].join() !== got.steps[r].join()) wrong.push(`ray ${r} o ${list[r][0]} d ${list[r][1]}: ${got.steps[r].length} samples, want ${want[r].length}`);
@@ -156,6 +157,22 @@ describe("marching with empty-space skipping", () => {
     expect(same(g, one, 0, 6, 256).samples).toBeGreaterThan(0);
     expect(same(g, one, 6, 0, 256).samples).toBeGreaterThan(0);
     same(g, one, 2, 2, 256);
+  });
+
+  it("takes the same samples in one instance reused for other grids, octants and more rays", () => {
+    // One WebAssembly instance, as renderMarch's pool reuses them: a second grid replaces the
+    // first (its occupancy and cube tables), octants first met in a later frame get their
+    // tables then, and a frame with more rays than the last grows the memory under it.
+    const wasm = new MarchWasm(), u = rng(11), s = () => u() * 2 - 1;
+    // Rays from `origin()` through random points of the box.
+    const rays = (count: number, origin: () => number[]): [number[], number[]][] => Array.from({ length: count }, () => {
+      const from = origin();
+      return [from, [s(), s(), s()].map((v, a) => v - from[a])];
+    });
+    const upward = rays(60, () => [-3 + s() / 2, -3 + s() / 2, -3 + s() / 2]), anyway = rays(400, () => [s() * 3, s() * 3, s() * 3]);
+    const a = sparseGrid(4), b = sparseGrid(5);
+    for (const [g, list] of [[a, upward], [b, upward], [b, anyway], [a, anyway], [a, upward]] as const)
+      expect(same(g, list, 0, 6, 1024, 16, wasm).samples).toBeGreaterThan(100);
   });
 
   it("tests far fewer steps on a mostly empty grid", () => {

@@ -1,6 +1,7 @@
-// The pure TypeScript functions against tests/python/render_rays.py on the same inputs
-// (fixtures from tests/fixtures/make_fixtures.py). Sums run in nerf-render's order, numpy's
-// pairwise, so values agree to float32 rounding, not bit for bit.
+// The viewer's rendering functions (TypeScript, and assembly/march.ts's WebAssembly) against
+// tests/python/render_rays.py on the same inputs (fixtures from tests/fixtures/make_fixtures.py).
+// Sums run in nerf-render's order, numpy's pairwise, so values agree to float32 rounding, not
+// bit for bit.
 import { describe, expect, it } from "vitest";
 import ref from "../fixtures/reference.json";
 import { cameraRays, ndcRays, outputSize, pinhole, resized } from "../../src/camera";
@@ -106,6 +107,23 @@ describe("whole renders with a made-up field", () => {
     // Smaller chunks per call give the same pixels (the queue only changes batching).
     const g = (await renderMarch(r.scene.sampling, r.scene.march_steps, true, grid, fakeField, o, d, d, undefined, 16, 1e-4, 3))!;
     close(g.rgb, Array.from(f.rgb), 0);
+  });
+  it("march: frames in flight together are the frames rendered alone", async () => {
+    // Each frame marches in its own WebAssembly memory: two frames whose field calls interleave
+    // (each call waits a turn of the event loop) give the pixels each gives alone.
+    const r = ref.march, o = Float32Array.from(r.o), d = Float32Array.from(r.d);
+    const grid = { res: r.res, bound: r.bound, occupied: Uint8Array.from(r.occupied) };
+    const shifted = o.map((v, i) => (i % 3 === 0 ? v + 0.1 : v));
+    const later: Field = async (p, v, n) => { await new Promise((ok) => setTimeout(ok, 0)); return fakeField(p, v, n); };
+    const render = (origins: Float32Array, field: Field) => renderMarch(r.scene.sampling, r.scene.march_steps, true, grid, field, origins, d, d,
+      undefined, 16, 1e-4, 3);
+    const alone = [(await render(o, fakeField))!, (await render(shifted, fakeField))!];
+    const together = await Promise.all([render(o, later), render(shifted, later)]);
+    expect(alone[0].rgb).not.toEqual(alone[1].rgb);
+    for (let k = 0; k < 2; k++) {
+      expect(together[k]!.rgb).toEqual(alone[k].rgb);
+      expect(together[k]!.depth).toEqual(alone[k].depth);
+    }
   });
 });
 
