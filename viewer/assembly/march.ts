@@ -9,6 +9,8 @@
 // Memory is laid out by src/marchwasm.ts: every array is a byte offset into linear memory,
 // handed over once per grid (setGrid, setCubes) and once per frame (setRays, setState).
 
+import { contractionFactor } from "./contraction";
+
 // The grid: occupancy bytes (R³), per octant the cube table of cornerReach (R³; 0: not made).
 let OCC: usize = 0, CUBES: usize = 0, RES: i32 = 0, BOUND: f32 = 0, CONTRACTED = false;
 // The frame's rays: o, d [n, 3]; t of each step [steps]; per ray cursor, end, occupiedUntil
@@ -248,13 +250,6 @@ function axisExit(b: f64, side: f64, margin: f64, c: i32, s: i32, up: i32, first
   const x = o + tt * d;
   if (!(lo + margin <= x && x <= hi - margin)) return NaN;
   return d > 0 ? (hi - margin - o) / d : d < 0 ? (lo + margin - o) / d : Infinity;
-}
-
-/** The factor the L∞ contraction scales a point by (contraction.ts's contractionFactor). */
-@inline function contractionFactor(x: f32, y: f32, z: f32): f32 {
-  const n = max(max(abs(x), abs(y)), abs(z));
-  const r: f32 = <f32>1 / (n > 1 ? n : <f32>1);
-  return (<f32>2 - r) * r;
 }
 
 /** Ray r's next (at most `limit`) occupied samples through a contracted grid, crossing into

@@ -2,13 +2,13 @@
 // only the graph's head (the MLPs): what nerf-render does with the core's Rust encoding
 // (runtime/src/network.rs), for the same reason (onnxruntime's gathers of the table's rows are
 // the slow part of the whole graph). The encoding is core/src/field/ngp/hash_grid's and
-// spherical_harmonics.rs's: the unit point and each level's corner positions in float32 as Rust
-// computes them (Math.fround after each operation), so the same corners are read; the trilinear
-// weights and their sum in float64, rounded to float32 once (1.6× faster than rounding after
-// each operation; the features differ from Rust's by float32 rounding). The head is cut from
-// the bundle's own graph (bundle/src/ngp.rs head_graph), node for node. Pure.
+// spherical_harmonics.rs's, evaluated in WebAssembly (assembly/hashgrid.ts): the unit point and
+// each level's corner positions in float32 as Rust computes them, so the same corners are read;
+// the trilinear weights and their sum in float64, rounded to float32 once (the features differ
+// from Rust's by float32 rounding). The head is cut from the bundle's own graph
+// (bundle/src/ngp.rs head_graph), node for node.
 
-import { contractionFactor } from "./contraction";
+import { BASE, Layout, instantiate, reserve } from "./wasm";
 import { ModelReader, concatBytes, lengthDelimited, packedVarints, stringField, varintField } from "./proto";
 
 const f = Math.fround;
@@ -18,12 +18,6 @@ export const FEATURES_TENSOR = "grid.features";
 export const SH_TENSOR = "sh.output";
 /** Degree-4 spherical harmonics per direction. */
 export const SH4_DIM = 16;
-
-/** tiny-cuda-nn's hash primes y, z as int32 for Math.imul (x's is 1). */
-const PRIME_Y = 2654435761 | 0, PRIME_Z = 805459861;
-
-/** SH4_CONSTANTS of spherical_harmonics.rs, as float32. */
-const SH = [0.2820948, 0.4886025, 1.0925484, 0.9461747, 0.31539157, 0.5462742, 0.5900436, 2.8906114, 0.4570458, 0.3731763, 1.4453057].map(f);
 
 /** HashGridConfig (the `grid` of the graph's nerf.ngp metadata). */
 export interface HashGridConfig {
@@ -58,47 +52,24 @@ export function levelLayout(c: HashGridConfig, graphLayout: boolean, scales?: Ar
   return levels;
 }
 
-/** The degree-4 harmonics of the unit direction dirs[i..i + 3] (sh4), into out[at..at + 16].
- *  Read from the array rather than passed as three numbers: V8 does not inline this into the
- *  encoder's loop, and a call boxes each number argument (a scavenge every 20,000 points). */
-export function sh4(dirs: ArrayLike<number>, i: number, out: Float32Array, at: number): void {
-  const x = dirs[i], y = dirs[i + 1], z = dirs[i + 2];
-  const c = SH, xy = f(x * y), yz = f(y * z), xz = f(x * z), x2 = f(x * x), y2 = f(y * y), z2 = f(z * z);
-  out[at] = c[0];
-  out[at + 1] = f(-c[1] * y);
-  out[at + 2] = f(c[1] * z);
-  out[at + 3] = f(-c[1] * x);
-  out[at + 4] = f(c[2] * xy);
-  out[at + 5] = f(-c[2] * yz);
-  out[at + 6] = f(f(c[3] * z2) - c[4]);
-  out[at + 7] = f(-c[2] * xz);
-  out[at + 8] = f(f(c[5] * x2) - f(c[5] * y2));
-  out[at + 9] = f(f(c[6] * y) * f(f(-3 * x2) + y2));
-  out[at + 10] = f(f(c[7] * xy) * z);
-  out[at + 11] = f(f(c[8] * y) * f(1 - f(5 * z2)));
-  out[at + 12] = f(f(c[9] * z) * f(f(5 * z2) - 3));
-  out[at + 13] = f(f(c[8] * x) * f(1 - f(5 * z2)));
-  out[at + 14] = f(f(c[10] * z) * f(x2 - y2));
-  out[at + 15] = f(f(c[6] * x) * f(-x2 + f(3 * y2)));
+/** assembly/hashgrid.ts's exports (pointers are byte offsets into its memory). */
+interface Exports {
+  setGrid(table: number, levels: number, features: number, scales: number, resolutions: number, entries: number, dense: number, rows: number,
+    min0: number, min1: number, min2: number, scale0: number, scale1: number, scale2: number, contracted: boolean): void;
+  encode(points: number, viewdirs: number, n: number, unit: number, features: number, sh: number): void;
 }
 
-/** The harmonics (sh4) of `n` unit directions [n, 3] into sh [n, 16]. */
-function sh4Rows(viewdirs: Float32Array, n: number, sh: Float32Array): void {
-  for (let i = 0; i < n; i++) sh4(viewdirs, 3 * i, sh, SH4_DIM * i);
-}
-
-/** A dense level's entry e < 2·entries modulo entries: one subtraction (the graph's padded rows
- *  hold the same value there too). At module level: a closure made in the per-point loop is an
- *  object per point that V8 does not elide (a scavenge every few thousand points). */
-function wrap(e: number, entries: number): number {
-  return e >= entries ? e - entries : e;
-}
-
-/** A graph's hash grid and the box it covers (GridBound), evaluated as the Rust encoding. */
+/** A graph's hash grid and the box it covers (GridBound), evaluated as the Rust encoding, in
+ *  WebAssembly (assembly/hashgrid.ts): the table is copied into the instance's memory at the
+ *  first call, each call's points in and its features out. */
 export class HashEncoder {
   /** Features per point, L·F. */
   readonly width: number;
-  private unit = new Float32Array(0);
+  private wasm: (Exports & { memory: WebAssembly.Memory }) | null = null;
+  /** Where the table and levels end; the current call buffers' room (points) and offsets. */
+  private top = 0;
+  private room = 0;
+  private call = { points: 0, viewdirs: 0, unit: 0, features: 0, sh: 0 };
 
   constructor(readonly levels: Level[], readonly features: number, readonly table: Float32Array,
     readonly min: number[], readonly scale: number[], readonly contracted: boolean) {
@@ -108,61 +79,42 @@ export class HashEncoder {
   /** features [n, L·F] (row-major, level-major within a row) and the harmonics [n, 16] of
    *  world `points` [n, 3] and unit `viewdirs` [n, 3]. */
   encode(points: Float32Array, viewdirs: Float32Array, n: number, features: Float32Array, sh: Float32Array): void {
-    if (this.unit.length < 3 * n) this.unit = new Float32Array(3 * n);
-    this.toUnit(points, n);
-    // Level by level, so a level's part of the table is reused from cache across the points.
-    for (let l = 0; l < this.levels.length; l++) this.encodeLevel(l, n, features);
-    sh4Rows(viewdirs, n, sh);
+    const x = this.instance(n), c = this.call, buf = () => x.memory.buffer;
+    new Float32Array(buf(), c.points, 3 * n).set(points.subarray(0, 3 * n));
+    new Float32Array(buf(), c.viewdirs, 3 * n).set(viewdirs.subarray(0, 3 * n));
+    x.encode(c.points, c.viewdirs, n, c.unit, c.features, c.sh);
+    features.set(new Float32Array(buf(), c.features, this.width * n));
+    sh.set(new Float32Array(buf(), c.sh, SH4_DIM * n));
   }
 
-  /** GridBound::to_unit of `points` [n, 3] into this.unit: contracted first where the field is,
-   *  then (p − min)·scale. Each loop of encode is a function of its own, for the reason
-   *  render.ts's alphaPass gives (chromium's --trace-deopt: encode's compiled first loop fell out
-   *  at the levels' loop 14 to 38 times in four lego-ngp frames). */
-  private toUnit(points: Float32Array, n: number): void {
-    const unit = this.unit, m0 = this.min[0], m1 = this.min[1], m2 = this.min[2], s0 = this.scale[0], s1 = this.scale[1], s2 = this.scale[2];
-    const contracted = this.contracted;
-    for (let i = 0; i < n; i++) {
-      let x = points[3 * i], y = points[3 * i + 1], z = points[3 * i + 2];
-      if (contracted) { const k = contractionFactor(x, y, z); x = f(x * k); y = f(y * k); z = f(z * k); }
-      unit[3 * i] = f(f(x - m0) * s0); unit[3 * i + 1] = f(f(y - m1) * s1); unit[3 * i + 2] = f(f(z - m2) * s2);
+  /** The instance, made at the first call (an encoder that never encodes holds no copy of the
+   *  table), with room for calls of `n` points. */
+  private instance(n: number): Exports & { memory: WebAssembly.Memory } {
+    let x = this.wasm;
+    if (!x) {
+      x = instantiate<Exports>("hashgrid");
+      const L = this.levels.length, at = new Layout(BASE), table = at.take(4 * this.table.length);
+      const scales = at.take(4 * L), resolutions = at.take(4 * L), entries = at.take(4 * L), dense = at.take(4 * L), rows = at.take(4 * L);
+      reserve(x.memory, at.top, "the hash grid's table");
+      const buf = x.memory.buffer;
+      new Float32Array(buf, table, this.table.length).set(this.table);
+      new Float32Array(buf, scales, L).set(this.levels.map((v) => v.scale));
+      new Int32Array(buf, resolutions, L).set(this.levels.map((v) => v.resolution));
+      new Int32Array(buf, entries, L).set(this.levels.map((v) => v.entries));
+      new Int32Array(buf, dense, L).set(this.levels.map((v) => (v.dense ? 1 : 0)));
+      new Int32Array(buf, rows, L).set(this.levels.map((v) => v.row));
+      const [m0, m1, m2] = this.min.map(f), [s0, s1, s2] = this.scale.map(f);
+      x.setGrid(table, L, this.features, scales, resolutions, entries, dense, rows, m0, m1, m2, s0, s1, s2, this.contracted);
+      this.wasm = x; this.top = at.top;
     }
-  }
-
-  /** One level of every point (grid.rs corners and forward_level), the 8 corners unrolled. */
-  private encodeLevel(l: number, n: number, out: Float32Array): void {
-    const { scale, resolution: r, entries, dense, row } = this.levels[l];
-    const F = this.features, W = this.width, unit = this.unit, t = this.table;
-    const mask = entries - 1, base = row * F;
-    // Per axis, the corner terms: x·1, y·res, z·res² (dense) or the hash's x·1, y·P1, z·P2.
-    const sy = dense ? r : PRIME_Y, sz = dense ? r * r : PRIME_Z;
-    for (let i = 0; i < n; i++) {
-      // Clamped to [0, 1] (NaN to 0, as f32::max); pos ≥ 0.5, so truncation is the floor.
-      let u = unit[3 * i], v = unit[3 * i + 1], w = unit[3 * i + 2];
-      u = f(f((u > 0 ? (u < 1 ? u : 1) : 0) * scale) + 0.5);
-      v = f(f((v > 0 ? (v < 1 ? v : 1) : 0) * scale) + 0.5);
-      w = f(f((w > 0 ? (w < 1 ? w : 1) : 0) * scale) + 0.5);
-      const cx = u | 0, cy = v | 0, cz = w | 0;
-      const fx = u - cx, fy = v - cy, fz = w - cz, gx = 1 - fx, gy = 1 - fy, gz = 1 - fz;
-      const x0 = cx, x1 = cx + 1, y0 = Math.imul(cy, sy), y1 = Math.imul(cy + 1, sy), z0 = Math.imul(cz, sz), z1 = Math.imul(cz + 1, sz);
-      // Corner k = (bx, by, bz) = bits 0, 1, 2; weight wx · wy · wz (float64 from here on).
-      const w00 = gx * gy, w10 = fx * gy, w01 = gx * fy, w11 = fx * fy;
-      const k0 = w00 * gz, k1 = w10 * gz, k2 = w01 * gz, k3 = w11 * gz, k4 = w00 * fz, k5 = w10 * fz, k6 = w01 * fz, k7 = w11 * fz;
-      let e0, e1, e2, e3, e4, e5, e6, e7;
-      if (dense) {
-        e0 = wrap(x0 + y0 + z0, entries); e1 = wrap(x1 + y0 + z0, entries); e2 = wrap(x0 + y1 + z0, entries); e3 = wrap(x1 + y1 + z0, entries);
-        e4 = wrap(x0 + y0 + z1, entries); e5 = wrap(x1 + y0 + z1, entries); e6 = wrap(x0 + y1 + z1, entries); e7 = wrap(x1 + y1 + z1, entries);
-      } else {
-        e0 = (x0 ^ y0 ^ z0) & mask; e1 = (x1 ^ y0 ^ z0) & mask; e2 = (x0 ^ y1 ^ z0) & mask; e3 = (x1 ^ y1 ^ z0) & mask;
-        e4 = (x0 ^ y0 ^ z1) & mask; e5 = (x1 ^ y0 ^ z1) & mask; e6 = (x0 ^ y1 ^ z1) & mask; e7 = (x1 ^ y1 ^ z1) & mask;
-      }
-      e0 = base + e0 * F; e1 = base + e1 * F; e2 = base + e2 * F; e3 = base + e3 * F;
-      e4 = base + e4 * F; e5 = base + e5 * F; e6 = base + e6 * F; e7 = base + e7 * F;
-      const o = i * W + l * F;
-      for (let q = 0; q < F; q++) {
-        out[o + q] = k0 * t[e0 + q] + k1 * t[e1 + q] + k2 * t[e2 + q] + k3 * t[e3 + q] + k4 * t[e4 + q] + k5 * t[e5 + q] + k6 * t[e6 + q] + k7 * t[e7 + q];
-      }
+    if (n > this.room) {
+      const room = Math.max(n, 1024), at = new Layout(this.top);
+      this.call = { points: at.take(12 * room), viewdirs: at.take(12 * room), unit: at.take(12 * room), features: at.take(4 * this.width * room),
+        sh: at.take(4 * SH4_DIM * room) };
+      reserve(x.memory, at.top, "the hash grid's calls");
+      this.room = room;
     }
+    return x;
   }
 }
 

@@ -4,7 +4,7 @@
 // octants rays have headed into), each frame's arrays laid out above it. renderMarch takes one
 // from a pool per frame, so frames in flight never share buffers.
 
-import { MARCH_WASM } from "./march-wasm.gen";
+import { BASE, Layout, instantiate, reserve } from "./wasm";
 import { type Grid, cornerReach, octantOf } from "./march";
 import type { Segment } from "./contraction";
 
@@ -18,9 +18,7 @@ const EXP_STEPS = 4832;
 
 /** assembly/march.ts's exports (pointers are byte offsets into `memory`). */
 interface Exports {
-  memory: WebAssembly.Memory;
   tested: WebAssembly.Global;
-  heapBase(): number;
   setGrid(occ: number, cubes: number, res: number, bound: number, contracted: boolean): void;
   setRays(n: number, o: number, d: number, t: number, cursor: number, end: number, until: number, margin: number, octant: number,
     near: number, interval: number, steps: number): number;
@@ -37,26 +35,6 @@ interface Exports {
   addWhite(): void;
 }
 
-let compiled: WebAssembly.Module | null = null;
-
-/** The module, compiled once per thread (synchronously: it is small, and renderMarch runs in a worker). */
-function wasmModule(): WebAssembly.Module {
-  compiled ??= new WebAssembly.Module(Uint8Array.from(atob(MARCH_WASM), (c) => c.charCodeAt(0)));
-  return compiled;
-}
-
-/** Where our arrays start: above the module's own data (the first 64 KiB page). */
-const BASE = 65536;
-
-/** Bytes rounded up to 16. */
-const aligned = (bytes: number) => (bytes + 15) & ~15;
-
-/** Hands out byte ranges from `top` up. */
-class Layout {
-  constructor(public top: number) {}
-  take(bytes: number): number { const at = this.top; this.top += aligned(bytes); return at; }
-}
-
 /** One frame's arrays (byte offsets). */
 interface FramePtrs {
   o: number; d: number; view: number; t: number; stepInterval: number; first: number; segStart: number; segInterval: number; segSteps: number;
@@ -68,7 +46,7 @@ interface FramePtrs {
 /** One instance of assembly/march.ts with its memory. */
 export class MarchWasm {
   private static readonly idle: MarchWasm[] = [];
-  private readonly x: Exports;
+  private readonly x: Exports & { memory: WebAssembly.Memory };
   private readonly cubeTable: number;
   private grid: Grid | null = null;
   /** Where the grid's part of memory ends (frames are laid out above). */
@@ -79,8 +57,7 @@ export class MarchWasm {
   private rays = 0;
 
   constructor() {
-    this.x = new WebAssembly.Instance(wasmModule(), {}).exports as unknown as Exports;
-    if (this.x.heapBase() > BASE) throw new Error(`assembly/march.ts: its static data ends at ${this.x.heapBase()}, above ${BASE}`);
+    this.x = instantiate<Exports>("march");
     const at = new Layout(BASE), expTable = at.take(8 * (EXP_STEPS + 1));
     this.cubeTable = at.take(4 * 8);
     this.gridTop = at.top;
@@ -97,10 +74,7 @@ export class MarchWasm {
   static take(): MarchWasm { return MarchWasm.idle.pop() ?? new MarchWasm(); }
   give(): void { MarchWasm.idle.push(this); }
 
-  private reserve(top: number): void {
-    const mem = this.x.memory, have = mem.buffer.byteLength;
-    if (top > have) mem.grow(Math.ceil((top - have) / 65536));
-  }
+  private reserve(top: number): void { reserve(this.x.memory, top, "marching"); }
 
   private get buffer(): ArrayBuffer { return this.x.memory.buffer; }
   f32(at: number, len: number): Float32Array { return new Float32Array(this.buffer, at, len); }
@@ -120,8 +94,8 @@ export class MarchWasm {
     }
     for (let q = 0; q < 8; q++) {
       if (!(octants & (1 << q)) || this.octants & (1 << q)) continue;
-      const at = this.gridTop;
-      this.gridTop += aligned(cells);
+      const after = new Layout(this.gridTop), at = after.take(cells);
+      this.gridTop = after.top;
       this.reserve(this.gridTop);
       new Uint8Array(this.buffer, at, cells).set(cornerReach(grid, q));
       this.i32(this.cubeTable, 8)[q] = at;

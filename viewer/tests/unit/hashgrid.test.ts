@@ -1,4 +1,4 @@
-// The hash grid evaluated in TypeScript (hashgrid.ts): corner indices and weights on
+// The hash grid evaluated in WebAssembly (hashgrid.ts, assembly/hashgrid.ts): corner indices and weights on
 // hand-computed cases, the harmonics, and the split (encoder + the graph's head) against the
 // whole graph in onnxruntime-web on the fixtures.
 import { describe, expect, it } from "vitest";
@@ -6,7 +6,7 @@ import { readFileSync } from "node:fs";
 import { resolve } from "node:path";
 import { graphInfo } from "../../src/bundle";
 import { concatBytes, lengthDelimited, stringField } from "../../src/proto";
-import { FEATURES_TENSOR, HashEncoder, type HashGridConfig, SH4_DIM, SH_TENSOR, levelLayout, sh4, splitHashGrid } from "../../src/hashgrid";
+import { FEATURES_TENSOR, HashEncoder, type HashGridConfig, SH4_DIM, SH_TENSOR, levelLayout, splitHashGrid } from "../../src/hashgrid";
 
 const REPO = resolve(import.meta.dirname, "../../..");
 const bytesOf = (path: string) => new Uint8Array(readFileSync(resolve(REPO, path)));
@@ -78,14 +78,16 @@ describe("HashEncoder", () => {
   });
 });
 
-describe("sh4", () => {
-  it("gives the degree-4 harmonics of +z and +x", () => {
-    const out = new Float32Array(SH4_DIM);
-    sh4([0, 0, 1], 0, out, 0);
+describe("the harmonics", () => {
+  it("are the degree-4 harmonics of +z and +x", () => {
+    // One point (any), the direction's 16 harmonics.
+    const enc = new HashEncoder(levelLayout(one({}), false), 1, new Float32Array(8), [0, 0, 0], [1, 1, 1], false);
+    const out = new Float32Array(SH4_DIM), sh4 = (dir: number[]) => enc.encode(new Float32Array(3), Float32Array.from(dir), 1, new Float32Array(1), out);
+    sh4([0, 0, 1]);
     const c = [0.2820948, 0.4886025, 1.0925484, 0.9461747, 0.31539157, 0.5462742, 0.5900436, 2.8906114, 0.4570458, 0.3731763, 1.4453057].map(Math.fround);
     // Signed zeros as IEEE products give them (0·(1 − 5) = −0 at 11 and 13).
     expect(Array.from(out)).toEqual([c[0], -0, c[1], -0, 0, -0, Math.fround(c[3] - c[4]), -0, 0, 0, 0, -0, Math.fround(2 * c[9]), -0, 0, 0]);
-    sh4([1, 0, 0], 0, out, 0);
+    sh4([1, 0, 0]);
     // x = 1: −c1·x at 3, c5·x² at 8, c8·x·(1 − 0) at 13, c6·x·(−x²) at 15, −c4 at 6.
     expect([out[3], out[6], out[8], out[13], out[15]]).toEqual([-c[1], -c[4], c[5], c[8], -c[6]]);
   });
