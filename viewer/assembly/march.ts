@@ -1,13 +1,16 @@
 // The marched render path's per-sample loops in WebAssembly (AssemblyScript, built into
-// src/march-wasm.gen.ts by scripts/wasm.mjs): marching through the occupancy grid (straight, as
+// src/wasm.gen.ts by scripts/wasm.mjs): marching through the occupancy grid (straight, as
 // core/src/render/grid.rs's occupied_samples; contracted, over march_segments), gathering a field
 // call's samples, and compositing. The arithmetic is that of the TypeScript it replaced, bit for
 // bit (f32 where that used Math.fround, f64 elsewhere); the tests compare the samples with
 // testing every interval and the frames with the reference renderer. Why WebAssembly: chromium
-// ran these loops as JavaScript at ≈ 70–85 ns a sample against ≈ 35 here (see docs/viewer.md).
+// ran these loops as JavaScript at 70–85 ns a sample, against 51 in Node; the loop around the
+// field of a lego-ngp frame went from 0.24–0.30 to 0.17–0.18 s (docs/viewer.md, Speed).
 //
-// Memory is laid out by src/marchwasm.ts: every array is a byte offset into linear memory,
-// handed over once per grid (setGrid, setCubes) and once per frame (setRays, setState).
+// Memory is laid out by src/marcher.ts: every array is a byte offset into linear memory,
+// handed over once per grid (setGrid: the occupancy and a table of 8 pointers to the octants'
+// cube tables, filled as rays first head into an octant) and once per frame (setRays or
+// setContractedRays, then setState).
 
 import { contractionFactor } from "./contraction";
 
@@ -33,7 +36,7 @@ const OCCUPIED_CUBE: i32 = 0x80;
 @inline function f64At(p: usize, i: i32): f64 { return load<f64>(p + (<usize>i << 3)); }
 
 /** The grid every later frame marches: occupancy.bin's cells at `occ` (R³ bytes), `cubes` 8
- *  pointers to cube tables (setCubes), `contracted` for NERFOCC2. */
+ *  pointers to cube tables (march.ts's cornerReach; 0 until made), `contracted` for NERFOCC2. */
 export function setGrid(occ: usize, cubes: usize, res: i32, bound: f32, contracted: bool): void {
   OCC = occ; CUBES = cubes; RES = res; BOUND = bound; CONTRACTED = contracted;
 }

@@ -77,8 +77,8 @@ export class MarchWasm {
   private reserve(top: number): void { reserve(this.x.memory, top, "marching"); }
 
   private get buffer(): ArrayBuffer { return this.x.memory.buffer; }
-  f32(at: number, len: number): Float32Array { return new Float32Array(this.buffer, at, len); }
-  i32(at: number, len: number): Int32Array { return new Int32Array(this.buffer, at, len); }
+  private f32(at: number, len: number): Float32Array { return new Float32Array(this.buffer, at, len); }
+  private i32(at: number, len: number): Int32Array { return new Int32Array(this.buffer, at, len); }
 
   /** Marching `grid` from now on, its cube tables for the octants of `octants` (bits) in memory. */
   private useGrid(grid: Grid, octants: number): void {
