@@ -8,6 +8,7 @@
 // inputs and outputs above them.
 
 import { contractionFactor } from "./contraction";
+import { f32At, i32At, setF32 } from "./memory";
 
 /** tiny-cuda-nn's hash primes y, z (x's is 1), as i32 (products wrap as Math.imul's). */
 const PRIME_Y: i32 = <i32>2654435761, PRIME_Z: i32 = 805459861;
@@ -17,10 +18,6 @@ const PRIME_Y: i32 = <i32>2654435761, PRIME_Z: i32 = 805459861;
 let TABLE: usize = 0, SCALES: usize = 0, RESOLUTIONS: usize = 0, ENTRIES: usize = 0, DENSE: usize = 0, ROWS: usize = 0;
 let LEVELS: i32 = 0, F: i32 = 0, CONTRACTED = false;
 let MIN0: f32 = 0, MIN1: f32 = 0, MIN2: f32 = 0, SCALE0: f32 = 0, SCALE1: f32 = 0, SCALE2: f32 = 0;
-
-@inline function f32At(p: usize, i: i32): f32 { return load<f32>(p + (<usize>i << 2)); }
-@inline function i32At(p: usize, i: i32): i32 { return load<i32>(p + (<usize>i << 2)); }
-@inline function setF32(p: usize, i: i32, v: f32): void { store<f32>(p + (<usize>i << 2), v); }
 
 /** The grid every later call encodes: the table, `levels` levels (arrays of that length: scale,
  *  resolution, entries, dense, first row), `features` per level; the box's min and scale

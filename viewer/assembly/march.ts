@@ -13,6 +13,7 @@
 // setContractedRays, then setState).
 
 import { contractionFactor } from "./contraction";
+import { f32At, f64At, i32At, setF32, setI32 } from "./memory";
 
 // The grid: occupancy bytes (R³), per octant the cube table of cornerReach (R³; 0: not made).
 let OCC: usize = 0, CUBES: usize = 0, RES: i32 = 0, BOUND: f32 = 0, CONTRACTED = false;
@@ -29,12 +30,6 @@ export let tested: f64 = 0;
 /** An occupied cell's bit in a cube table's value (march.ts's OCCUPIED_CUBE). */
 const OCCUPIED_CUBE: i32 = 0x80;
 
-@inline function f32At(p: usize, i: i32): f32 { return load<f32>(p + (<usize>i << 2)); }
-@inline function i32At(p: usize, i: i32): i32 { return load<i32>(p + (<usize>i << 2)); }
-@inline function setF32(p: usize, i: i32, v: f32): void { store<f32>(p + (<usize>i << 2), v); }
-@inline function setI32(p: usize, i: i32, v: i32): void { store<i32>(p + (<usize>i << 2), v); }
-@inline function f64At(p: usize, i: i32): f64 { return load<f64>(p + (<usize>i << 3)); }
-
 /** The grid every later frame marches: occupancy.bin's cells at `occ` (R³ bytes), `cubes` 8
  *  pointers to cube tables (march.ts's cornerReach; 0 until made), `contracted` for NERFOCC2. */
 export function setGrid(occ: usize, cubes: usize, res: i32, bound: f32, contracted: bool): void {
@@ -47,36 +42,26 @@ export function setGrid(occ: usize, cubes: usize, res: i32, bound: f32, contract
 }
 
 /** A straight grid's frame: rays o, d [n, 3] (pointers), `steps` equal intervals from `near`.
- *  Fills t, and per ray its octant, margin, cursor and end (RayMarch's constructor); returns
- *  the octants the rays head into (bit q for octant q) so their cube tables can be made. */
+ *  Fills t, and per ray its octant, margin, cursor and end (the caller has made the cube tables
+ *  of the octants the rays head into). */
 export function setRays(n: i32, o: usize, d: usize, t: usize, cursor: usize, end: usize, until: usize, margin: usize,
-  octant: usize, near: f64, interval: f64, steps: i32): i32 {
+  octant: usize, near: f64, interval: f64, steps: i32): void {
   O = o; D = d; STEP_T = t; CURSOR = cursor; END = end; UNTIL = until; MARGIN = margin; OCTANT = octant;
   NEAR = near; INTERVAL = interval; STEPS = steps; tested = 0;
   const fn = <f32>near, fi = <f32>interval;
   for (let k = 0; k < steps; k++) setF32(t, k, fn + <f32>(<f64>k + 0.5) * fi);
-  const b = BOUND, bd = <f64>b, R = RES, cellSide: f64 = (2 * bd) / <f64>R;
-  // The largest coordinate magnitude a sample reaches bounds its rounding error.
-  const tMax = max(abs(<f64>(fn + <f32>(<f64>steps + 0.5) * fi)), abs(near));
-  const intervalOk = isFinite(interval) && interval > 0 && isFinite(near);
-  let octants = 0;
+  const bd = <f64>BOUND, R = RES, cellSide: f64 = (2 * bd) / <f64>R;
   for (let r = 0; r < n; r++) {
     const ox = <f64>f32At(o, 3 * r), oy = <f64>f32At(o, 3 * r + 1), oz = <f64>f32At(o, 3 * r + 2);
     const dx = f32At(d, 3 * r), dy = f32At(d, 3 * r + 1), dz = f32At(d, 3 * r + 2);
-    const q = octantOf(dx, dy, dz);
-    store<u8>(octant + <usize>r, <u8>q);
-    octants |= 1 << q;
+    store<u8>(octant + <usize>r, <u8>octantOf(dx, dy, dz));
     setI32(until, r, 0);
-    if (!intervalOk || !isFinite(ox + oy + oz + <f64>dx + <f64>dy + <f64>dz)) {
-      store<f64>(margin + (<usize>r << 3), NaN); setI32(cursor, r, 0); setI32(end, r, steps);
-      continue;
-    }
-    const ddx = <f64>dx, ddy = <f64>dy, ddz = <f64>dz;
-    const scale = max(max(bd, abs(ox) + tMax * abs(ddx)), max(abs(oy) + tMax * abs(ddy), abs(oz) + tMax * abs(ddz)));
-    const m = 1e-3 * cellSide + 64 * 1.1920928955078125e-7 * scale;
+    const m = marginOf(r, near, interval, steps);
     store<f64>(margin + (<usize>r << 3), m);
+    if (isNaN(m)) { setI32(cursor, r, 0); setI32(end, r, steps); continue; }
+    const ddx = <f64>dx, ddy = <f64>dy, ddz = <f64>dz;
     const lo = -bd - m, hi = -bd + <f64>R * cellSide + m;
-    // The slab test against the grid's box grown by the margin (march.ts's slab).
+    // The slab test against the grid's box grown by the margin.
     let enter: f64 = -Infinity, leave: f64 = Infinity, miss = false;
     if (ddx == 0) { if (ox < lo || ox > hi) miss = true; }
     else { const u = (lo - ox) / ddx, v = (hi - ox) / ddx; enter = max(enter, min(u, v)); leave = min(leave, max(u, v)); }
@@ -88,7 +73,21 @@ export function setRays(n: i32, o: usize, d: usize, t: usize, cursor: usize, end
     setI32(cursor, r, stepAt(enter, -1));
     setI32(end, r, stepAt(leave, 1));
   }
-  return octants;
+}
+
+/** grid.rs's margin of ray r's slab tests over `steps` intervals of `interval` from `start` (a
+ *  straight grid's march, or a segment of a contracted one): far above the f32 error of a
+ *  step's t and position there. NaN: those steps are tested one by one (non-finite inputs). */
+function marginOf(r: i32, start: f64, interval: f64, steps: i32): f64 {
+  let sum: f64 = 0;
+  for (let a = 0; a < 3; a++) sum += <f64>f32At(O, 3 * r + a);
+  for (let a = 0; a < 3; a++) sum += <f64>f32At(D, 3 * r + a);
+  if (!isFinite(sum + start) || !(interval > 0) || !isFinite(interval)) return NaN;
+  // The largest coordinate magnitude a sample reaches bounds its rounding error.
+  const tMax = max(abs(<f64>(<f32>start + <f32>(<f64>steps + 0.5) * <f32>interval)), abs(start));
+  let scale = <f64>BOUND;
+  for (let a = 0; a < 3; a++) scale = max(scale, abs(<f64>f32At(O, 3 * r + a)) + tMax * abs(<f64>f32At(D, 3 * r + a)));
+  return 1e-3 * ((2 * <f64>BOUND) / <f64>RES) + 64 * 1.1920928955078125e-7 * scale;
 }
 
 /** The first step whose exact t is at or after `t`, moved by `by`, clamped to 0..=steps. */
@@ -191,9 +190,9 @@ function nextStraight(r: i32, limit: i32, pts: usize, ks: usize, at: i32): i32 {
 /** A contracted grid's frame (nerf-rs-scene-3): rays o, d [n, 3] marched along `segments`
  *  segments (start and interval f32, steps i32 each: contraction.ts's marchSegments). Fills t
  *  and the interval of every step, each segment's first step, and per ray its octant, cursor (0)
- *  and end (every step); returns the octants the rays head into (as setRays). */
+ *  and end (every step), as setRays. */
 export function setContractedRays(n: i32, o: usize, d: usize, segStart: usize, segInterval: usize, segSteps: usize, segments: i32,
-  t: usize, stepInterval: usize, first: usize, cursor: usize, end: usize, until: usize, octant: usize): i32 {
+  t: usize, stepInterval: usize, first: usize, cursor: usize, end: usize, until: usize, octant: usize): void {
   O = o; D = d; STEP_T = t; CURSOR = cursor; END = end; UNTIL = until; OCTANT = octant; MARGIN = 0; NEAR = 0; INTERVAL = 0;
   STEP_INTERVAL = stepInterval; FIRST = first; SEG_START = segStart; SEG_INTERVAL = segInterval; SEG_STEPS = segSteps; SEGMENTS = segments;
   tested = 0;
@@ -206,14 +205,10 @@ export function setContractedRays(n: i32, o: usize, d: usize, segStart: usize, s
   }
   setI32(first, segments, k);
   STEPS = k;
-  let octants = 0;
   for (let r = 0; r < n; r++) {
-    const q = octantOf(f32At(d, 3 * r), f32At(d, 3 * r + 1), f32At(d, 3 * r + 2));
-    store<u8>(octant + <usize>r, <u8>q);
-    octants |= 1 << q;
+    store<u8>(octant + <usize>r, <u8>octantOf(f32At(d, 3 * r), f32At(d, 3 * r + 1), f32At(d, 3 * r + 2)));
     setI32(cursor, r, 0); setI32(end, r, k); setI32(until, r, 0);
   }
-  return octants;
 }
 
 /** The segment holding step k. */
@@ -223,18 +218,9 @@ function segmentOf(k: i32): i32 {
   return s;
 }
 
-/** grid.rs's margin of ray r's slab tests in segment s: far above the f32 error of a step's t
- *  and position there. NaN: the segment is tested step by step (non-finite inputs). */
+/** marginOf segment s. */
 function segmentMargin(r: i32, s: i32): f64 {
-  const start = <f64>f32At(SEG_START, s), interval = <f64>f32At(SEG_INTERVAL, s), steps = i32At(SEG_STEPS, s);
-  let sum: f64 = 0;
-  for (let a = 0; a < 3; a++) sum += <f64>f32At(O, 3 * r + a);
-  for (let a = 0; a < 3; a++) sum += <f64>f32At(D, 3 * r + a);
-  if (!isFinite(sum + start) || !(interval > 0) || !isFinite(interval)) return NaN;
-  const tMax = max(abs(<f64>(<f32>start + <f32>(<f64>steps + 0.5) * <f32>interval)), abs(start));
-  let scale = <f64>BOUND;
-  for (let a = 0; a < 3; a++) scale = max(scale, abs(<f64>f32At(O, 3 * r + a)) + tMax * abs(<f64>f32At(D, 3 * r + a)));
-  return 1e-3 * ((2 * <f64>BOUND) / <f64>RES) + 64 * 1.1920928955078125e-7 * scale;
+  return marginOf(r, <f64>f32At(SEG_START, s), <f64>f32At(SEG_INTERVAL, s), i32At(SEG_STEPS, s));
 }
 
 /** The first step of segment s whose exact t is at or after `t` (grid.rs's step_at). */

@@ -21,9 +21,9 @@ interface Exports {
   tested: WebAssembly.Global;
   setGrid(occ: number, cubes: number, res: number, bound: number, contracted: boolean): void;
   setRays(n: number, o: number, d: number, t: number, cursor: number, end: number, until: number, margin: number, octant: number,
-    near: number, interval: number, steps: number): number;
+    near: number, interval: number, steps: number): void;
   setContractedRays(n: number, o: number, d: number, segStart: number, segInterval: number, segSteps: number, segments: number,
-    t: number, stepInterval: number, first: number, cursor: number, end: number, until: number, octant: number): number;
+    t: number, stepInterval: number, first: number, cursor: number, end: number, until: number, octant: number): void;
   next(r: number, limit: number, pts: number, ks: number, at: number): number;
   setState(rays: number, rgb: number, depth: number, acc: number, trans: number, done: number, dNorm: number, stepLen: number,
     view: number, queue: number, ring: number, segment: number, minTransmittance: number, pts: number, dirs: number, ks: number,
@@ -146,11 +146,9 @@ export class MarchWasm {
     return this.p;
   }
 
-  /** Views of the frame's step t, each step's interval (contracted), and per ray cursor and end. */
+  /** Views of the frame's step t and each step's interval (contracted). */
   t(steps: number): Float32Array { return this.f32(this.ptrs.t, steps); }
   stepInterval(steps: number): Float32Array { return this.f32(this.ptrs.stepInterval, steps); }
-  get cursor(): Int32Array { return this.i32(this.ptrs.cursor, this.rays); }
-  get end(): Int32Array { return this.i32(this.ptrs.end, this.rays); }
   get tested(): number { return this.x.tested.value as number; }
 
   /** Ray r's next (at most `max` ≤ MAX_POINTS) occupied samples, copied into pts[3·at…] and ks[at…]. */
@@ -202,13 +200,11 @@ function octantsOf(d: Float32Array): number {
   return mask;
 }
 
-/** A march of every ray through a grid, in one MarchWasm: `t[k]` of each step, `cursor[r]` the
- *  next step ray r tests, `end[r]` one past its last; `next` hands out a ray's next samples. */
+/** A march of every ray through a grid, in one MarchWasm, as the tests drive it (renderMarch
+ *  drives the MarchWasm itself): `t[k]` of each step; `next` hands out a ray's next samples. */
 abstract class Marcher {
   abstract readonly t: Float32Array;
-  constructor(readonly wasm: MarchWasm) {}
-  get cursor(): Int32Array { return this.wasm.cursor; }
-  get end(): Int32Array { return this.wasm.end; }
+  constructor(private readonly wasm: MarchWasm) {}
   /** Steps tested so far, all rays together (the work skipping saves). */
   get tested(): number { return this.wasm.tested; }
   /** Ray r's next (at most `max`) occupied samples: positions into pts[3·at…], step indices

@@ -5,7 +5,7 @@
 import { norm3 } from "./camera";
 import { marchSegments } from "./contraction";
 import type { Grid } from "./march";
-import { ContractedMarch, MAX_POINTS, MarchWasm, RayMarch } from "./marcher";
+import { MAX_POINTS, MarchWasm } from "./marcher";
 
 const f = Math.fround;
 
@@ -167,12 +167,12 @@ export interface MarchTiming { marchMs: number; compositeMs: number }
 export async function renderMarch(s: Sampling, steps: number, white: boolean, grid: Grid, field: Field,
   o: Float32Array, d: Float32Array, view: Float32Array, cancelled: Cancelled = () => false,
   segment = 16, minTransmittance = 1e-4, chunk = segment, timing?: MarchTiming): Promise<Frame | null> {
-  const near = f(s.near), far = f(s.far);
   let t0 = performance.now(), marchMs = 0, compositeMs = 0, points = 0;
+  const segments = marchSegments(s.near, s.far, steps, !!grid.contracted);
   const wasm = MarchWasm.take();
   try {
-    if (grid.contracted) new ContractedMarch(grid, o, d, marchSegments(near, far, steps, true), wasm);
-    else new RayMarch(grid, o, d, near, f(f(far - near) / f(steps)), steps, wasm);
+    if (grid.contracted) wasm.contracted(grid, o, d, segments);
+    else wasm.straight(grid, o, d, segments[0].start, segments[0].interval, steps);
     let queued = wasm.start(viewDirs(view), segment, minTransmittance);
     while (queued > 0) {
       if (cancelled()) return null;
